@@ -1,0 +1,27 @@
+# Each target creates .venv on first use and installs what it needs.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# Warp compiles kernels once per source change; keep them in the checkout so tests and CI reuse them.
+export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
+
+.PHONY: test demo bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test,bench]"
+	touch $@
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+demo: $(STAMP)
+	$(VENV)/bin/vogjax demo --out demo_out
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_voxelmap.py --out benchmarks/results
+
+clean:
+	rm -rf $(VENV) .cache demo_out

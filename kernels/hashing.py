@@ -1,0 +1,163 @@
+"""Open-addressing hash table from integer block coordinates to block slots.
+
+A block is an 8x8x8 cube of voxels. Its coordinates (voxel key >> 3 on each axis) are packed
+into one int64, 21 bits per axis, so the table compares and swaps single words. Linear probing;
+the host keeps the load factor at or below one half, so every probe loop ends.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+BLOCK_EDGE = 8
+BLOCK_VOXELS = 512
+EMPTY_KEY = wp.constant(wp.int64(-1))
+# Voxel keys must lie in [-VOXEL_KEY_LIMIT, VOXEL_KEY_LIMIT) so that block coordinates fit 21 bits.
+VOXEL_KEY_LIMIT = 1 << 23
+VOXEL_KEY_LIMIT_C = wp.constant(VOXEL_KEY_LIMIT)
+BLOCK_BIAS = wp.constant(1 << 20)
+FIELD_MASK = wp.constant(wp.int64((1 << 21) - 1))
+
+
+@wp.func
+def block_of(voxel: wp.vec3i) -> wp.vec3i:
+    # Arithmetic shift floors negative keys too.
+    return wp.vec3i(voxel[0] >> 3, voxel[1] >> 3, voxel[2] >> 3)
+
+
+@wp.func
+def index_in_block(voxel: wp.vec3i) -> int:
+    return ((voxel[0] & 7) * 8 + (voxel[1] & 7)) * 8 + (voxel[2] & 7)
+
+
+@wp.func
+def voxel_key_in_range(voxel: wp.vec3i) -> bool:
+    lim = VOXEL_KEY_LIMIT_C
+    return (voxel[0] >= -lim and voxel[0] < lim and voxel[1] >= -lim and voxel[1] < lim
+            and voxel[2] >= -lim and voxel[2] < lim)
+
+
+@wp.func
+def pack_block(block: wp.vec3i) -> wp.int64:
+    x = wp.int64(block[0] + BLOCK_BIAS)
+    y = wp.int64(block[1] + BLOCK_BIAS)
+    z = wp.int64(block[2] + BLOCK_BIAS)
+    return (x << wp.int64(42)) | (y << wp.int64(21)) | z
+
+
+@wp.func
+def mix32(x: wp.uint32) -> wp.uint32:
+    # Integer finaliser (two multiply-xorshift rounds): spreads neighbouring blocks apart.
+    h = ((x >> wp.uint32(16)) ^ x) * wp.uint32(0x45D9F3B)
+    h = ((h >> wp.uint32(16)) ^ h) * wp.uint32(0x45D9F3B)
+    return (h >> wp.uint32(16)) ^ h
+
+
+@wp.func
+def hash_key(key: wp.int64) -> wp.uint32:
+    x = wp.uint32((key >> wp.int64(42)) & FIELD_MASK)
+    y = wp.uint32((key >> wp.int64(21)) & FIELD_MASK)
+    z = wp.uint32(key & FIELD_MASK)
+    return mix32(x * wp.uint32(73856093) ^ y * wp.uint32(19349663) ^ z * wp.uint32(83492791))
+
+
+@wp.func
+def first_probe(key: wp.int64, capacity: int) -> int:
+    return int(hash_key(key) & wp.uint32(capacity - 1))
+
+
+@wp.func
+def find_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+              key: wp.int64) -> int:
+    """Slot of the block with packed coordinates `key`, or -1 if the table lacks it."""
+    capacity = table_keys.shape[0]
+    i = first_probe(key, capacity)
+    for _probe in range(capacity):
+        k = table_keys[i]
+        if k == key:
+            return table_slots[i]
+        if k == EMPTY_KEY:
+            return -1
+        i = (i + 1) & (capacity - 1)
+    return -1
+
+
+@wp.func
+def find_voxel_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                    voxel: wp.vec3i) -> int:
+    if not voxel_key_in_range(voxel):
+        return -1
+    return find_slot(table_keys, table_slots, pack_block(block_of(voxel)))
+
+
+@wp.kernel
+def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64)):
+    tid = wp.tid()
+    key = keys[tid]
+    if key == EMPTY_KEY:
+        return
+    capacity = table_keys.shape[0]
+    i = first_probe(key, capacity)
+    for _probe in range(capacity):
+        k = table_keys[i]
+        if k == key:
+            return
+        if k == EMPTY_KEY:
+            previous = wp.atomic_cas(table_keys, i, EMPTY_KEY, key)
+            if previous == EMPTY_KEY or previous == key:
+                return
+        i = (i + 1) & (capacity - 1)
+
+
+@wp.kernel
+def flag_unslotted(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                   flags: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    flags[tid] = wp.where(table_keys[tid] != EMPTY_KEY and table_slots[tid] < 0, 1, 0)
+
+
+@wp.kernel
+def assign_slots(table_keys: wp.array(dtype=wp.int64), flags: wp.array(dtype=wp.int32),
+                 inclusive_offsets: wp.array(dtype=wp.int32), first_slot: int,
+                 table_slots: wp.array(dtype=wp.int32), slot_keys: wp.array(dtype=wp.int64)):
+    tid = wp.tid()
+    if flags[tid] == 1:
+        slot = first_slot + inclusive_offsets[tid] - 1
+        table_slots[tid] = slot
+        slot_keys[slot] = table_keys[tid]
+
+
+@wp.kernel
+def reinsert_slots(slot_keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
+                   table_slots: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    key = slot_keys[tid]
+    if key == EMPTY_KEY:
+        return
+    capacity = table_keys.shape[0]
+    i = first_probe(key, capacity)
+    for _probe in range(capacity):
+        if wp.atomic_cas(table_keys, i, EMPTY_KEY, key) == EMPTY_KEY:
+            table_slots[i] = tid
+            return
+        i = (i + 1) & (capacity - 1)
+
+
+@wp.kernel
+def count_missing(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
+                  table_slots: wp.array(dtype=wp.int32), missing: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    key = keys[tid]
+    if key != EMPTY_KEY:
+        if find_slot(table_keys, table_slots, key) < 0:
+            wp.atomic_add(missing, 0, 1)
+
+
+@wp.kernel
+def resolve_slots(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
+                  table_slots: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    key = keys[tid]
+    slots[tid] = -1
+    if key != EMPTY_KEY:
+        slots[tid] = find_slot(table_keys, table_slots, key)

@@ -1,0 +1,126 @@
+"""Read-only queries: point look-ups, planner ray casts and line queries.
+
+Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer NaN too.
+"""
+
+import warp as wp
+
+from .hashing import BLOCK_VOXELS, block_of, find_voxel_slot, index_in_block
+from .integration import walk_of_beam
+from .traversal import VoxelWalk, ray_walk_begin, same_voxel, ray_walk_next, segment_walk_next, voxel_key
+
+wp.set_module_options({"enable_backward": False})
+
+STATE_UNKNOWN = wp.constant(0)
+STATE_FREE = wp.constant(1)
+STATE_OCCUPIED = wp.constant(2)
+
+
+@wp.func
+def value_in_slot(slot: int, voxel: wp.vec3i, log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
+    if slot < 0:
+        return wp.nan
+    return log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)]
+
+
+@wp.func
+def classify(value: wp.float32, log_occupied: wp.float32, log_free: wp.float32) -> int:
+    if wp.isnan(value):
+        return STATE_UNKNOWN
+    if value >= log_occupied:
+        return STATE_OCCUPIED
+    if value <= log_free:
+        return STATE_FREE
+    return STATE_UNKNOWN
+
+
+@wp.func
+def known_or_zero(value: wp.float32) -> wp.float32:
+    return wp.where(wp.isnan(value), wp.float32(0.0), value)
+
+
+@wp.kernel
+def lookup_log_odds(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
+                    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                    log_odds: wp.array(dtype=wp.float32), values: wp.array(dtype=wp.float32)):
+    tid = wp.tid()
+    voxel = voxel_key(points[tid], inv_resolution)
+    values[tid] = value_in_slot(find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds)
+
+
+@wp.kernel
+def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+              max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
+              inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
+              table_slots: wp.array(dtype=wp.int32), log_odds: wp.array(dtype=wp.float32),
+              log_occupied: wp.float32, log_free: wp.float32,
+              hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+              num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    max_range = max_ranges[tid]
+    w = ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, max_range)
+    unknown = int(0)
+    free = int(0)
+    found = bool(False)
+    t_hit = max_range
+    slot = int(-1)
+    current = wp.vec3i(0, 0, 0)
+    have_block = bool(False)
+    while w.active:
+        b = block_of(w.voxel)
+        if not have_block or not same_voxel(b, current):
+            slot = find_voxel_slot(table_keys, table_slots, w.voxel)
+            current = b
+            have_block = True
+        state = classify(value_in_slot(slot, w.voxel, log_odds), log_occupied, log_free)
+        if state == STATE_OCCUPIED:
+            found = True
+            t_hit = w.t_entry
+            break
+        if state == STATE_FREE:
+            free += 1
+        else:
+            unknown += 1
+        w = ray_walk_next(w)
+    hit[tid] = found
+    distance[tid] = wp.float32(t_hit)
+    num_unknown[tid] = unknown
+    num_free[tid] = free
+
+
+@wp.func
+def segment_walk_of(start: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
+                    inv_resolution: wp.float64) -> VoxelWalk:
+    # A line query visits the voxels a beam from start to end would: free ones plus the end voxel.
+    return walk_of_beam(start, wp.vec4f(end[0], end[1], end[2], 1.0), resolution, inv_resolution)
+
+
+@wp.kernel
+def count_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
+                      resolution: wp.float64, inv_resolution: wp.float64,
+                      counts: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
+    n = int(1)
+    while w.active:
+        n += 1
+        w = segment_walk_next(w)
+    counts[tid] = n
+
+
+@wp.kernel
+def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
+                     resolution: wp.float64, inv_resolution: wp.float64,
+                     table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                     log_odds: wp.array(dtype=wp.float32), values: wp.array2d(dtype=wp.float32)):
+    tid = wp.tid()
+    w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
+    n = int(0)
+    while w.active:
+        values[tid, n] = known_or_zero(value_in_slot(
+            find_voxel_slot(table_keys, table_slots, w.voxel), w.voxel, log_odds))
+        n += 1
+        w = segment_walk_next(w)
+    last = voxel_key(ends[tid], inv_resolution)
+    values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, last), last, log_odds))
+

@@ -1,0 +1,22 @@
+"""Warp start-up and device choice."""
+
+import functools
+
+import warp as wp
+
+
+@functools.cache
+def init() -> None:
+    wp.config.quiet = True
+    wp.init()
+
+
+def resolve_device(device=None) -> "wp.Device":
+    """`None` picks the first CUDA device when there is one, else the CPU."""
+    init()
+    if device is None:
+        return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
+    try:
+        return wp.get_device(device)
+    except (RuntimeError, ValueError, KeyError) as error:
+        raise ValueError(f"device {device!r} is not available: {error}") from None

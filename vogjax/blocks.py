@@ -1,0 +1,166 @@
+"""Hashed storage of dense 8x8x8 voxel blocks in Warp arrays.
+
+The table maps packed block coordinates to slots; each voxel layer is one flat array of
+`block_capacity * 512` values, block `slot` at `[slot*512, (slot+1)*512)`. Table and pool grow
+(the table by rehashing) before anything would overflow: nothing is ever dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from vogjax.kernels import hashing
+
+BLOCK_EDGE = hashing.BLOCK_EDGE
+BLOCK_VOXELS = hashing.BLOCK_VOXELS
+EMPTY_KEY = -1
+_FIELD = (1 << 21) - 1
+_BIAS = 1 << 20
+_MIN_TABLE = 1024
+_MIN_BLOCKS = 64
+
+
+def pack_blocks(blocks: np.ndarray) -> np.ndarray:
+    """(K,3) int block coordinates -> (K,) packed int64 keys (host side of `hashing.pack_block`)."""
+    b = blocks.astype(np.int64) + _BIAS
+    return (b[:, 0] << 42) | (b[:, 1] << 21) | b[:, 2]
+
+
+def unpack_blocks(keys: np.ndarray) -> np.ndarray:
+    """(K,) packed keys -> (K,3) int64 block coordinates."""
+    keys = keys.astype(np.int64)
+    return np.stack([(keys >> 42) & _FIELD, (keys >> 21) & _FIELD, keys & _FIELD], axis=1) - _BIAS
+
+
+def voxel_offsets() -> np.ndarray:
+    """(512,3) voxel offsets inside a block, in the order of `hashing.index_in_block`."""
+    i = np.arange(BLOCK_VOXELS)
+    return np.stack([i // 64, (i // 8) % 8, i % 8], axis=1)
+
+
+class BlockStore:
+    """Blocks of voxel layers addressed by an open-addressing hash table on one device.
+
+    layers: name -> (Warp scalar dtype, value of a voxel nobody wrote yet)
+    """
+
+    def __init__(self, device, layers: dict, block_capacity: int = _MIN_BLOCKS):
+        self.device = device
+        self.layer_specs = dict(layers)
+        self.num_blocks = 0
+        self.table_keys = wp.full(_MIN_TABLE, EMPTY_KEY, dtype=wp.int64, device=device)
+        self.table_slots = wp.full(_MIN_TABLE, -1, dtype=wp.int32, device=device)
+        capacity = max(block_capacity, _MIN_BLOCKS)
+        self.slot_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=device)
+        # Per-block scratch for batched integration: index among the blocks a batch touches.
+        self.touch_index = wp.full(capacity, -1, dtype=wp.int32, device=device)
+        self.layers = {name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
+                       for name, (dtype, fill) in self.layer_specs.items()}
+
+    @property
+    def block_capacity(self) -> int:
+        return self.slot_keys.shape[0]
+
+    @property
+    def table_capacity(self) -> int:
+        return self.table_keys.shape[0]
+
+    def memory_bytes(self) -> int:
+        arrays = [self.table_keys, self.table_slots, self.slot_keys, self.touch_index,
+                  *self.layers.values()]
+        return int(sum(a.capacity for a in arrays))
+
+    def ensure_blocks(self, keys: wp.array) -> None:
+        """Allocate a block for every packed key in `keys` (EMPTY_KEY entries are skipped)."""
+        if keys.shape[0] == 0:
+            return
+        if 2 * (self.num_blocks + keys.shape[0]) > self.table_capacity:
+            # The bound counts duplicates; count what is really missing before growing.
+            missing = wp.zeros(1, dtype=wp.int32, device=self.device)
+            wp.launch(hashing.count_missing, dim=keys.shape[0],
+                      inputs=[keys, self.table_keys, self.table_slots], outputs=[missing],
+                      device=self.device)
+            self._reserve_table(self.num_blocks + int(missing.numpy()[0]))
+        wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
+                  outputs=[self.table_keys], device=self.device)
+        flags = wp.empty(self.table_capacity, dtype=wp.int32, device=self.device)
+        wp.launch(hashing.flag_unslotted, dim=self.table_capacity,
+                  inputs=[self.table_keys, self.table_slots], outputs=[flags], device=self.device)
+        offsets = wp.empty_like(flags)
+        wp.utils.array_scan(flags, offsets, inclusive=True)
+        new_blocks = int(offsets[self.table_capacity - 1:].numpy()[0])
+        if new_blocks == 0:
+            return
+        self._reserve_blocks(self.num_blocks + new_blocks)
+        wp.launch(hashing.assign_slots, dim=self.table_capacity,
+                  inputs=[self.table_keys, flags, offsets, self.num_blocks],
+                  outputs=[self.table_slots, self.slot_keys], device=self.device)
+        self.num_blocks += new_blocks
+
+    def find(self, keys: wp.array) -> wp.array:
+        """Slots of packed keys, -1 where absent."""
+        slots = wp.empty(keys.shape[0], dtype=wp.int32, device=self.device)
+        if keys.shape[0]:
+            wp.launch(hashing.resolve_slots, dim=keys.shape[0],
+                      inputs=[keys, self.table_keys, self.table_slots], outputs=[slots],
+                      device=self.device)
+        return slots
+
+    def host_blocks(self) -> tuple[np.ndarray, dict]:
+        """Packed keys (K,) sorted ascending and each layer as (K,512), copied to the host."""
+        keys = self.slot_keys.numpy()[: self.num_blocks]
+        order = np.argsort(keys, kind="stable")
+        layers = {name: array.numpy()[: self.num_blocks * BLOCK_VOXELS]
+                  .reshape(self.num_blocks, BLOCK_VOXELS)[order]
+                  for name, array in self.layers.items()}
+        return keys[order], layers
+
+    @classmethod
+    def from_host(cls, device, layers: dict, keys: np.ndarray, values: dict) -> "BlockStore":
+        """A store holding host blocks: packed keys (K,) and each layer as (K,512)."""
+        count = int(keys.shape[0])
+        store = cls(device, layers, block_capacity=count)
+        if count == 0:
+            return store
+        store.slot_keys[:count].assign(wp.array(keys.astype(np.int64), dtype=wp.int64, device=device))
+        for name, array in values.items():
+            flat = np.ascontiguousarray(array).reshape(-1)
+            store.layers[name][: flat.shape[0]].assign(
+                wp.array(flat, dtype=store.layer_specs[name][0], device=device))
+        store.num_blocks = count
+        capacity = _MIN_TABLE
+        while capacity < 2 * count:
+            capacity *= 2
+        store._rehash(capacity)
+        return store
+
+    def _reserve_table(self, num_keys: int) -> None:
+        capacity = self.table_capacity
+        while capacity < 2 * num_keys:
+            capacity *= 2
+        if capacity != self.table_capacity:
+            self._rehash(capacity)
+
+    def _rehash(self, capacity: int) -> None:
+        self.table_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=self.device)
+        self.table_slots = wp.full(capacity, -1, dtype=wp.int32, device=self.device)
+        if self.num_blocks:
+            wp.launch(hashing.reinsert_slots, dim=self.num_blocks, inputs=[self.slot_keys],
+                      outputs=[self.table_keys, self.table_slots], device=self.device)
+
+    def _reserve_blocks(self, num_blocks: int) -> None:
+        old = self.block_capacity
+        if num_blocks <= old:
+            return
+        capacity = max(num_blocks, old + old // 2)
+        self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
+        self.touch_index = _grown(self.touch_index, capacity, -1)
+        for name, (_, fill) in self.layer_specs.items():
+            self.layers[name] = _grown(self.layers[name], capacity * BLOCK_VOXELS, fill)
+
+
+def _grown(array: wp.array, size: int, fill) -> wp.array:
+    grown = wp.full(size, fill, dtype=array.dtype, device=array.device)
+    wp.copy(grown, array, count=array.shape[0])
+    return grown

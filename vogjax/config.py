@@ -1,0 +1,90 @@
+"""Frozen configuration dataclasses."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+
+def logodds(probability: float) -> np.float32:
+    """Log-odds of a probability, rounded to float32 the way OctoMap stores it."""
+    return np.float32(math.log(probability / (1.0 - probability)))
+
+
+@dataclasses.dataclass(frozen=True)
+class MapConfig:
+    """Occupancy map parameters. Defaults are those of Sodhi et al. (IV-C) with OctoMap's clamping.
+
+    voxel_size:          edge of a voxel, metres; voxel k covers [k*s, (k+1)*s) on each axis
+    prob_hit, prob_miss: inverse sensor model for the endpoint and the cells a beam crosses
+    occupied_threshold:  probability at or above which a voxel is OCCUPIED
+    free_threshold:      probability at or below which a voxel is FREE (between: UNKNOWN)
+    clamp_min, clamp_max: probabilities the log-odds are clamped to after every update
+    max_range:           beams longer than this give free space up to it and no hit, metres
+    """
+
+    voxel_size: float = 0.1
+    prob_hit: float = 0.75
+    prob_miss: float = 0.2
+    occupied_threshold: float = 0.7
+    free_threshold: float = 0.3
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    max_range: float = 11.0
+
+    def __post_init__(self):
+        for name in ("voxel_size", "max_range"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0 and not math.isnan(value)):
+                raise ValueError(f"MapConfig.{name} must be a positive number, got {value!r}")
+        if not math.isfinite(self.voxel_size) or self.voxel_size < 1e-4:
+            raise ValueError(f"MapConfig.voxel_size must be finite and >= 1e-4 m, got {self.voxel_size!r}")
+        for name in ("prob_hit", "prob_miss", "occupied_threshold", "free_threshold",
+                     "clamp_min", "clamp_max"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 < value < 1.0):
+                raise ValueError(f"MapConfig.{name} must lie strictly between 0 and 1, got {value!r}")
+        if not self.prob_miss < 0.5 < self.prob_hit:
+            raise ValueError("MapConfig.prob_hit must exceed 0.5 and MapConfig.prob_miss lie below it")
+        if not self.free_threshold <= self.occupied_threshold:
+            raise ValueError("MapConfig.free_threshold must not exceed MapConfig.occupied_threshold")
+        if not self.clamp_min < self.clamp_max:
+            raise ValueError("MapConfig.clamp_min must lie below MapConfig.clamp_max")
+
+    # Log-odds forms, float32 like the stored values.
+    @property
+    def log_hit(self) -> np.float32:
+        return logodds(self.prob_hit)
+
+    @property
+    def log_miss(self) -> np.float32:
+        return logodds(self.prob_miss)
+
+    @property
+    def log_occupied(self) -> np.float32:
+        return logodds(self.occupied_threshold)
+
+    @property
+    def log_free(self) -> np.float32:
+        return logodds(self.free_threshold)
+
+    @property
+    def log_clamp_min(self) -> np.float32:
+        return logodds(self.clamp_min)
+
+    @property
+    def log_clamp_max(self) -> np.float32:
+        return logodds(self.clamp_max)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "MapConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown MapConfig keys: {', '.join(unknown)}")
+        return cls(**values)

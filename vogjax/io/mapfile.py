@@ -1,0 +1,90 @@
+"""One-file map format: magic, format version, JSON header, npz payload, SHA-256 of the payload.
+
+    bytes 0-7    b"VOGJAXMP"
+    bytes 8-11   format version, little-endian uint32
+    bytes 12-19  header length H, little-endian uint64
+    H bytes      UTF-8 JSON: kind, metadata (config, ...), payload size and SHA-256
+    rest         numpy .npz archive of the arrays (no pickles)
+
+Files are written to a temporary file beside the target and renamed over it, so a reader never
+sees half a file and a crash never leaves one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import struct
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+MAGIC = b"VOGJAXMP"
+FORMAT_VERSION = 1
+_PREFIX = struct.Struct("<8sIQ")
+
+
+def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
+    path = Path(path)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    payload = buffer.getvalue()
+    header = json.dumps({"kind": kind, "metadata": metadata, "payload_bytes": len(payload),
+                         "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(_PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)))
+            f.write(header)
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def read_map_file(path, kind: str) -> tuple[dict, dict]:
+    """(metadata, arrays) of a map file of the given kind; ValueError if it is not one, or damaged."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise ValueError(f"path {str(path)!r} cannot be read: {error.strerror}") from None
+    if len(data) < _PREFIX.size:
+        raise ValueError(f"path {str(path)!r} is truncated or not a vogjax map file")
+    magic, version, header_bytes = _PREFIX.unpack_from(data)
+    if magic != MAGIC:
+        raise ValueError(f"path {str(path)!r} is not a vogjax map file")
+    if version > FORMAT_VERSION:
+        raise ValueError(f"path {str(path)!r} has map format version {version}; this vogjax reads "
+                         f"up to version {FORMAT_VERSION}: upgrade vogjax")
+    end_of_header = _PREFIX.size + header_bytes
+    if end_of_header > len(data):
+        raise ValueError(f"path {str(path)!r} is truncated (header incomplete)")
+    try:
+        header = json.loads(data[_PREFIX.size:end_of_header])
+        payload_bytes = int(header["payload_bytes"])
+        checksum = header["payload_sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise ValueError(f"path {str(path)!r} has a damaged header") from None
+    payload = data[end_of_header:]
+    if len(payload) != payload_bytes:
+        raise ValueError(f"path {str(path)!r} is truncated or has trailing data "
+                         f"({len(payload)} payload bytes, expected {payload_bytes})")
+    if hashlib.sha256(payload).hexdigest() != checksum:
+        raise ValueError(f"path {str(path)!r} is corrupt: checksum mismatch")
+    if header.get("kind") != kind:
+        raise ValueError(f"path {str(path)!r} holds a {header.get('kind')!r}, not a {kind!r}")
+    try:
+        with np.load(io.BytesIO(payload), allow_pickle=False) as archive:
+            arrays = {name: archive[name] for name in archive.files}
+    except (ValueError, OSError, zipfile.BadZipFile) as error:
+        raise ValueError(f"path {str(path)!r} has an unreadable payload: {error}") from None
+    return header["metadata"], arrays

@@ -1,0 +1,56 @@
+"""Argument checks shared by the public API. Each raises ValueError naming the argument."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """A finite floating array of the given shape (-1: any length), converted to `dtype`."""
+    try:
+        array = np.asarray(value)
+    except Exception as error:  # jax/torch conversion errors are not ValueErrors
+        raise ValueError(f"{name} could not be read as an array: {error}") from None
+    if array.dtype.kind not in "fi" or array.dtype == np.bool_:
+        raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    if array.ndim != len(shape) or any(s not in (-1, a) for s, a in zip(shape, array.shape)):
+        wanted = "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
+        raise ValueError(f"{name} must have shape {wanted}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return np.ascontiguousarray(array, dtype=dtype)
+
+
+def positive_range(name: str, value, count: int) -> np.ndarray:
+    """A positive finite range, scalar or one per ray, as a float64 array of length `count`."""
+    if np.isscalar(value):
+        if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
+            raise ValueError(f"{name} must be a number or an array of numbers, got {value!r}")
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        return np.full(count, float(value), dtype=np.float64)
+    array = float_array(name, value, (count,), np.float64)
+    if np.any(array <= 0):
+        raise ValueError(f"{name} must be positive")
+    return array
+
+
+def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
+    """Integers in [0, upper), one per element, as int32."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "iu":
+        raise ValueError(f"{name} must hold integers, got dtype {array.dtype}")
+    if array.shape != (count,):
+        raise ValueError(f"{name} must have shape ({count},), got {array.shape}")
+    if count and (array.min() < 0 or array.max() >= upper):
+        raise ValueError(f"{name} values must lie in [0, {upper})")
+    return np.ascontiguousarray(array, dtype=np.int32)
+
+
+def within_key_range(name: str, array: np.ndarray, voxel_size: float, limit: int) -> None:
+    """Coordinates must map to voxel keys the block table can pack."""
+    if array.size and np.abs(array).max() / voxel_size >= limit - 2:
+        raise ValueError(f"{name} lies too far from the origin for voxel size {voxel_size} m "
+                         f"(at most {(limit - 2) * voxel_size:.0f} m per axis)")
