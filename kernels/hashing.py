@@ -90,41 +90,43 @@ def find_voxel_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(
     return find_slot(table_keys, table_slots, pack_block(block_of(voxel)))
 
 
+# Probes an insertion may take before it gives up; the host then grows the table and retries.
+MAX_INSERT_PROBES = wp.constant(128)
+
+
 @wp.kernel
-def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64)):
+def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
+                new_positions: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
+    """Insert packed keys; list where new ones landed (counters[0]); counters[1] += failures."""
     tid = wp.tid()
     key = keys[tid]
     if key == EMPTY_KEY:
         return
     capacity = table_keys.shape[0]
     i = first_probe(key, capacity)
-    for _probe in range(capacity):
+    for _probe in range(MAX_INSERT_PROBES):
         k = table_keys[i]
         if k == key:
             return
         if k == EMPTY_KEY:
             previous = wp.atomic_cas(table_keys, i, EMPTY_KEY, key)
-            if previous == EMPTY_KEY or previous == key:
+            if previous == EMPTY_KEY:
+                new_positions[wp.atomic_add(counters, 0, 1)] = i
+                return
+            if previous == key:
                 return
         i = (i + 1) & (capacity - 1)
+    wp.atomic_add(counters, 1, 1)
 
 
 @wp.kernel
-def flag_unslotted(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                   flags: wp.array(dtype=wp.int32)):
+def assign_slots(new_positions: wp.array(dtype=wp.int32), first_slot: int,
+                 table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                 slot_keys: wp.array(dtype=wp.int64)):
     tid = wp.tid()
-    flags[tid] = wp.where(table_keys[tid] != EMPTY_KEY and table_slots[tid] < 0, 1, 0)
-
-
-@wp.kernel
-def assign_slots(table_keys: wp.array(dtype=wp.int64), flags: wp.array(dtype=wp.int32),
-                 inclusive_offsets: wp.array(dtype=wp.int32), first_slot: int,
-                 table_slots: wp.array(dtype=wp.int32), slot_keys: wp.array(dtype=wp.int64)):
-    tid = wp.tid()
-    if flags[tid] == 1:
-        slot = first_slot + inclusive_offsets[tid] - 1
-        table_slots[tid] = slot
-        slot_keys[slot] = table_keys[tid]
+    position = new_positions[tid]
+    table_slots[position] = first_slot + tid
+    slot_keys[first_slot + tid] = table_keys[position]
 
 
 @wp.kernel
@@ -141,16 +143,6 @@ def reinsert_slots(slot_keys: wp.array(dtype=wp.int64), table_keys: wp.array(dty
             table_slots[i] = tid
             return
         i = (i + 1) & (capacity - 1)
-
-
-@wp.kernel
-def count_missing(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
-                  table_slots: wp.array(dtype=wp.int32), missing: wp.array(dtype=wp.int32)):
-    tid = wp.tid()
-    key = keys[tid]
-    if key != EMPTY_KEY:
-        if find_slot(table_keys, table_slots, key) < 0:
-            wp.atomic_add(missing, 0, 1)
 
 
 @wp.kernel

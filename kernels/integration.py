@@ -11,8 +11,9 @@ A batch of scans is integrated in three passes, all over rays:
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, block_of, find_slot, index_in_block, pack_block
-from .traversal import VoxelWalk, norm_like_octomap, same_voxel, segment_walk_begin, segment_walk_next, voxel_key
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_slot, index_in_block, pack_block
+from .traversal import (VoxelWalk, norm_like_octomap, same_voxel, segment_continues, segment_walk_begin,
+                        voxel_key, walk_step)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -57,14 +58,18 @@ def list_ray_blocks(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
     capacity = block_keys.shape[1]
     n = int(0)
     current = wp.vec3i(0, 0, 0)
-    while w.active:
-        b = block_of(w.voxel)
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active, steps = bool(w.active), int(0)
+    while active:
+        b = block_of(voxel)
         if n == 0 or not same_voxel(b, current):
             if n < capacity:
                 block_keys[tid, n] = pack_block(b)
             n += 1
             current = b
-        w = segment_walk_next(w)
+        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+        active = segment_continues(voxel, t_max, w, steps)
     if end[3] > 0.0:
         b = block_of(voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution))
         if n == 0 or not same_voxel(b, current):
@@ -75,12 +80,15 @@ def list_ray_blocks(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
 
 
 @wp.kernel
-def claim_touched_blocks(slots: wp.array(dtype=wp.int32), touch_index: wp.array(dtype=wp.int32),
+def claim_touched_blocks(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
+                         table_slots: wp.array(dtype=wp.int32), touch_index: wp.array(dtype=wp.int32),
                          touched_slots: wp.array(dtype=wp.int32), num_touched: wp.array(dtype=wp.int32)):
+    """Number the distinct blocks of `keys`: touch_index[slot] = position in touched_slots."""
     tid = wp.tid()
-    slot = slots[tid]
-    if slot < 0:
+    key = keys[tid]
+    if key == EMPTY_KEY:
         return
+    slot = find_slot(table_keys, table_slots, key)
     if wp.atomic_cas(touch_index, slot, -1, -2) == -1:
         c = wp.atomic_add(num_touched, 0, 1)
         touched_slots[c] = slot
@@ -120,13 +128,17 @@ def mark_ray_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
     w = walk_of_beam(origin, end, resolution, inv_resolution)
     slot = int(-1)
     current = wp.vec3i(0, 0, 0)
-    while w.active:
-        b = block_of(w.voxel)
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active, steps = bool(w.active), int(0)
+    while active:
+        b = block_of(voxel)
         if slot < 0 or not same_voxel(b, current):
             slot = find_slot(table_keys, table_slots, pack_block(b))
             current = b
-        mark_voxel(w.voxel, slot, touch_index, words_per_voxel, word, free_bit, marks)
-        w = segment_walk_next(w)
+        mark_voxel(voxel, slot, touch_index, words_per_voxel, word, free_bit, marks)
+        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+        active = segment_continues(voxel, t_max, w, steps)
     if end[3] > 0.0:
         v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
         b = block_of(v)
@@ -136,16 +148,18 @@ def mark_ray_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
 
 
 @wp.kernel
-def apply_marks(touched_slots: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64),
+def apply_marks(touched_slots: wp.array(dtype=wp.int32), first: int, marks: wp.array2d(dtype=wp.uint64),
                 words_per_voxel: int, log_hit: wp.float32, log_miss: wp.float32,
                 clamp_min: wp.float32, clamp_max: wp.float32, log_odds: wp.array(dtype=wp.float32)):
-    tid = wp.tid()
+    tid = first + wp.tid()  # voxel among the touched blocks' voxels
     compact = tid // BLOCK_VOXELS
     i = touched_slots[compact] * BLOCK_VOXELS + tid % BLOCK_VOXELS
     value = log_odds[i]
     changed = bool(False)
     for word in range(words_per_voxel):
-        m = marks[tid * words_per_voxel + word]
+        m = wp.uint64(0)
+        for copy in range(marks.shape[0]):  # one copy per CPU thread that marked
+            m = m | marks[copy, tid * words_per_voxel + word]
         for _scan in range(SCANS_PER_WORD):
             if m == wp.uint64(0):
                 break

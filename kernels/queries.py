@@ -7,7 +7,7 @@ import warp as wp
 
 from .hashing import BLOCK_VOXELS, block_of, find_voxel_slot, index_in_block
 from .integration import walk_of_beam
-from .traversal import VoxelWalk, ray_walk_begin, same_voxel, ray_walk_next, segment_walk_next, voxel_key
+from .traversal import VoxelWalk, ray_walk_begin, same_voxel, segment_continues, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -66,22 +66,25 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     slot = int(-1)
     current = wp.vec3i(0, 0, 0)
     have_block = bool(False)
-    while w.active:
-        b = block_of(w.voxel)
+    voxel, t_max, t_entry = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    steps = int(0)
+    while t_entry < max_range and steps <= w.max_steps:
+        b = block_of(voxel)
         if not have_block or not same_voxel(b, current):
-            slot = find_voxel_slot(table_keys, table_slots, w.voxel)
+            slot = find_voxel_slot(table_keys, table_slots, voxel)
             current = b
             have_block = True
-        state = classify(value_in_slot(slot, w.voxel, log_odds), log_occupied, log_free)
+        state = classify(value_in_slot(slot, voxel, log_odds), log_occupied, log_free)
         if state == STATE_OCCUPIED:
             found = True
-            t_hit = w.t_entry
+            t_hit = t_entry
             break
         if state == STATE_FREE:
             free += 1
         else:
             unknown += 1
-        w = ray_walk_next(w)
+        voxel, t_max, t_entry = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)
     num_unknown[tid] = unknown
@@ -102,9 +105,12 @@ def count_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.
     tid = wp.tid()
     w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
     n = int(1)
-    while w.active:
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active = bool(w.active)
+    while active:
         n += 1
-        w = segment_walk_next(w)
+        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        active = segment_continues(voxel, t_max, w, n - 1)
     counts[tid] = n
 
 
@@ -116,11 +122,14 @@ def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.v
     tid = wp.tid()
     w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
     n = int(0)
-    while w.active:
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active = bool(w.active)
+    while active:
         values[tid, n] = known_or_zero(value_in_slot(
-            find_voxel_slot(table_keys, table_slots, w.voxel), w.voxel, log_odds))
+            find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds))
         n += 1
-        w = segment_walk_next(w)
+        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        active = segment_continues(voxel, t_max, w, n)
     last = voxel_key(ends[tid], inv_resolution)
     values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, last), last, log_odds))
 

@@ -18,15 +18,20 @@ FAR = wp.constant(wp.float64(1.0e300))
 
 @wp.struct
 class VoxelWalk:
-    voxel: wp.vec3i  # the voxel the walk is in
+    """Where a walk starts and the per-axis constants it steps with.
+
+    The moving state (current voxel, t_max, entry distance) lives in the caller's locals and is
+    advanced by `walk_step`: copying a whole struct every step costs several times the step.
+    """
+
+    voxel: wp.vec3i  # first voxel
     last: wp.vec3i  # segment walks stop on reaching this voxel (it is not visited)
     step: wp.vec3i  # -1, 0 or +1 per axis
-    t_max: wp.vec3d  # distance along the ray to the next voxel boundary, per axis
+    t_max: wp.vec3d  # distance along the ray to the first voxel boundary, per axis
     t_delta: wp.vec3d  # distance between boundaries, per axis
-    t_entry: wp.float64  # distance at which the walk entered `voxel`
-    length: wp.float64  # segment length
-    steps_left: int  # bound on the remaining steps, against float round-off
-    active: bool  # the walk is in a voxel it should visit
+    length: wp.float64  # segment length, or the range of a ray
+    max_steps: int  # bound on the steps, against float round-off
+    active: bool  # the first voxel is to be visited
 
 
 @wp.func
@@ -74,7 +79,6 @@ def segment_walk_begin(origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
     d = wp.vec3f(end[0] - origin[0], end[1] - origin[1], end[2] - origin[2])
     length = wp.float32(norm_like_octomap(d))
     w.length = wp.float64(length)
-    w.t_entry = wp.float64(0.0)
     w.step = wp.vec3i(0, 0, 0)
     w.t_max = wp.vec3d(FAR, FAR, FAR)
     w.t_delta = wp.vec3d(FAR, FAR, FAR)
@@ -90,7 +94,7 @@ def segment_walk_begin(origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
             border = border + wp.float64(wp.float32(wp.float64(w.step[i]) * resolution * half))
             w.t_max[i] = (border - wp.float64(origin[i])) / wp.float64(direction)
             w.t_delta[i] = resolution / wp.abs(wp.float64(direction))
-    w.steps_left = l1_distance(w.voxel, w.last) + 2
+    w.max_steps = l1_distance(w.voxel, w.last) + 2
     w.active = not same_voxel(w.voxel, w.last)
     return w
 
@@ -102,7 +106,6 @@ def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64
     w.voxel = voxel_key_d(origin, inv_resolution)
     w.last = w.voxel
     w.length = max_range
-    w.t_entry = wp.float64(0.0)
     w.step = wp.vec3i(0, 0, 0)
     w.t_max = wp.vec3d(FAR, FAR, FAR)
     w.t_delta = wp.vec3d(FAR, FAR, FAR)
@@ -115,43 +118,30 @@ def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64
             w.t_max[i] = (wp.float64(w.voxel[i]) * resolution - origin[i]) / direction[i]
         if w.step[i] != 0:
             w.t_delta[i] = resolution / wp.abs(direction[i])
-    w.steps_left = 3 * int(max_range * inv_resolution) + 6
+    w.max_steps = 3 * int(max_range * inv_resolution) + 6
     w.active = max_range > wp.float64(0.0)
     return w
 
 
 @wp.func
-def walk_step(w: VoxelWalk) -> VoxelWalk:
-    """Move to the next voxel (OctoMap's tie-breaking: strict comparisons, z wins ties)."""
-    dim = int(2)
-    if w.t_max[0] < w.t_max[1]:
-        if w.t_max[0] < w.t_max[2]:
-            dim = 0
-    elif w.t_max[1] < w.t_max[2]:
-        dim = 1
-    r = w
-    r.t_entry = w.t_max[dim]
-    r.voxel[dim] = w.voxel[dim] + w.step[dim]
-    r.t_max[dim] = w.t_max[dim] + w.t_delta[dim]
-    r.steps_left = w.steps_left - 1
-    return r
+def walk_step(voxel: wp.vec3i, step: wp.vec3i, t_max: wp.vec3d, t_delta: wp.vec3d):
+    """Next voxel, its t_max and the distance at which the walk enters it.
+
+    OctoMap's tie-breaking: strict comparisons, so z wins three-way ties and y beats z.
+    """
+    if t_max[0] < t_max[1] and t_max[0] < t_max[2]:
+        return (wp.vec3i(voxel[0] + step[0], voxel[1], voxel[2]),
+                wp.vec3d(t_max[0] + t_delta[0], t_max[1], t_max[2]), t_max[0])
+    if t_max[1] < t_max[2] and not t_max[0] < t_max[1]:
+        return (wp.vec3i(voxel[0], voxel[1] + step[1], voxel[2]),
+                wp.vec3d(t_max[0], t_max[1] + t_delta[1], t_max[2]), t_max[1])
+    return (wp.vec3i(voxel[0], voxel[1], voxel[2] + step[2]),
+            wp.vec3d(t_max[0], t_max[1], t_max[2] + t_delta[2]), t_max[2])
 
 
 @wp.func
-def segment_walk_next(w: VoxelWalk) -> VoxelWalk:
-    r = walk_step(w)
-    if same_voxel(r.voxel, r.last):
-        r.active = False
-    elif wp.min(wp.min(r.t_max[0], r.t_max[1]), r.t_max[2]) > r.length:
-        # OctoMap's guard: round-off carried the walk past the end voxel.
-        r.active = False
-    if r.steps_left < 0:
-        r.active = False
-    return r
-
-
-@wp.func
-def ray_walk_next(w: VoxelWalk) -> VoxelWalk:
-    r = walk_step(w)
-    r.active = r.t_entry < r.length and r.steps_left >= 0
-    return r
+def segment_continues(voxel: wp.vec3i, t_max: wp.vec3d, w: VoxelWalk, steps: int) -> bool:
+    # OctoMap stops on reaching the end voxel, or when round-off carried it past the end.
+    return (not same_voxel(voxel, w.last)
+            and wp.min(wp.min(t_max[0], t_max[1]), t_max[2]) <= w.length
+            and steps <= w.max_steps)

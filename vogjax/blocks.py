@@ -75,28 +75,21 @@ class BlockStore:
         """Allocate a block for every packed key in `keys` (EMPTY_KEY entries are skipped)."""
         if keys.shape[0] == 0:
             return
-        if 2 * (self.num_blocks + keys.shape[0]) > self.table_capacity:
-            # The bound counts duplicates; count what is really missing before growing.
-            missing = wp.zeros(1, dtype=wp.int32, device=self.device)
-            wp.launch(hashing.count_missing, dim=keys.shape[0],
-                      inputs=[keys, self.table_keys, self.table_slots], outputs=[missing],
-                      device=self.device)
-            self._reserve_table(self.num_blocks + int(missing.numpy()[0]))
-        wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
-                  outputs=[self.table_keys], device=self.device)
-        flags = wp.empty(self.table_capacity, dtype=wp.int32, device=self.device)
-        wp.launch(hashing.flag_unslotted, dim=self.table_capacity,
-                  inputs=[self.table_keys, self.table_slots], outputs=[flags], device=self.device)
-        offsets = wp.empty_like(flags)
-        wp.utils.array_scan(flags, offsets, inclusive=True)
-        new_blocks = int(offsets[self.table_capacity - 1:].numpy()[0])
-        if new_blocks == 0:
-            return
-        self._reserve_blocks(self.num_blocks + new_blocks)
-        wp.launch(hashing.assign_slots, dim=self.table_capacity,
-                  inputs=[self.table_keys, flags, offsets, self.num_blocks],
-                  outputs=[self.table_slots, self.slot_keys], device=self.device)
-        self.num_blocks += new_blocks
+        new_positions = wp.empty(keys.shape[0], dtype=wp.int32, device=self.device)
+        while True:
+            counters = wp.zeros(2, dtype=wp.int32, device=self.device)
+            wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
+                      outputs=[self.table_keys, new_positions, counters], device=self.device)
+            new_blocks, failed = (int(c) for c in counters.numpy())
+            if new_blocks:
+                self._reserve_blocks(self.num_blocks + new_blocks)
+                wp.launch(hashing.assign_slots, dim=new_blocks, inputs=[new_positions, self.num_blocks],
+                          outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
+                self.num_blocks += new_blocks
+            if failed or 2 * self.num_blocks > self.table_capacity:
+                self._reserve_table(self.num_blocks + max(failed, self.num_blocks // 2))
+            if not failed:
+                return
 
     def find(self, keys: wp.array) -> wp.array:
         """Slots of packed keys, -1 where absent."""
@@ -136,6 +129,7 @@ class BlockStore:
         return store
 
     def _reserve_table(self, num_keys: int) -> None:
+        """Grow the table so `num_keys` keys fill at most half of it."""
         capacity = self.table_capacity
         while capacity < 2 * num_keys:
             capacity *= 2
@@ -153,7 +147,7 @@ class BlockStore:
         old = self.block_capacity
         if num_blocks <= old:
             return
-        capacity = max(num_blocks, old + old // 2)
+        capacity = max(num_blocks, old + old // 4)
         self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
         self.touch_index = _grown(self.touch_index, capacity, -1)
         for name, (_, fill) in self.layer_specs.items():

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import math
-import os
 
 import numpy as np
 import warp as wp
 
-from vogjax import _warp
+from vogjax import _warp, parallel
 from vogjax.blocks import BLOCK_VOXELS, BlockStore, pack_blocks, unpack_blocks, voxel_offsets
 from vogjax.config import MapConfig
 from vogjax.io import read_map_file, write_map_file
@@ -25,8 +23,6 @@ OCCUPIED = 2
 SCANS_PER_PASS = 64
 # Bound on the per-pass mark scratch; a pass above it is split in two.
 MARK_BUDGET_BYTES = 256 << 20
-# Read-only CPU queries are split across threads above this many rays (a launch drops the GIL).
-PARALLEL_QUERY_MIN = 4096
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,7 +90,7 @@ class VoxelMap:
         """One pass over at most SCANS_PER_PASS scans (ray_scan indexes `origins`)."""
         if points.shape[0] == 0:
             return
-        cfg, device = self.config, self.device
+        cfg, device, store = self.config, self.device, self._store
         resolution = np.float64(cfg.voxel_size)
         inv_resolution = np.float64(1.0 / cfg.voxel_size)
         lengths = np.linalg.norm(points - origins[ray_scan], axis=1)
@@ -105,31 +101,36 @@ class VoxelMap:
         d_points = wp.array(points, dtype=wp.vec3f, device=device)
         d_scan = wp.array(ray_scan, dtype=wp.int32, device=device)
         num_rays = points.shape[0]
-        trace_args = [d_origins, d_points, d_scan, np.float64(cfg.max_range), resolution, inv_resolution]
+        parts = parallel.num_parts(device, num_rays)
+
+        def beams(lo, hi):
+            return [d_origins, d_points[lo:hi], d_scan[lo:hi], np.float64(cfg.max_range),
+                    resolution, inv_resolution]
 
         # 1. the blocks every beam touches, then allocate them
         while True:
             block_keys = wp.full((num_rays, max_blocks), hashing.EMPTY_KEY, dtype=wp.int64, device=device)
             counts = wp.empty(num_rays, dtype=wp.int32, device=device)
-            wp.launch(integration.list_ray_blocks, dim=num_rays, inputs=trace_args,
-                      outputs=[block_keys, counts], device=device)
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                integration.list_ray_blocks, dim=hi - lo, inputs=beams(lo, hi),
+                outputs=[block_keys[lo:hi], counts[lo:hi]], device=device), num_rays, parts)
             most = int(counts.numpy().max())
             if most <= max_blocks:
                 break
             max_blocks = most  # round-off made a beam longer than the bound: list again
         keys = block_keys.flatten()
-        self._store.ensure_blocks(keys)
+        store.ensure_blocks(keys)
 
         # 2. number the blocks this pass touches, for a compact mark scratch
-        store = self._store
         touched_slots = wp.empty(keys.shape[0], dtype=wp.int32, device=device)
         num_touched = wp.zeros(1, dtype=wp.int32, device=device)
         wp.launch(integration.claim_touched_blocks, dim=keys.shape[0],
-                  inputs=[store.find(keys), store.touch_index], outputs=[touched_slots, num_touched],
-                  device=device)
+                  inputs=[keys, store.table_keys, store.table_slots, store.touch_index],
+                  outputs=[touched_slots, num_touched], device=device)
         touched = int(num_touched.numpy()[0])
         words = (origins.shape[0] + integration.SCANS_PER_WORD - 1) // integration.SCANS_PER_WORD
-        if touched * BLOCK_VOXELS * words * 8 > MARK_BUDGET_BYTES and origins.shape[0] > 1:
+        marks_size = touched * BLOCK_VOXELS * words
+        if parts * marks_size * 8 > MARK_BUDGET_BYTES and origins.shape[0] > 1:
             wp.launch(integration.release_touched_blocks, dim=touched, inputs=[touched_slots],
                       outputs=[store.touch_index], device=device)
             half = origins.shape[0] // 2
@@ -138,15 +139,20 @@ class VoxelMap:
             self._integrate(origins[half:], points[split:], ray_scan[split:] - half)
             return
 
-        # 3. mark free/occupied per scan and voxel, 4. replay the scans in order per voxel
-        marks = wp.zeros(touched * BLOCK_VOXELS * words, dtype=wp.uint64, device=device)
-        wp.launch(integration.mark_ray_voxels, dim=num_rays,
-                  inputs=[*trace_args, store.table_keys, store.table_slots, store.touch_index, words],
-                  outputs=[marks], device=device)
-        wp.launch(integration.apply_marks, dim=touched * BLOCK_VOXELS,
-                  inputs=[touched_slots, marks, words, cfg.log_hit, cfg.log_miss,
-                          cfg.log_clamp_min, cfg.log_clamp_max],
-                  outputs=[store.layers["log_odds"]], device=device)
+        # 3. mark free/occupied per scan and voxel (each CPU thread into its own copy)
+        marks = wp.zeros((parts, marks_size), dtype=wp.uint64, device=device)
+        tables = [store.table_keys, store.table_slots, store.touch_index, words]
+        parallel.split_launch(lambda part, lo, hi: wp.launch(
+            integration.mark_ray_voxels, dim=hi - lo, inputs=[*beams(lo, hi), *tables],
+            outputs=[marks[part]], device=device), num_rays, parts)
+
+        # 4. replay the scans in order per voxel
+        apply_inputs = [marks, words, cfg.log_hit, cfg.log_miss, cfg.log_clamp_min, cfg.log_clamp_max]
+        voxels = touched * BLOCK_VOXELS
+        parallel.split_launch(lambda part, lo, hi: wp.launch(
+            integration.apply_marks, dim=hi - lo, inputs=[touched_slots, lo, *apply_inputs],
+            outputs=[store.layers["log_odds"]], device=device),
+            voxels, parallel.num_parts(device, voxels))
         wp.launch(integration.release_touched_blocks, dim=touched, inputs=[touched_slots],
                   outputs=[store.touch_index], device=device)
 
@@ -203,7 +209,7 @@ class VoxelMap:
         }
         cfg, store = self.config, self._store
 
-        def launch(lo: int, hi: int) -> None:
+        def launch(part: int, lo: int, hi: int) -> None:
             wp.launch(queries.cast_rays, dim=hi - lo,
                       inputs=[d["origins"][lo:hi], d["directions"][lo:hi], d["ranges"][lo:hi],
                               np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
@@ -211,7 +217,7 @@ class VoxelMap:
                               cfg.log_occupied, cfg.log_free],
                       outputs=[a[lo:hi] for a in out.values()], device=device)
 
-        _split_launch(launch, count, device)
+        parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
     def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:
@@ -298,21 +304,3 @@ def classify(values: np.ndarray, config: MapConfig) -> np.ndarray:
         state[values >= config.log_occupied] = OCCUPIED
         state[values <= config.log_free] = FREE
     return state
-
-
-_executor: concurrent.futures.ThreadPoolExecutor | None = None
-
-
-def _split_launch(launch, count: int, device) -> None:
-    """launch(lo, hi) over [0, count): on the CPU split across threads, each with its own range."""
-    global _executor
-    threads = min(os.cpu_count() or 1, 8)
-    if device.is_cuda or count < PARALLEL_QUERY_MIN or threads == 1:
-        if count:
-            launch(0, count)
-        return
-    if _executor is None:
-        _executor = concurrent.futures.ThreadPoolExecutor(threads, thread_name_prefix="vogjax-query")
-    edges = np.linspace(0, count, threads + 1).astype(int)
-    for future in [_executor.submit(launch, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]:
-        future.result()
