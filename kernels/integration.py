@@ -57,17 +57,17 @@ def list_ray_blocks(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
     w = walk_of_beam(origin, end, resolution, inv_resolution)
     capacity = block_keys.shape[1]
     n = int(0)
-    current = wp.vec3i(0, 0, 0)
+    current = block_of(w.voxel)
     voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
     active, steps = bool(w.active), int(0)
+    new_block = bool(True)
     while active:
-        b = block_of(voxel)
-        if n == 0 or not same_voxel(b, current):
+        if new_block:
+            current = block_of(voxel)
             if n < capacity:
-                block_keys[tid, n] = pack_block(b)
+                block_keys[tid, n] = pack_block(current)
             n += 1
-            current = b
-        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, _t, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
         active = segment_continues(voxel, t_max, w, steps)
     if end[3] > 0.0:
@@ -127,16 +127,16 @@ def mark_ray_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp
     end = beam_end(origin, points[tid], max_range)
     w = walk_of_beam(origin, end, resolution, inv_resolution)
     slot = int(-1)
-    current = wp.vec3i(0, 0, 0)
+    current = block_of(w.voxel)
     voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
     active, steps = bool(w.active), int(0)
+    new_block = bool(True)
     while active:
-        b = block_of(voxel)
-        if slot < 0 or not same_voxel(b, current):
-            slot = find_slot(table_keys, table_slots, pack_block(b))
-            current = b
+        if new_block:
+            current = block_of(voxel)
+            slot = find_slot(table_keys, table_slots, pack_block(current))
         mark_voxel(voxel, slot, touch_index, words_per_voxel, word, free_bit, marks)
-        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, _t, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
         active = segment_continues(voxel, t_max, w, steps)
     if end[3] > 0.0:

@@ -5,15 +5,11 @@ Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer 
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, block_of, find_voxel_slot, index_in_block
+from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block
 from .integration import walk_of_beam
-from .traversal import VoxelWalk, ray_walk_begin, same_voxel, segment_continues, voxel_key, walk_step
+from .traversal import VoxelWalk, ray_walk_begin, segment_continues, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
-
-STATE_UNKNOWN = wp.constant(0)
-STATE_FREE = wp.constant(1)
-STATE_OCCUPIED = wp.constant(2)
 
 
 @wp.func
@@ -21,17 +17,6 @@ def value_in_slot(slot: int, voxel: wp.vec3i, log_odds: wp.array(dtype=wp.float3
     if slot < 0:
         return wp.nan
     return log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)]
-
-
-@wp.func
-def classify(value: wp.float32, log_occupied: wp.float32, log_free: wp.float32) -> int:
-    if wp.isnan(value):
-        return STATE_UNKNOWN
-    if value >= log_occupied:
-        return STATE_OCCUPIED
-    if value <= log_free:
-        return STATE_FREE
-    return STATE_UNKNOWN
 
 
 @wp.func
@@ -63,27 +48,24 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     free = int(0)
     found = bool(False)
     t_hit = max_range
-    slot = int(-1)
-    current = wp.vec3i(0, 0, 0)
-    have_block = bool(False)
     voxel, t_max, t_entry = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    slot = int(-1)
+    new_block = bool(True)
     steps = int(0)
     while t_entry < max_range and steps <= w.max_steps:
-        b = block_of(voxel)
-        if not have_block or not same_voxel(b, current):
+        if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
-            current = b
-            have_block = True
-        state = classify(value_in_slot(slot, voxel, log_odds), log_occupied, log_free)
-        if state == STATE_OCCUPIED:
+        value = value_in_slot(slot, voxel, log_odds)
+        # NaN (never observed) fails both comparisons: unknown.
+        if value >= log_occupied:
             found = True
             t_hit = t_entry
             break
-        if state == STATE_FREE:
+        if value <= log_free:
             free += 1
         else:
             unknown += 1
-        voxel, t_max, t_entry = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, t_entry, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)
@@ -109,7 +91,7 @@ def count_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.
     active = bool(w.active)
     while active:
         n += 1
-        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, _t, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         active = segment_continues(voxel, t_max, w, n - 1)
     counts[tid] = n
 
@@ -128,7 +110,7 @@ def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.v
         values[tid, n] = known_or_zero(value_in_slot(
             find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds))
         n += 1
-        voxel, t_max, _t = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, _t, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         active = segment_continues(voxel, t_max, w, n)
     last = voxel_key(ends[tid], inv_resolution)
     values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, last), last, log_odds))

@@ -124,19 +124,29 @@ def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64
 
 
 @wp.func
+def entered_new_block(coordinate: int, step: int) -> bool:
+    # Stepping up enters a block at local coordinate 0, stepping down at 7 ((-1 >> 1) & 7).
+    return (coordinate & 7) == ((step >> 1) & 7)
+
+
+@wp.func
 def walk_step(voxel: wp.vec3i, step: wp.vec3i, t_max: wp.vec3d, t_delta: wp.vec3d):
-    """Next voxel, its t_max and the distance at which the walk enters it.
+    """Next voxel, its t_max, the distance at which the walk enters it, and whether that voxel
+    lies in another 8x8x8 block than the last one (so callers look blocks up only then).
 
     OctoMap's tie-breaking: strict comparisons, so z wins three-way ties and y beats z.
     """
     if t_max[0] < t_max[1] and t_max[0] < t_max[2]:
-        return (wp.vec3i(voxel[0] + step[0], voxel[1], voxel[2]),
-                wp.vec3d(t_max[0] + t_delta[0], t_max[1], t_max[2]), t_max[0])
+        x = voxel[0] + step[0]
+        return (wp.vec3i(x, voxel[1], voxel[2]), wp.vec3d(t_max[0] + t_delta[0], t_max[1], t_max[2]),
+                t_max[0], entered_new_block(x, step[0]))
     if t_max[1] < t_max[2] and not t_max[0] < t_max[1]:
-        return (wp.vec3i(voxel[0], voxel[1] + step[1], voxel[2]),
-                wp.vec3d(t_max[0], t_max[1] + t_delta[1], t_max[2]), t_max[1])
-    return (wp.vec3i(voxel[0], voxel[1], voxel[2] + step[2]),
-            wp.vec3d(t_max[0], t_max[1], t_max[2] + t_delta[2]), t_max[2])
+        y = voxel[1] + step[1]
+        return (wp.vec3i(voxel[0], y, voxel[2]), wp.vec3d(t_max[0], t_max[1] + t_delta[1], t_max[2]),
+                t_max[1], entered_new_block(y, step[1]))
+    z = voxel[2] + step[2]
+    return (wp.vec3i(voxel[0], voxel[1], z), wp.vec3d(t_max[0], t_max[1], t_max[2] + t_delta[2]),
+            t_max[2], entered_new_block(z, step[2]))
 
 
 @wp.func
