@@ -147,7 +147,8 @@ class BlockStore:
         old = self.block_capacity
         if num_blocks <= old:
             return
-        capacity = max(num_blocks, old + old // 4)
+        # Small steps keep the slack low; copies stay cheap next to integration.
+        capacity = max(num_blocks, old + old // 8)
         self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
         self.touch_index = _grown(self.touch_index, capacity, -1)
         for name, (_, fill) in self.layer_specs.items():
