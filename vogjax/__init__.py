@@ -1,7 +1,8 @@
 """vogjax: GPU/JAX-accelerated batch occupancy mapping for SLAM-corrected robots."""
 
+from vogjax.blockmap import FREE, OCCUPIED, UNKNOWN, RaycastResult
 from vogjax.config import MapConfig
-from vogjax.voxelmap import FREE, OCCUPIED, UNKNOWN, RaycastResult, VoxelMap
+from vogjax.voxelmap import VoxelMap
 
 __version__ = "0.1.0"
 

@@ -49,7 +49,7 @@ def run(out: Path, num_scans: int = 3000, device=None) -> dict:
     rays = vmap.raycast(starts, directions, cfg.max_range)
     error = np.abs(rays.distance[rays.hit] - scene.cast(starts, directions)[rays.hit])
     # 5. summarise and draw
-    states = vj.voxelmap.classify(log_odds, cfg)
+    states = vj.blockmap.classify(log_odds, cfg)
     summary = {
         "scans": num_scans, "beams": int(sweep.points.shape[0]),
         "integrate_s": integrate_s, "rays_per_s": sweep.points.shape[0] / integrate_s,
