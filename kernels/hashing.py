@@ -12,6 +12,9 @@ wp.set_module_options({"enable_backward": False})
 BLOCK_EDGE = 8
 BLOCK_VOXELS = 512
 EMPTY_KEY = wp.constant(wp.int64(-1))
+# A released block's table entry: probes pass over it, insertions do not reuse it (a rehash
+# clears them), so concurrent inserts never place one key twice.
+TOMBSTONE_KEY = wp.constant(wp.int64(-2))
 # Voxel keys must lie in [-VOXEL_KEY_LIMIT, VOXEL_KEY_LIMIT) so that block coordinates fit 21 bits.
 VOXEL_KEY_LIMIT = 1 << 23
 VOXEL_KEY_LIMIT_C = wp.constant(VOXEL_KEY_LIMIT)
@@ -43,6 +46,13 @@ def pack_block(block: wp.vec3i) -> wp.int64:
     y = wp.int64(block[1] + BLOCK_BIAS)
     z = wp.int64(block[2] + BLOCK_BIAS)
     return (x << wp.int64(42)) | (y << wp.int64(21)) | z
+
+
+@wp.func
+def unpack_block(key: wp.int64) -> wp.vec3i:
+    return wp.vec3i(int((key >> wp.int64(42)) & FIELD_MASK) - BLOCK_BIAS,
+                    int((key >> wp.int64(21)) & FIELD_MASK) - BLOCK_BIAS,
+                    int(key & FIELD_MASK) - BLOCK_BIAS)
 
 
 @wp.func
@@ -120,13 +130,13 @@ def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def assign_slots(new_positions: wp.array(dtype=wp.int32), first_slot: int,
+def assign_slots(new_positions: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32),
                  table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
                  slot_keys: wp.array(dtype=wp.int64)):
     tid = wp.tid()
     position = new_positions[tid]
-    table_slots[position] = first_slot + tid
-    slot_keys[first_slot + tid] = table_keys[position]
+    table_slots[position] = slots[tid]
+    slot_keys[slots[tid]] = table_keys[position]
 
 
 @wp.kernel
@@ -153,3 +163,20 @@ def resolve_slots(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.
     slots[tid] = -1
     if key != EMPTY_KEY:
         slots[tid] = find_slot(table_keys, table_slots, key)
+
+
+@wp.kernel
+def remove_slots(slots: wp.array(dtype=wp.int32), table_keys: wp.array(dtype=wp.int64),
+                 table_slots: wp.array(dtype=wp.int32), slot_keys: wp.array(dtype=wp.int64)):
+    tid = wp.tid()
+    slot = slots[tid]
+    key = slot_keys[slot]
+    capacity = table_keys.shape[0]
+    i = first_probe(key, capacity)
+    for _probe in range(capacity):
+        if table_keys[i] == key:
+            table_keys[i] = TOMBSTONE_KEY
+            table_slots[i] = -1
+            slot_keys[slot] = EMPTY_KEY
+            return
+        i = (i + 1) & (capacity - 1)

@@ -48,7 +48,9 @@ class BlockStore:
     def __init__(self, device, layers: dict, block_capacity: int = _MIN_BLOCKS):
         self.device = device
         self.layer_specs = dict(layers)
-        self.num_blocks = 0
+        self.num_blocks = 0  # slots handed out so far, released ones included
+        self.free_slots: list[int] = []  # released slots, reused before new ones
+        self.tombstones = 0  # table entries of released blocks, cleared by the next rehash
         self.table_keys = wp.full(_MIN_TABLE, EMPTY_KEY, dtype=wp.int64, device=device)
         self.table_slots = wp.full(_MIN_TABLE, -1, dtype=wp.int32, device=device)
         capacity = max(block_capacity, _MIN_BLOCKS)
@@ -66,6 +68,10 @@ class BlockStore:
     def table_capacity(self) -> int:
         return self.table_keys.shape[0]
 
+    @property
+    def live_blocks(self) -> int:
+        return self.num_blocks - len(self.free_slots)
+
     def memory_bytes(self) -> int:
         arrays = [self.table_keys, self.table_slots, self.slot_keys, self.touch_index,
                   *self.layers.values()]
@@ -82,14 +88,35 @@ class BlockStore:
                       outputs=[self.table_keys, new_positions, counters], device=self.device)
             new_blocks, failed = (int(c) for c in counters.numpy())
             if new_blocks:
-                self._reserve_blocks(self.num_blocks + new_blocks)
-                wp.launch(hashing.assign_slots, dim=new_blocks, inputs=[new_positions, self.num_blocks],
+                reused = self.free_slots[:new_blocks]
+                del self.free_slots[:new_blocks]
+                fresh = new_blocks - len(reused)
+                self._reserve_blocks(self.num_blocks + fresh)
+                slots = np.concatenate([np.asarray(reused, np.int32),
+                                        np.arange(self.num_blocks, self.num_blocks + fresh, dtype=np.int32)])
+                wp.launch(hashing.assign_slots, dim=new_blocks,
+                          inputs=[new_positions, wp.array(slots, dtype=wp.int32, device=self.device)],
                           outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
-                self.num_blocks += new_blocks
-            if failed or 2 * self.num_blocks > self.table_capacity:
-                self._reserve_table(self.num_blocks + max(failed, self.num_blocks // 2))
+                self.num_blocks += fresh
+            if failed or 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
+                self._reserve_table(self.live_blocks + max(failed, self.live_blocks // 2))
             if not failed:
                 return
+
+    def release(self, slots: np.ndarray) -> None:
+        """Drop the blocks in `slots` (distinct, live): their slots are reused, their layers reset."""
+        if len(slots) == 0:
+            return
+        wp.launch(hashing.remove_slots, dim=len(slots),
+                  inputs=[wp.array(np.asarray(slots, np.int32), dtype=wp.int32, device=self.device)],
+                  outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
+        for slot in slots:
+            for name, (_, fill) in self.layer_specs.items():
+                self.layers[name][int(slot) * BLOCK_VOXELS:(int(slot) + 1) * BLOCK_VOXELS].fill_(fill)
+        self.free_slots.extend(int(s) for s in slots)
+        self.tombstones += len(slots)
+        if 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
+            self._reserve_table(self.live_blocks)
 
     def find(self, keys: wp.array) -> wp.array:
         """Slots of packed keys, -1 where absent."""
@@ -104,6 +131,7 @@ class BlockStore:
         """Packed keys (K,) sorted ascending and each layer as (K,512), copied to the host."""
         keys = self.slot_keys.numpy()[: self.num_blocks]
         order = np.argsort(keys, kind="stable")
+        order = order[keys[order] != EMPTY_KEY]  # released slots
         layers = {name: array.numpy()[: self.num_blocks * BLOCK_VOXELS]
                   .reshape(self.num_blocks, BLOCK_VOXELS)[order]
                   for name, array in self.layers.items()}
@@ -129,14 +157,15 @@ class BlockStore:
         return store
 
     def _reserve_table(self, num_keys: int) -> None:
-        """Grow the table so `num_keys` keys fill at most half of it."""
+        """Grow the table so `num_keys` keys fill at most half of it; rehashing clears tombstones."""
         capacity = self.table_capacity
         while capacity < 2 * num_keys:
             capacity *= 2
-        if capacity != self.table_capacity:
+        if capacity != self.table_capacity or self.tombstones:
             self._rehash(capacity)
 
     def _rehash(self, capacity: int) -> None:
+        self.tombstones = 0
         self.table_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=self.device)
         self.table_slots = wp.full(capacity, -1, dtype=wp.int32, device=self.device)
         if self.num_blocks:

@@ -1,0 +1,207 @@
+"""Transform-and-accumulate: adding (or removing) a submap's contribution to the global map.
+
+Contribution rule ("pull"): global voxel x receives the value of the submap voxel that contains
+T^-1 x (x's centre taken to the submap frame), if that voxel was observed. Every global voxel
+then gets at most one value per submap, whatever the rotation: no holes, no double hits.
+
+Work is enumerated per submap block: the global voxel centres inside the block's transformed
+box are found column by column (x, y) with a z range from the box's slabs, widened by a voxel
+and then filtered exactly, so each global voxel is visited by the one block it pulls from. Two
+threads never write the same global voxel within one submap, so sums need no ordering and the
+launch may be split across CPU threads.
+
+Sums are fixed point: an integer number of 2^-24 log-odds steps, so removing a submap restores
+the exact bits a map without it would hold.
+"""
+
+import warp as wp
+
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_slot, index_in_block, pack_block, unpack_block
+from .traversal import same_voxel
+
+wp.set_module_options({"enable_backward": False})
+
+FIXED_POINT_SCALE = 16777216.0  # 2^24 steps per unit of log-odds
+SCALE = wp.constant(wp.float64(FIXED_POINT_SCALE))
+# Global voxel centres near a rotated 8-voxel block: at most 14 indices per axis, plus margins.
+COLUMN_SPAN = 18
+# ... which meet at most 4 global blocks per axis.
+BLOCKS_PER_BOX = 64
+SPAN = wp.constant(COLUMN_SPAN)
+FAR = wp.constant(wp.float64(1.0e300))
+
+
+@wp.func
+def to_fixed_point(value: wp.float32) -> wp.int64:
+    return wp.int64(wp.round(wp.float64(value) * SCALE))
+
+
+@wp.func
+def from_fixed_point(total: wp.int64, count: wp.int32, clamp_min: wp.float32,
+                     clamp_max: wp.float32) -> wp.float32:
+    """Clamped log-odds of a fixed-point sum; NaN where no submap contributes."""
+    if count == 0:
+        return wp.nan
+    return wp.clamp(wp.float32(wp.float64(total) / SCALE), clamp_min, clamp_max)
+
+
+@wp.func
+def pull_voxel(centre: wp.vec3d, rotation_t: wp.mat33d, translation: wp.vec3d,
+               inv_resolution: wp.float64) -> wp.vec3i:
+    """The submap voxel containing a world point: floor(R^T (x - t) / s)."""
+    local = rotation_t * (centre - translation)
+    return wp.vec3i(int(wp.floor(local[0] * inv_resolution)),
+                    int(wp.floor(local[1] * inv_resolution)),
+                    int(wp.floor(local[2] * inv_resolution)))
+
+
+@wp.func
+def voxel_centre(voxel: wp.vec3i, resolution: wp.float64) -> wp.vec3d:
+    half = wp.float64(0.5)
+    return wp.vec3d((wp.float64(voxel[0]) + half) * resolution,
+                    (wp.float64(voxel[1]) + half) * resolution,
+                    (wp.float64(voxel[2]) + half) * resolution)
+
+
+@wp.func
+def box_start(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d,
+              resolution: wp.float64) -> wp.vec3i:
+    """First global voxel index per axis whose centre may lie in the block's transformed box."""
+    lo = wp.vec3d(FAR, FAR, FAR)
+    for corner in range(8):
+        p = wp.vec3d(wp.float64(block[0] * 8 + (corner & 1) * 8),
+                     wp.float64(block[1] * 8 + ((corner >> 1) & 1) * 8),
+                     wp.float64(block[2] * 8 + ((corner >> 2) & 1) * 8)) * resolution
+        w = rotation * p + translation
+        lo = wp.vec3d(wp.min(lo[0], w[0]), wp.min(lo[1], w[1]), wp.min(lo[2], w[2]))
+    half = wp.float64(0.5)
+    return wp.vec3i(int(wp.floor(lo[0] / resolution - half)) - 1,
+                    int(wp.floor(lo[1] / resolution - half)) - 1,
+                    int(wp.floor(lo[2] / resolution - half)) - 1)
+
+
+@wp.func
+def column_range(i: int, j: int, start_k: int, block: wp.vec3i, rotation_t: wp.mat33d,
+                 translation: wp.vec3d, resolution: wp.float64) -> wp.vec2i:
+    """Global z indices of column (i, j) whose centres may lie in the block's box (a superset)."""
+    half = wp.float64(0.5)
+    base = rotation_t * (wp.vec3d((wp.float64(i) + half) * resolution,
+                                  (wp.float64(j) + half) * resolution, wp.float64(0.0)) - translation)
+    along = wp.vec3d(rotation_t[0, 2], rotation_t[1, 2], rotation_t[2, 2])  # d(local)/d(world z)
+    z_lo = -FAR
+    z_hi = FAR
+    for axis in range(3):
+        lo = wp.float64(block[axis] * 8 - 1) * resolution
+        hi = wp.float64(block[axis] * 8 + 9) * resolution
+        if wp.abs(along[axis]) < wp.float64(1e-12):
+            if base[axis] < lo or base[axis] > hi:
+                return wp.vec2i(0, -1)
+        else:
+            a = (lo - base[axis]) / along[axis]
+            b = (hi - base[axis]) / along[axis]
+            z_lo = wp.max(z_lo, wp.min(a, b))
+            z_hi = wp.min(z_hi, wp.max(a, b))
+    if z_lo > z_hi:
+        return wp.vec2i(0, -1)
+    first = wp.max(int(wp.floor(z_lo / resolution - half)), start_k)
+    last = wp.min(int(wp.ceil(z_hi / resolution - half)), start_k + SPAN - 1)
+    return wp.vec2i(first, last)
+
+
+@wp.func
+def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
+                 translation: wp.vec3d, resolution: wp.float64, inv_resolution: wp.float64,
+                 local_log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
+    """Value global voxel g pulls from submap block `block` (NaN: not from it, or unobserved)."""
+    local = pull_voxel(voxel_centre(g, resolution), rotation_t, translation, inv_resolution)
+    if not same_voxel(block_of(local), block):
+        return wp.nan
+    return local_log_odds[slot * BLOCK_VOXELS + index_in_block(local)]
+
+
+@wp.kernel
+def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
+                        local_log_odds: wp.array(dtype=wp.float32), rotation: wp.mat33d,
+                        rotation_t: wp.mat33d, translation: wp.vec3d, resolution: wp.float64,
+                        inv_resolution: wp.float64, global_keys: wp.array2d(dtype=wp.int64)):
+    """global_keys[b, :] = the global blocks submap block b contributes to (EMPTY elsewhere)."""
+    b, u, v = wp.tid()
+    slot = first_slot + b
+    key = local_slot_keys[slot]
+    if key == EMPTY_KEY:
+        return
+    block = unpack_block(key)
+    start = box_start(block, rotation, translation, resolution)
+    i = start[0] + u
+    j = start[1] + v
+    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
+    first_block = block_of(start)
+    for k in range(ks[0], ks[1] + 1):
+        g = wp.vec3i(i, j, k)
+        if not wp.isnan(pulled_value(g, block, slot, rotation_t, translation, resolution,
+                                     inv_resolution, local_log_odds)):
+            gb = block_of(g)
+            offset = ((gb[0] - first_block[0]) * 4 + (gb[1] - first_block[1])) * 4 + gb[2] - first_block[2]
+            global_keys[b, offset] = pack_block(gb)
+
+
+@wp.kernel
+def accumulate_pulls(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
+                     local_log_odds: wp.array(dtype=wp.float32), rotation: wp.mat33d,
+                     rotation_t: wp.mat33d, translation: wp.vec3d, resolution: wp.float64,
+                     inv_resolution: wp.float64, sign: int, table_keys: wp.array(dtype=wp.int64),
+                     table_slots: wp.array(dtype=wp.int32), part: int,
+                     sums: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32),
+                     pulls: wp.array(dtype=wp.int32)):
+    """Add (sign +1) or remove (sign -1) submap block b's values at every voxel that pulls them."""
+    b, u, v = wp.tid()
+    slot = first_slot + b
+    key = local_slot_keys[slot]
+    if key == EMPTY_KEY:
+        return
+    block = unpack_block(key)
+    start = box_start(block, rotation, translation, resolution)
+    i = start[0] + u
+    j = start[1] + v
+    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
+    global_slot = int(-1)
+    current = wp.vec3i(0, 0, 0)
+    n = int(0)
+    for k in range(ks[0], ks[1] + 1):
+        g = wp.vec3i(i, j, k)
+        value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution,
+                             local_log_odds)
+        if not wp.isnan(value):
+            gb = block_of(g)
+            if global_slot < 0 or not same_voxel(gb, current):
+                global_slot = find_slot(table_keys, table_slots, pack_block(gb))
+                current = gb
+            index = global_slot * BLOCK_VOXELS + index_in_block(g)
+            sums[index] = sums[index] + wp.int64(sign) * to_fixed_point(value)
+            counts[index] = counts[index] + sign
+            n += 1
+    if n > 0:
+        wp.atomic_add(pulls, part, n)
+
+
+@wp.kernel
+def refresh_log_odds(slots: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.int64),
+                     counts: wp.array(dtype=wp.int32), clamp_min: wp.float32, clamp_max: wp.float32,
+                     log_odds: wp.array(dtype=wp.float32)):
+    """The queryable log-odds layer of the given global blocks, from their sums and counts."""
+    tid = wp.tid()
+    index = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
+    log_odds[index] = from_fixed_point(sums[index], counts[index], clamp_min, clamp_max)
+
+
+@wp.kernel
+def flag_unused_blocks(slots: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+                       unused: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    base = slots[tid] * BLOCK_VOXELS
+    flag = int(1)
+    for i in range(BLOCK_VOXELS):
+        if counts[base + i] != 0:
+            flag = 0
+            break
+    unused[tid] = flag
