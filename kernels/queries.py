@@ -115,3 +115,20 @@ def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.v
     last = voxel_key(ends[tid], inv_resolution)
     values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, last), last, log_odds))
 
+
+
+@wp.kernel
+def fill_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
+                     resolution: wp.float64, inv_resolution: wp.float64,
+                     voxels: wp.array2d(dtype=wp.vec3i)):
+    tid = wp.tid()
+    w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
+    n = int(0)
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active = bool(w.active)
+    while active:
+        voxels[tid, n] = voxel
+        n += 1
+        voxel, t_max, _t, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        active = segment_continues(voxel, t_max, w, n)
+    voxels[tid, n] = voxel_key(ends[tid], inv_resolution)

@@ -2,6 +2,8 @@
 
 from vogjax.blockmap import FREE, OCCUPIED, UNKNOWN, RaycastResult
 from vogjax.config import MapConfig
+from vogjax.globalmap import GlobalMap, UpdateReport
+from vogjax.submaps import Submap, VogMap
 from vogjax.voxelmap import VoxelMap
 
 __version__ = "0.1.0"
@@ -10,8 +12,12 @@ __all__ = [
     "FREE",
     "OCCUPIED",
     "UNKNOWN",
+    "GlobalMap",
     "MapConfig",
     "RaycastResult",
+    "Submap",
+    "UpdateReport",
+    "VogMap",
     "VoxelMap",
     "__version__",
 ]

@@ -48,8 +48,7 @@ class BlockMap:
         self._lock = ReadWriteLock()
 
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
-        within_key_range("origins", origins, self.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
-        within_key_range("points", points, self.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
+        check_extent(self.config, origins=origins, points=points)
 
     # ---------------------------------------------------------------- point queries
     def _lookup(self, points) -> np.ndarray:
@@ -126,28 +125,19 @@ class BlockMap:
         Returns values (R,S) float32 (0.0 where unknown, NaN past each line's end) and
         lengths (R,) int32, the number of voxels of each line.
         """
-        starts = float_array("starts", starts, (-1, 3))
-        ends = float_array("ends", ends, (starts.shape[0], 3))
-        self._check_extent(starts, ends)
+        starts, ends = line_arguments(self.config, starts, ends)
         count, device = starts.shape[0], self.device
         if count == 0:
             return np.zeros((0, 0), np.float32), np.zeros(0, np.int32)
-        resolution = np.float64(self.config.voxel_size)
-        inv_resolution = np.float64(1.0 / self.config.voxel_size)
-        d_starts = wp.array(starts, dtype=wp.vec3f, device=device)
-        d_ends = wp.array(ends, dtype=wp.vec3f, device=device)
-        lengths = wp.empty(count, dtype=wp.int32, device=device)
-        wp.launch(queries.count_line_voxels, dim=count,
-                  inputs=[d_starts, d_ends, resolution, inv_resolution], outputs=[lengths],
-                  device=device)
-        lengths_host = lengths.numpy()
-        values = wp.full((count, int(lengths_host.max())), math.nan, dtype=wp.float32, device=device)
+        d_starts, d_ends, lengths = _line_lengths(self.config, device, starts, ends)
+        values = wp.full((count, int(lengths.max())), math.nan, dtype=wp.float32, device=device)
         with self._lock.reading():
             wp.launch(queries.fill_line_values, dim=count,
-                      inputs=[d_starts, d_ends, resolution, inv_resolution, self._store.table_keys,
+                      inputs=[d_starts, d_ends, np.float64(self.config.voxel_size),
+                              np.float64(1.0 / self.config.voxel_size), self._store.table_keys,
                               self._store.table_slots, self._store.layers["log_odds"]],
                       outputs=[values], device=device)
-        return values.numpy(), lengths_host
+        return values.numpy(), lengths
 
     # ---------------------------------------------------------------- contents
     def voxels(self) -> tuple[np.ndarray, np.ndarray]:
@@ -183,3 +173,38 @@ def classify(values: np.ndarray, config: MapConfig) -> np.ndarray:
         state[values >= config.log_occupied] = OCCUPIED
         state[values <= config.log_free] = FREE
     return state
+
+
+def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:
+    for name, array in arrays.items():
+        within_key_range(name, array, config.voxel_size, hashing.VOXEL_KEY_LIMIT)
+
+
+def line_arguments(config: MapConfig, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    starts = float_array("starts", starts, (-1, 3))
+    ends = float_array("ends", ends, (starts.shape[0], 3))
+    check_extent(config, starts=starts, ends=ends)
+    return starts, ends
+
+
+def _line_lengths(config: MapConfig, device, starts: np.ndarray, ends: np.ndarray):
+    d_starts = wp.array(starts, dtype=wp.vec3f, device=device)
+    d_ends = wp.array(ends, dtype=wp.vec3f, device=device)
+    lengths = wp.empty(starts.shape[0], dtype=wp.int32, device=device)
+    wp.launch(queries.count_line_voxels, dim=starts.shape[0],
+              inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+              outputs=[lengths], device=device)
+    return d_starts, d_ends, lengths.numpy()
+
+
+def line_voxels(config: MapConfig, device, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel keys (R,S,3) on each line, as line queries walk them, and the lengths (R,)."""
+    starts, ends = line_arguments(config, starts, ends)
+    if starts.shape[0] == 0:
+        return np.zeros((0, 0, 3), np.int32), np.zeros(0, np.int32)
+    d_starts, d_ends, lengths = _line_lengths(config, device, starts, ends)
+    voxels = wp.zeros((starts.shape[0], int(lengths.max())), dtype=wp.vec3i, device=device)
+    wp.launch(queries.fill_line_voxels, dim=starts.shape[0],
+              inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+              outputs=[voxels], device=device)
+    return voxels.numpy(), lengths

@@ -1,0 +1,154 @@
+"""Virtual-map queries: the sum over submaps, evaluated on the fly (Ho et al.'s VOG-map).
+
+Each submap is described by a `SubmapView` (pointers to its table and voxel pool, its pose and
+its box); kernels run over (query, submap) pairs and skip pairs whose box the query misses.
+Values pull exactly like the global map (kernels/accumulation.py), so at voxel centres the
+virtual map and the global map agree bit for bit.
+"""
+
+import warp as wp
+
+from .accumulation import from_fixed_point, pull_voxel, to_fixed_point, voxel_centre
+from .hashing import BLOCK_VOXELS, find_slot, index_in_block, pack_block, block_of, voxel_key_in_range
+from .traversal import ray_walk_begin, walk_step
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.struct
+class SubmapView:
+    table_keys: wp.uint64  # pointer to int64[table_capacity]
+    table_slots: wp.uint64  # pointer to int32[table_capacity]
+    table_capacity: int
+    log_odds: wp.uint64  # pointer to float32[pool_size]
+    pool_size: int
+    rotation_t: wp.mat33d  # R^T of T_world_submap
+    translation: wp.vec3d  # t of T_world_submap
+    box_lo: wp.vec3d  # submap-frame box of the observed voxels, widened by one voxel
+    box_hi: wp.vec3d
+
+
+@wp.func
+def submap_value(view: SubmapView, world: wp.vec3d, inv_resolution: wp.float64) -> wp.float32:
+    """Log-odds of the submap voxel holding a world point; NaN if outside its box or unobserved."""
+    local = view.rotation_t * (world - view.translation)
+    for axis in range(3):
+        if local[axis] < view.box_lo[axis] or local[axis] > view.box_hi[axis]:
+            return wp.nan
+    voxel = pull_voxel(world, view.rotation_t, view.translation, inv_resolution)
+    if not voxel_key_in_range(voxel):
+        return wp.nan
+    keys = wp.array(ptr=view.table_keys, shape=(view.table_capacity,), dtype=wp.int64)
+    slots = wp.array(ptr=view.table_slots, shape=(view.table_capacity,), dtype=wp.int32)
+    slot = find_slot(keys, slots, pack_block(block_of(voxel)))
+    if slot < 0:
+        return wp.nan
+    pool = wp.array(ptr=view.log_odds, shape=(view.pool_size,), dtype=wp.float32)
+    return pool[slot * BLOCK_VOXELS + index_in_block(voxel)]
+
+
+@wp.kernel
+def sum_at_points(points: wp.array(dtype=wp.vec3d), first: int, views: wp.array(dtype=SubmapView),
+                  inv_resolution: wp.float64, sums: wp.array(dtype=wp.int64),
+                  counts: wp.array(dtype=wp.int32)):
+    """Over (point, submap) pairs: fixed-point sum and count of the submaps observing each point."""
+    q, i = wp.tid()
+    q = q + first
+    value = submap_value(views[i], points[q], inv_resolution)
+    if not wp.isnan(value):
+        wp.atomic_add(sums, q, to_fixed_point(value))
+        wp.atomic_add(counts, q, 1)
+
+
+@wp.func
+def ray_box_interval(view: SubmapView, origin: wp.vec3d, direction: wp.vec3d,
+                     max_range: wp.float64) -> wp.vec2d:
+    """[t_in, t_out] of the ray inside the submap's box, clipped to [0, max_range] (empty: t_in > t_out)."""
+    o = view.rotation_t * (origin - view.translation)
+    d = view.rotation_t * direction
+    t_in = wp.float64(0.0)
+    t_out = max_range
+    for axis in range(3):
+        if wp.abs(d[axis]) < wp.float64(1e-15):
+            if o[axis] < view.box_lo[axis] or o[axis] > view.box_hi[axis]:
+                return wp.vec2d(wp.float64(1.0), wp.float64(0.0))
+        else:
+            a = (view.box_lo[axis] - o[axis]) / d[axis]
+            b = (view.box_hi[axis] - o[axis]) / d[axis]
+            t_in = wp.max(t_in, wp.min(a, b))
+            t_out = wp.min(t_out, wp.max(a, b))
+    return wp.vec2d(t_in, t_out)
+
+
+@wp.kernel
+def count_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                         max_ranges: wp.array(dtype=wp.float64), first: int,
+                         views: wp.array(dtype=SubmapView), counts: wp.array(dtype=wp.int32)):
+    r, i = wp.tid()
+    r = r + first
+    span = ray_box_interval(views[i], origins[r], directions[r], max_ranges[r])
+    if span[0] <= span[1]:
+        wp.atomic_add(counts, r, 1)
+
+
+@wp.kernel
+def list_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                        max_ranges: wp.array(dtype=wp.float64), first: int,
+                        views: wp.array(dtype=SubmapView), offsets: wp.array(dtype=wp.int32),
+                        fill: wp.array(dtype=wp.int32), candidates: wp.array(dtype=wp.int32),
+                        spans: wp.array(dtype=wp.vec2d)):
+    r, i = wp.tid()
+    r = r + first
+    span = ray_box_interval(views[i], origins[r], directions[r], max_ranges[r])
+    if span[0] <= span[1]:
+        k = offsets[r] + wp.atomic_add(fill, r, 1)
+        candidates[k] = i
+        spans[k] = span
+
+
+@wp.kernel
+def cast_virtual_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                      max_ranges: wp.array(dtype=wp.float64), first: int,
+                      views: wp.array(dtype=SubmapView), offsets: wp.array(dtype=wp.int32),
+                      candidates: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.vec2d),
+                      resolution: wp.float64, inv_resolution: wp.float64, clamp_min: wp.float32,
+                      clamp_max: wp.float32, log_occupied: wp.float32, log_free: wp.float32,
+                      hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+                      num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    """Walk the world voxel grid; at each voxel centre sum the candidate submaps the ray is in."""
+    r = wp.tid() + first
+    max_range = max_ranges[r]
+    w = ray_walk_begin(origins[r], directions[r], resolution, inv_resolution, max_range)
+    voxel, t_max, t_entry = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    unknown = int(0)
+    free = int(0)
+    found = bool(False)
+    t_hit = max_range
+    steps = int(0)
+    while t_entry < max_range and steps <= w.max_steps:
+        t_exit = wp.min(wp.min(t_max[0], t_max[1]), t_max[2])
+        centre = voxel_centre(voxel, resolution)
+        total = wp.int64(0)
+        count = wp.int32(0)
+        for k in range(offsets[r], offsets[r + 1]):
+            span = spans[k]
+            if t_exit >= span[0] and t_entry <= span[1]:
+                value = submap_value(views[candidates[k]], centre, inv_resolution)
+                if not wp.isnan(value):
+                    total += to_fixed_point(value)
+                    count += 1
+        value = from_fixed_point(total, count, clamp_min, clamp_max)
+        if value >= log_occupied:
+            found = True
+            t_hit = t_entry
+            break
+        if value <= log_free:
+            free += 1
+        else:
+            unknown += 1
+        voxel, t_max, t_entry, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+    hit[r] = found
+    distance[r] = wp.float32(t_hit)
+    num_unknown[r] = unknown
+    num_free[r] = free

@@ -1,0 +1,102 @@
+"""SE(3) helpers on 4x4 homogeneous matrices (NumPy, float64)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+RIGID_TOLERANCE = 1e-6
+
+
+def rigid_poses(name: str, value, count: int | None = None) -> np.ndarray:
+    """(n,4,4) float64 rigid transforms (a single (4,4) is accepted when count is None).
+
+    Rotation blocks must be orthonormal with determinant +1 (to 1e-6) and the last row 0 0 0 1.
+    """
+    try:
+        poses = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 4x4 rigid transforms") from None
+    single = poses.ndim == 2
+    if single and count is None:
+        poses = poses[None]
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or (count is not None and poses.shape[0] != count):
+        wanted = "(4, 4)" if count is None else f"({count}, 4, 4)"
+        raise ValueError(f"{name} must have shape {wanted}, got {np.shape(value)}")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    rotations = poses[:, :3, :3]
+    gram_error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
+    if gram_error > RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0):
+        raise ValueError(f"{name} is not rigid: its rotation part is not a proper rotation")
+    if np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(initial=0.0) > 0:
+        raise ValueError(f"{name} is not rigid: its last row must be 0 0 0 1")
+    return poses
+
+
+def inverse(poses: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    out = np.zeros_like(poses)
+    rotation_t = np.swapaxes(poses[..., :3, :3], -1, -2)
+    out[..., :3, :3] = rotation_t
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rotation_t, poses[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def log_so3(rotations: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3)."""
+    cos = np.clip((np.trace(rotations, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    skew = np.stack([rotations[..., 2, 1] - rotations[..., 1, 2],
+                     rotations[..., 0, 2] - rotations[..., 2, 0],
+                     rotations[..., 1, 0] - rotations[..., 0, 1]], axis=-1)
+    sin = np.sin(angle)
+    small = sin < 1e-9
+    scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, sin)))
+    vector = skew * scale[..., None]
+    near_pi = small & (angle > 1.0)
+    if np.any(near_pi):  # angle ~ pi: the axis is the dominant column of (R + I) / 2
+        b = (rotations[near_pi] + np.eye(3)) / 2.0
+        column = np.argmax(np.diagonal(b, axis1=-2, axis2=-1), axis=-1)
+        axis = b[np.arange(len(b)), :, column]
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        vector[near_pi] = axis * angle[near_pi, None]
+    return vector
+
+
+def log_se3(poses: np.ndarray) -> np.ndarray:
+    """Twists (..., 6) = (rotation vector, translation part rho) with exp(twist) = pose."""
+    omega = log_so3(poses[..., :3, :3])
+    theta = np.linalg.norm(omega, axis=-1)
+    t = poses[..., :3, 3]
+    small = theta < 1e-9
+    safe = np.where(small, 1.0, theta)
+    # V^-1 = I - W/2 + (1/theta^2)(1 - theta sin / (2 (1 - cos))) W^2
+    coefficient = np.where(small, 1.0 / 12.0,
+                           (1.0 - safe * np.sin(safe) / (2.0 * (1.0 - np.cos(safe)))) / safe**2)
+    w_t = np.cross(omega, t)
+    w_w_t = np.cross(omega, w_t)
+    rho = t - 0.5 * w_t + coefficient[..., None] * w_w_t
+    return np.concatenate([omega, rho], axis=-1)
+
+
+def pose_deltas(T_old: np.ndarray, T_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation angle (rad) and translation norm (m) of log(T_old^-1 T_new), per pose."""
+    twist = log_se3(inverse(T_old) @ T_new)
+    return np.linalg.norm(twist[..., :3], axis=-1), np.linalg.norm(twist[..., 3:], axis=-1)
+
+
+def xyh_covariance(marginals: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) covariance of x, y, yaw from GTSAM Pose3 marginals (rotation, translation)."""
+    index = [3, 4, 2]
+    return marginals[..., index, :][..., :, index]
+
+
+# 95% quantile of the chi-square distribution with 3 degrees of freedom.
+CHI2_3DOF_95 = 7.814727903251178
+
+
+def confidence_volume(marginals: np.ndarray) -> np.ndarray:
+    """Volume of the 95% confidence ellipsoid of x, y, yaw for each (6,6) marginal covariance."""
+    det = np.clip(np.linalg.det(xyh_covariance(marginals)), 0.0, None)
+    return 4.0 / 3.0 * np.pi * CHI2_3DOF_95**1.5 * np.sqrt(det)

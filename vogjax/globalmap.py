@@ -1,0 +1,291 @@
+"""GlobalMap: one map for planners, kept consistent with loop closures by undo/redo of submaps.
+
+Each voxel stores the exact fixed-point sum of the log-odds its submaps contribute and how many
+contribute. Clamping and the occupancy state come at query time, so removing a submap's
+contribution (at the pose it was applied at) and adding it back at its new pose leaves exactly
+what a full merge at the new poses would build (Sodhi et al., Algorithm 1, with the
+p_min = 0, p_max = 1 restriction lifted).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import numbers
+import time
+
+import numpy as np
+import warp as wp
+
+from vogjax import parallel
+from vogjax.blockmap import BlockMap
+from vogjax.blocks import BLOCK_VOXELS, BlockStore
+from vogjax.config import MapConfig
+from vogjax.geometry import confidence_volume, pose_deltas
+from vogjax.io import read_map_file, write_map_file
+from vogjax.kernels import accumulation
+from vogjax.kernels.hashing import EMPTY_KEY
+from vogjax.submaps import Submap, VogMap
+
+LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
+# Marginals whose x, y, yaw block fails these checks are not covariances.
+_SYMMETRY_TOLERANCE = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class Applied:
+    """A submap as the global map holds it: the pose it was added at and its revision then."""
+
+    pose: np.ndarray
+    revision: int
+
+
+@dataclasses.dataclass(frozen=True)
+class UpdateReport:
+    """What `update_poses` did.
+
+    reapplied: ids undone at their applied pose and redone at their current one (S1 and S2)
+    moved: ids whose pose moved by more than eps_rot or eps_trans (S1)
+    uncertain: ids whose x-y-yaw confidence volume exceeds eps_cov (S2); None: all, no marginals
+    eps_cov: the volume threshold used (None without marginals)
+    voxels_touched: global voxel updates made (each undo and each redo counts its voxels)
+    seconds: wall time of the update
+    """
+
+    reapplied: tuple
+    moved: tuple
+    uncertain: tuple | None
+    eps_cov: float | None
+    voxels_touched: int
+    seconds: float
+
+
+class GlobalMap(BlockMap):
+    """The online global map of Sodhi et al. over the submaps of a VogMap.
+
+    Queries (those of VoxelMap) read the map under a shared lock; `merge`, `add` and
+    `update_poses` hold it exclusively for their whole run, so a planner querying from another
+    thread sees the map before an update or after it, never in between.
+    """
+
+    def __init__(self, config: MapConfig | None = None, device=None):
+        super().__init__(config, device, layers=LAYERS)
+        self._applied: dict[int, Applied] = {}
+
+    @property
+    def applied_ids(self) -> tuple:
+        return tuple(sorted(self._applied))
+
+    def applied_pose(self, i: int) -> np.ndarray:
+        if i not in self._applied:
+            raise ValueError(f"i: submap {i!r} has not been added to this global map")
+        return self._applied[i].pose.copy()
+
+    # ---------------------------------------------------------------- building
+    def merge(self, vog: VogMap) -> int:
+        """Rebuild from scratch with every submap at its current pose (the "full merge").
+
+        Returns the number of voxel updates made."""
+        self._check_vog(vog)
+        with self._lock.writing():
+            self._store = BlockStore(self.device, self._store.layer_specs)
+            self._applied = {}
+            touched = []
+            pulls = sum(self._apply(vog, i, touched) for i in range(vog.num_submaps))
+            self._refresh(touched)
+        return pulls
+
+    def add(self, vog: VogMap, ids) -> int:
+        """Add submaps not yet in the map at their current poses (the cached merge)."""
+        self._check_vog(vog)
+        ids = [int(i) for i in vog._ids("ids", ids)]
+        already = [i for i in ids if i in self._applied]
+        if already or len(set(ids)) != len(ids):
+            raise ValueError(f"ids: submaps {already or ids} are already in the global map (or repeated); "
+                             "moved submaps are re-applied by update_poses")
+        with self._lock.writing():
+            touched = []
+            pulls = sum(self._apply(vog, i, touched) for i in ids)
+            self._refresh(touched)
+        return pulls
+
+    def update_poses(self, vog: VogMap, marginals=None, eps_rot: float = 1e-2,
+                     eps_trans: float = 2e-3, eps_cov="auto") -> UpdateReport:
+        """Sodhi et al. Algorithm 1: re-apply the submaps that moved and are uncertain.
+
+        S1: applied submaps whose current pose differs from the applied one by a rotation angle
+        above `eps_rot` (rad) or a translation above `eps_trans` (m), both from the SE(3) log of
+        the relative pose. S2: submaps whose marginal covariance (`marginals`, (N,6,6) for all
+        N submaps, GTSAM tangent order: rotation then translation) has a 95% x-y-yaw confidence
+        ellipsoid larger than `eps_cov`; "auto" takes the largest volume among submaps 0-9, as
+        the paper does. `marginals=None` puts every submap in S2.
+        """
+        start = time.perf_counter()
+        self._check_vog(vog)
+        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans)):
+            if not isinstance(value, numbers.Real) or not value >= 0 or not np.isfinite(value):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        uncertain, threshold = self._uncertain_set(vog, marginals, eps_cov)
+        ids = np.array(self.applied_ids, dtype=np.int64)
+        moved = ()
+        if len(ids):
+            old = np.stack([self._applied[i].pose for i in ids.tolist()])
+            new = vog.poses(ids)
+            angle, shift = pose_deltas(old, new)
+            # An unchanged pose never moves, whatever round-off the SE(3) log leaves.
+            changed = np.any(old != new, axis=(1, 2))
+            moved = tuple(ids[changed & ((angle > eps_rot) | (shift > eps_trans))].tolist())
+        reapply = [i for i in moved if uncertain is None or i in uncertain]
+        stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
+        if stale:
+            raise ValueError(f"vog: submaps {stale} changed since they were added; their old "
+                             "contribution cannot be undone (add submaps once they are complete)")
+        with self._lock.writing():
+            touched, pulls = [], 0
+            for i in reapply:
+                pulls += self._contribute(vog.submap(i), self._applied[i].pose, -1, touched)
+                pulls += self._apply(vog, i, touched)
+            self._refresh(touched, release=True)
+        return UpdateReport(tuple(reapply), moved, None if uncertain is None else tuple(sorted(uncertain)),
+                            threshold, pulls, time.perf_counter() - start)
+
+    def _uncertain_set(self, vog: VogMap, marginals, eps_cov):
+        if marginals is None:
+            return None, None
+        try:
+            marginals = np.asarray(marginals, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("marginals must be an array of shape (N, 6, 6)") from None
+        if marginals.shape != (vog.num_submaps, 6, 6):
+            raise ValueError(f"marginals must have shape ({vog.num_submaps}, 6, 6), got {marginals.shape}")
+        if not np.all(np.isfinite(marginals)):
+            raise ValueError("marginals contains NaN or infinite values")
+        scale = np.abs(marginals).max(initial=1.0)
+        if np.abs(marginals - marginals.transpose(0, 2, 1)).max(initial=0.0) > _SYMMETRY_TOLERANCE * scale:
+            raise ValueError("marginals must be symmetric")
+        if len(marginals) and np.linalg.eigvalsh(marginals).min() < -1e-9 * scale:
+            raise ValueError("marginals must be positive semi-definite")
+        volumes = confidence_volume(marginals)
+        if isinstance(eps_cov, str) and eps_cov == "auto":
+            if not len(volumes):
+                return set(), None
+            threshold = float(volumes[:10].max())
+        elif isinstance(eps_cov, numbers.Real) and eps_cov >= 0 and np.isfinite(eps_cov):
+            threshold = float(eps_cov)
+        else:
+            raise ValueError(f"eps_cov must be 'auto' or a finite number >= 0, got {eps_cov!r}")
+        return set(np.flatnonzero(volumes > threshold).tolist()), threshold
+
+    def _check_vog(self, vog) -> None:
+        if not isinstance(vog, VogMap):
+            raise ValueError(f"vog must be a vj.VogMap, got {type(vog).__name__}")
+        if vog.config != self.config:
+            raise ValueError("vog has another MapConfig than this global map")
+
+    # ---------------------------------------------------------------- contributions
+    def _apply(self, vog: VogMap, i: int, touched: list) -> int:
+        pose = vog.pose(i)
+        submap = vog.submap(i)
+        pulls = self._contribute(submap, pose, +1, touched)
+        self._applied[i] = Applied(pose, submap.revision)
+        return pulls
+
+    def _contribute(self, submap: Submap, pose: np.ndarray, sign: int, touched: list) -> int:
+        """Add (sign +1) or remove (-1) a submap's pulled values at `pose`; returns voxels updated."""
+        with submap._lock.reading():
+            local = submap._store
+            count = local.num_blocks
+            if count == 0:
+                return 0
+            cfg, device, store = self.config, self.device, self._store
+            frame = [local.slot_keys, None, local.layers["log_odds"], wp.mat33d(pose[:3, :3]),
+                     wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]), np.float64(cfg.voxel_size),
+                     np.float64(1.0 / cfg.voxel_size)]
+            span = accumulation.COLUMN_SPAN
+            parts = parallel.num_parts(device, count * span * span // 64)
+
+            def with_first(lo):
+                return [frame[0], lo, *frame[2:]]
+
+            # 1. the global blocks this submap's blocks pull into (created when adding)
+            keys = wp.full((count, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                accumulation.collect_pull_blocks, dim=(hi - lo, span, span), inputs=with_first(lo),
+                outputs=[keys[lo:hi]], device=device), count, parts)
+            keys = keys.flatten()
+            if sign > 0:
+                store.ensure_blocks(keys)
+            slots = store.find(keys)
+            # 2. add or subtract the pulled values (each global voxel has one source block)
+            pulls = wp.zeros(max(parts, 1), dtype=wp.int32, device=device)
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                accumulation.accumulate_pulls, dim=(hi - lo, span, span),
+                inputs=[*with_first(lo), sign, store.table_keys, store.table_slots, part],
+                outputs=[store.layers["sum"], store.layers["count"], pulls], device=device),
+                count, parts)
+        slots = slots.numpy()
+        touched.append(slots[slots >= 0])
+        return int(pulls.numpy().sum())
+
+    def _refresh(self, touched: list, release: bool = False) -> None:
+        """Recompute the queryable log-odds of touched blocks; release those no submap uses."""
+        if not touched:
+            return
+        slots = np.unique(np.concatenate(touched)).astype(np.int32)
+        if len(slots) == 0:
+            return
+        store, device = self._store, self.device
+        d_slots = wp.array(slots, dtype=wp.int32, device=device)
+        voxels = len(slots) * BLOCK_VOXELS
+        parallel.split_launch(lambda part, lo, hi: wp.launch(
+            accumulation.refresh_log_odds, dim=(hi - lo) * BLOCK_VOXELS,
+            inputs=[d_slots[lo:hi], store.layers["sum"], store.layers["count"],
+                    self.config.log_clamp_min, self.config.log_clamp_max],
+            outputs=[store.layers["log_odds"]], device=device),
+            len(slots), parallel.num_parts(device, voxels // 64))
+        if release:
+            unused = wp.empty(len(slots), dtype=wp.int32, device=device)
+            wp.launch(accumulation.flag_unused_blocks, dim=len(slots),
+                      inputs=[d_slots, store.layers["count"]], outputs=[unused], device=device)
+            store.release(slots[unused.numpy() == 1])
+
+    # ---------------------------------------------------------------- contents and files
+    def sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Voxels with contributions: keys (K,3) int64, fixed-point sums (K,) int64 (units of
+        2^-24 log-odds) and contributing submap counts (K,) int32, sorted by key."""
+        from vogjax.blocks import unpack_blocks, voxel_offsets
+
+        with self._lock.reading():
+            keys, layers = self._store.host_blocks()
+        block_index, local = np.nonzero(layers["count"] != 0)
+        voxel = unpack_blocks(keys)[block_index] * 8 + voxel_offsets()[local]
+        return voxel, layers["sum"][block_index, local], layers["count"][block_index, local]
+
+    def save(self, path) -> None:
+        """One file: config, applied poses and revisions, sums and counts."""
+        with self._lock.reading():
+            keys, layers = self._store.host_blocks()
+            applied = {str(i): {"pose": a.pose.tolist(), "revision": a.revision}
+                       for i, a in self._applied.items()}
+        write_map_file(path, "GlobalMap", {"config": self.config.to_dict(), "applied": applied},
+                       {"block_keys": keys, "sum": layers["sum"], "count": layers["count"]})
+
+    @classmethod
+    def load(cls, path, device=None) -> "GlobalMap":
+        metadata, arrays = read_map_file(path, "GlobalMap")
+        try:
+            config = MapConfig.from_dict(metadata["config"])
+            applied = {int(i): Applied(np.array(a["pose"], dtype=np.float64), int(a["revision"]))
+                       for i, a in metadata["applied"].items()}
+            keys, sums, counts = arrays["block_keys"], arrays["sum"], arrays["count"]
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"path {str(path)!r} has invalid map contents: {error}") from None
+        shape = (keys.shape[0], BLOCK_VOXELS)
+        if keys.dtype != np.int64 or sums.dtype != np.int64 or counts.dtype != np.int32 or \
+                sums.shape != shape or counts.shape != shape or len(np.unique(keys)) != len(keys):
+            raise ValueError(f"path {str(path)!r} has invalid map contents")
+        gmap = cls(config, device)
+        gmap._store = BlockStore.from_host(gmap.device, gmap._store.layer_specs, keys,
+                                           {"sum": sums, "count": counts})
+        gmap._applied = applied
+        gmap._refresh([np.arange(keys.shape[0], dtype=np.int32)])
+        return gmap

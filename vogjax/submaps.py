@@ -1,0 +1,221 @@
+"""Submaps and the virtual map: local VoxelMaps hung off pose-graph nodes, summed on the fly."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import numpy as np
+import warp as wp
+
+from vogjax import _warp, parallel
+from vogjax.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds
+from vogjax.config import MapConfig
+from vogjax.geometry import rigid_poses
+from vogjax.kernels import accumulation, virtual
+from vogjax.locking import ReadWriteLock
+from vogjax.validation import float_array, positive_range
+from vogjax.voxelmap import VoxelMap
+
+
+class Submap(VoxelMap):
+    """A VoxelMap in the frame of its base pose (the pose lives in the VogMap that owns it)."""
+
+    def __init__(self, config: MapConfig, device):
+        super().__init__(config, device)
+        self._derived_revision = -1
+        self._bounds = None
+        self._occupied = None
+
+    def _refresh_derived(self) -> None:
+        if self._derived_revision == self.revision:
+            return
+        centres, log_odds = self.voxels()
+        half = self.config.voxel_size / 2
+        self._bounds = ((centres.min(axis=0) - half, centres.max(axis=0) + half) if len(centres)
+                        else None)
+        self._occupied = centres[log_odds >= self.config.log_occupied]
+        self._derived_revision = self.revision
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi) metres, the submap-frame box of its observed voxels; None if it has none."""
+        self._refresh_derived()
+        return self._bounds
+
+    def occupied_points(self) -> np.ndarray:
+        """(K,3) submap-frame centres of its OCCUPIED voxels (the cloud ICP aligns)."""
+        self._refresh_derived()
+        return self._occupied
+
+
+class VogMap:
+    """The virtual occupancy grid map: submaps at their poses, queried as their sum.
+
+    The value at a world point is the clamped sum, over the submaps whose box holds it, of the
+    log-odds of each submap's voxel containing the point (a fixed-point sum, as in GlobalMap).
+    `set_poses` only moves submaps, which is what makes loop closures free for this map.
+    """
+
+    def __init__(self, config: MapConfig | None = None, device=None):
+        if config is not None and not isinstance(config, MapConfig):
+            raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
+        self.config = config or MapConfig()
+        self.device = _warp.resolve_device(device)
+        self._submaps: list[Submap] = []
+        self._poses = np.zeros((0, 4, 4))
+        self._lock = ReadWriteLock()
+
+    # ---------------------------------------------------------------- submaps and poses
+    @property
+    def num_submaps(self) -> int:
+        return len(self._submaps)
+
+    def add_submap(self, pose) -> int:
+        """A new empty submap with base pose `pose` (4,4) T_world_submap; returns its id."""
+        pose = rigid_poses("pose", pose)
+        with self._lock.writing():
+            self._submaps.append(Submap(self.config, self.device))
+            self._poses = np.concatenate([self._poses, pose])
+            return len(self._submaps) - 1
+
+    def submap(self, i) -> Submap:
+        return self._submaps[self._ids("i", [i])[0]]
+
+    def pose(self, i) -> np.ndarray:
+        return self._poses[self._ids("i", [i])[0]].copy()
+
+    def poses(self, ids=None) -> np.ndarray:
+        """(n,4,4) poses of `ids` (all submaps when None)."""
+        if ids is None:
+            return self._poses.copy()
+        return self._poses[self._ids("ids", ids)].copy()
+
+    def set_poses(self, ids, poses) -> None:
+        """Move submaps `ids` to `poses` (n,4,4); their contents stay as they are."""
+        ids = self._ids("ids", ids)
+        poses = rigid_poses("poses", poses, count=len(ids))
+        with self._lock.writing():
+            self._poses[ids] = poses
+
+    def _ids(self, name: str, ids) -> np.ndarray:
+        array = np.atleast_1d(np.asarray(ids))
+        if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
+            raise ValueError(f"{name} must be submap ids (integers), got {ids!r}")
+        if array.size and (array.min() < 0 or array.max() >= self.num_submaps):
+            raise ValueError(f"{name} holds unknown submap ids (this map has {self.num_submaps})")
+        return array.astype(np.int64)
+
+    # ---------------------------------------------------------------- virtual queries
+    @contextlib.contextmanager
+    def _views(self):
+        """Device array of SubmapViews at the current poses, with every submap read-locked."""
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(self._lock.reading())
+            for submap in self._submaps:
+                stack.enter_context(submap._lock.reading())
+            views = []
+            margin = self.config.voxel_size
+            for submap, pose in zip(self._submaps, self._poses):
+                box = submap.bounds()
+                if box is None:
+                    continue
+                store = submap._store
+                view = virtual.SubmapView()
+                view.table_keys = store.table_keys.ptr
+                view.table_slots = store.table_slots.ptr
+                view.table_capacity = store.table_capacity
+                view.log_odds = store.layers["log_odds"].ptr
+                view.pool_size = store.layers["log_odds"].shape[0]
+                view.rotation_t = wp.mat33d(pose[:3, :3].T)
+                view.translation = wp.vec3d(pose[:3, 3])
+                view.box_lo = wp.vec3d(box[0] - margin)
+                view.box_hi = wp.vec3d(box[1] + margin)
+                views.append(view)
+            yield wp.array(views, dtype=virtual.SubmapView, device=self.device)
+
+    def _values_at(self, points: np.ndarray) -> np.ndarray:
+        """Clamped summed log-odds at world points (M,3) float64; NaN where no submap observed."""
+        count = points.shape[0]
+        sums = wp.zeros(count, dtype=wp.int64, device=self.device)
+        counts = wp.zeros(count, dtype=wp.int32, device=self.device)
+        d_points = wp.array(points, dtype=wp.vec3d, device=self.device)
+        inv_resolution = np.float64(1.0 / self.config.voxel_size)
+        with self._views() as views:
+            if views.shape[0]:
+                parallel.split_launch(lambda part, lo, hi: wp.launch(
+                    virtual.sum_at_points, dim=(hi - lo, views.shape[0]),
+                    inputs=[d_points, lo, views, inv_resolution], outputs=[sums, counts],
+                    device=self.device), count, parallel.num_parts(self.device, count))
+        return fixed_point_values(sums.numpy(), counts.numpy(), self.config)
+
+    def log_odds(self, points) -> np.ndarray:
+        """(M,) float32 virtual log-odds at `points` (M,3); 0.0 where no submap observed them."""
+        points = float_array("points", points, (-1, 3), np.float64)
+        return np.nan_to_num(self._values_at(points), nan=0.0)
+
+    def probability(self, points) -> np.ndarray:
+        return probability_from_log_odds(self.log_odds(points))
+
+    def state(self, points) -> np.ndarray:
+        points = float_array("points", points, (-1, 3), np.float64)
+        return classify(self._values_at(points), self.config)
+
+    def raycast(self, origins, directions, max_range) -> RaycastResult:
+        """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre."""
+        origins = float_array("origins", origins, (-1, 3), np.float64)
+        directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
+        norms = np.linalg.norm(directions, axis=1)
+        if np.any(norms == 0):
+            raise ValueError("directions must be nonzero")
+        ranges = positive_range("max_range", max_range, origins.shape[0])
+        cfg, device, count = self.config, self.device, origins.shape[0]
+        rays = [wp.array(origins, dtype=wp.vec3d, device=device),
+                wp.array(directions / norms[:, None], dtype=wp.vec3d, device=device),
+                wp.array(ranges, dtype=wp.float64, device=device)]
+        out = {"hit": wp.zeros(count, dtype=wp.bool, device=device),
+               "distance": wp.array(ranges.astype(np.float32), dtype=wp.float32, device=device),
+               "num_unknown": wp.zeros(count, dtype=wp.int32, device=device),
+               "num_free": wp.zeros(count, dtype=wp.int32, device=device)}
+        parts = parallel.num_parts(device, count)
+        with self._views() as views:
+            n = views.shape[0]
+            # 1. per ray, the submaps whose box it crosses, with the crossing interval
+            counts = wp.zeros(count, dtype=wp.int32, device=device)
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                virtual.count_ray_candidates, dim=(hi - lo, n), inputs=[*rays, lo, views],
+                outputs=[counts], device=device), count if n else 0, parts)
+            offsets_host = np.zeros(count + 1, np.int32)
+            np.cumsum(counts.numpy(), out=offsets_host[1:])
+            offsets = wp.array(offsets_host, dtype=wp.int32, device=device)
+            total = int(offsets_host[-1])
+            candidates = wp.empty(max(total, 1), dtype=wp.int32, device=device)
+            spans = wp.empty(max(total, 1), dtype=wp.vec2d, device=device)
+            fill = wp.zeros(count, dtype=wp.int32, device=device)
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                virtual.list_ray_candidates, dim=(hi - lo, n), inputs=[*rays, lo, views, offsets],
+                outputs=[fill, candidates, spans], device=device), count if n else 0, parts)
+            # 2. walk each ray, summing its candidates at every voxel centre
+            parallel.split_launch(lambda part, lo, hi: wp.launch(
+                virtual.cast_virtual_rays, dim=hi - lo,
+                inputs=[*rays, lo, views, offsets, candidates, spans, np.float64(cfg.voxel_size),
+                        np.float64(1.0 / cfg.voxel_size), cfg.log_clamp_min, cfg.log_clamp_max,
+                        cfg.log_occupied, cfg.log_free],
+                outputs=list(out.values()), device=device), count, parts)
+        return RaycastResult(**{name: a.numpy() for name, a in out.items()})
+
+    def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+        """As VoxelMap.line_query: virtual log-odds at the centres of the voxels on each line."""
+        keys, lengths = line_voxels(self.config, self.device, starts, ends)
+        values = np.full(keys.shape[:2], np.nan, np.float32)
+        inside = np.arange(keys.shape[1])[None, :] < lengths[:, None]
+        centres = (keys[inside].astype(np.float64) + 0.5) * self.config.voxel_size
+        values[inside] = np.nan_to_num(self._values_at(centres), nan=0.0)
+        return values, lengths
+
+
+def fixed_point_values(sums: np.ndarray, counts: np.ndarray, config: MapConfig) -> np.ndarray:
+    """Host twin of accumulation.from_fixed_point: clamped log-odds, NaN where count is 0."""
+    values = (sums.astype(np.float64) / accumulation.FIXED_POINT_SCALE).astype(np.float32)
+    values = np.clip(values, config.log_clamp_min, config.log_clamp_max)
+    values[counts == 0] = math.nan
+    return values
