@@ -83,16 +83,21 @@ def box_start(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d,
 @wp.func
 def column_range(i: int, j: int, start_k: int, block: wp.vec3i, rotation_t: wp.mat33d,
                  translation: wp.vec3d, resolution: wp.float64) -> wp.vec2i:
-    """Global z indices of column (i, j) whose centres may lie in the block's box (a superset)."""
+    """Global z indices of column (i, j) whose centres lie in the block's box.
+
+    The box is widened by a millionth of a voxel against round-off; `pulled_value` decides
+    exactly, so a superset here is harmless and a tight one saves the work.
+    """
     half = wp.float64(0.5)
     base = rotation_t * (wp.vec3d((wp.float64(i) + half) * resolution,
                                   (wp.float64(j) + half) * resolution, wp.float64(0.0)) - translation)
     along = wp.vec3d(rotation_t[0, 2], rotation_t[1, 2], rotation_t[2, 2])  # d(local)/d(world z)
+    margin = wp.float64(1e-6) * resolution
     z_lo = -FAR
     z_hi = FAR
     for axis in range(3):
-        lo = wp.float64(block[axis] * 8 - 1) * resolution
-        hi = wp.float64(block[axis] * 8 + 9) * resolution
+        lo = wp.float64(block[axis] * 8) * resolution - margin
+        hi = wp.float64(block[axis] * 8 + 8) * resolution + margin
         if wp.abs(along[axis]) < wp.float64(1e-12):
             if base[axis] < lo or base[axis] > hi:
                 return wp.vec2i(0, -1)
@@ -103,8 +108,9 @@ def column_range(i: int, j: int, start_k: int, block: wp.vec3i, rotation_t: wp.m
             z_hi = wp.min(z_hi, wp.max(a, b))
     if z_lo > z_hi:
         return wp.vec2i(0, -1)
-    first = wp.max(int(wp.floor(z_lo / resolution - half)), start_k)
-    last = wp.min(int(wp.ceil(z_hi / resolution - half)), start_k + SPAN - 1)
+    # centre (k + 0.5) s in [z_lo, z_hi]
+    first = wp.max(int(wp.ceil(z_lo / resolution - half)), start_k)
+    last = wp.min(int(wp.floor(z_hi / resolution - half)), start_k + SPAN - 1)
     return wp.vec2i(first, last)
 
 

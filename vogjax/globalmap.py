@@ -201,7 +201,7 @@ class GlobalMap(BlockMap):
                      wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]), np.float64(cfg.voxel_size),
                      np.float64(1.0 / cfg.voxel_size)]
             span = accumulation.COLUMN_SPAN
-            parts = parallel.num_parts(device, count * span * span // 64)
+            parts = parallel.num_parts(device, count * span * span)
 
             def with_first(lo):
                 return [frame[0], lo, *frame[2:]]
