@@ -67,17 +67,16 @@ def voxel_centre(voxel: wp.vec3i, resolution: wp.float64) -> wp.vec3d:
 def box_start(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d,
               resolution: wp.float64) -> wp.vec3i:
     """First global voxel index per axis whose centre may lie in the block's transformed box."""
-    lo = wp.vec3d(FAR, FAR, FAR)
-    for corner in range(8):
-        p = wp.vec3d(wp.float64(block[0] * 8 + (corner & 1) * 8),
-                     wp.float64(block[1] * 8 + ((corner >> 1) & 1) * 8),
-                     wp.float64(block[2] * 8 + ((corner >> 2) & 1) * 8)) * resolution
-        w = rotation * p + translation
-        lo = wp.vec3d(wp.min(lo[0], w[0]), wp.min(lo[1], w[1]), wp.min(lo[2], w[2]))
+    half_edge = wp.float64(4.0) * resolution
+    centre = rotation * (wp.vec3d(wp.float64(block[0] * 8 + 4), wp.float64(block[1] * 8 + 4),
+                                  wp.float64(block[2] * 8 + 4)) * resolution) + translation
     half = wp.float64(0.5)
-    return wp.vec3i(int(wp.floor(lo[0] / resolution - half)) - 1,
-                    int(wp.floor(lo[1] / resolution - half)) - 1,
-                    int(wp.floor(lo[2] / resolution - half)) - 1)
+    start = wp.vec3i(0, 0, 0)
+    for axis in range(3):
+        extent = (wp.abs(rotation[axis, 0]) + wp.abs(rotation[axis, 1]) + wp.abs(rotation[axis, 2])) * half_edge
+        # centre (k + 0.5) s >= lo  <=>  k >= lo / s - 0.5; one voxel of margin against round-off
+        start[axis] = int(wp.floor((centre[axis] - extent) / resolution - half)) - 1
+    return start
 
 
 @wp.func
