@@ -64,19 +64,22 @@ def voxel_centre(voxel: wp.vec3i, resolution: wp.float64) -> wp.vec3d:
 
 
 @wp.func
-def box_start(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d,
-              resolution: wp.float64) -> wp.vec3i:
-    """First global voxel index per axis whose centre may lie in the block's transformed box."""
+def block_box(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d, resolution: wp.float64):
+    """First and last global voxel index per axis whose centre may lie in the block's
+    transformed box, with a voxel of margin against round-off."""
     half_edge = wp.float64(4.0) * resolution
     centre = rotation * (wp.vec3d(wp.float64(block[0] * 8 + 4), wp.float64(block[1] * 8 + 4),
                                   wp.float64(block[2] * 8 + 4)) * resolution) + translation
     half = wp.float64(0.5)
-    start = wp.vec3i(0, 0, 0)
+    first = wp.vec3i(0, 0, 0)
+    last = wp.vec3i(0, 0, 0)
     for axis in range(3):
         extent = (wp.abs(rotation[axis, 0]) + wp.abs(rotation[axis, 1]) + wp.abs(rotation[axis, 2])) * half_edge
-        # centre (k + 0.5) s >= lo  <=>  k >= lo / s - 0.5; one voxel of margin against round-off
-        start[axis] = int(wp.floor((centre[axis] - extent) / resolution - half)) - 1
-    return start
+        # centre (k + 0.5) s in [lo, hi]  <=>  lo / s - 0.5 <= k <= hi / s - 0.5
+        first[axis] = int(wp.floor((centre[axis] - extent) / resolution - half)) - 1
+        last[axis] = wp.min(int(wp.floor((centre[axis] + extent) / resolution - half)) + 1,
+                            first[axis] + SPAN - 1)
+    return first, last
 
 
 @wp.func
@@ -136,9 +139,11 @@ def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: i
     if key == EMPTY_KEY:
         return
     block = unpack_block(key)
-    start = box_start(block, rotation, translation, resolution)
+    start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
     j = start[1] + v
+    if i > last[0] or j > last[1]:
+        return
     ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
     first_block = block_of(start)
     for k in range(ks[0], ks[1] + 1):
@@ -165,9 +170,11 @@ def accumulate_pulls(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
     if key == EMPTY_KEY:
         return
     block = unpack_block(key)
-    start = box_start(block, rotation, translation, resolution)
+    start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
     j = start[1] + v
+    if i > last[0] or j > last[1]:
+        return
     ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
     global_slot = int(-1)
     current = wp.vec3i(0, 0, 0)
