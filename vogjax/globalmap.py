@@ -197,14 +197,13 @@ class GlobalMap(BlockMap):
             if count == 0:
                 return 0
             cfg, device, store = self.config, self.device, self._store
-            frame = [local.slot_keys, None, local.layers["log_odds"], wp.mat33d(pose[:3, :3]),
-                     wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]), np.float64(cfg.voxel_size),
-                     np.float64(1.0 / cfg.voxel_size)]
+            transform = [wp.mat33d(pose[:3, :3]), wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]),
+                         np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
             span = accumulation.COLUMN_SPAN
             parts = parallel.num_parts(device, count * span * span)
 
-            def with_first(lo):
-                return [frame[0], lo, *frame[2:]]
+            def with_first(lo):  # the submap's blocks from slot `lo` on, and the transform
+                return [local.slot_keys, lo, local.layers["log_odds"], *transform]
 
             # 1. the global blocks this submap's blocks pull into (created when adding)
             keys = wp.full((count, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
