@@ -88,3 +88,34 @@ class MapConfig:
         if unknown:
             raise ValueError(f"unknown MapConfig keys: {', '.join(unknown)}")
         return cls(**values)
+
+
+@dataclasses.dataclass(frozen=True)
+class NavNoise:
+    """Navigation drift per second of travel (Sodhi et al., Eq. 10; variances in m^2/s, rad^2/s).
+
+    x, y and yaw drift (relative xyh factors); z, pitch and roll are measured absolutely
+    (depth sensor, inclinometers: unary zpr factors).
+    """
+
+    sigma2_x: float = 0.00138
+    sigma2_y: float = 0.00138
+    sigma2_yaw: float = 1e-7
+    sigma2_z: float = 1e-4
+    sigma2_pitch: float = 1e-7
+    sigma2_roll: float = 1e-7
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"NavNoise.{field.name} must be a positive number, got {value!r}")
+
+    def xyh_variances(self, duration_s: float) -> np.ndarray:
+        return np.array([self.sigma2_x, self.sigma2_y, self.sigma2_yaw]) * duration_s
+
+    def zpr_variances(self, duration_s: float) -> np.ndarray:
+        return np.array([self.sigma2_z, self.sigma2_pitch, self.sigma2_roll]) * duration_s
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

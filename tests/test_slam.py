@@ -1,0 +1,202 @@
+"""SLAM backend: factor Jacobians, ICP, partial factors, loop closures, marginals, bad input."""
+
+import numpy as np
+import pytest
+
+import vogjax as vj
+from vogjax import slam
+from vogjax.geometry import inverse, log_se3
+from vogjax.slam import factors
+from vogjax.slam.icp import _exp
+
+from .submap_helpers import random_pose
+
+
+def numeric_jacobian(f, T, eps=1e-6):
+    """d f(T Exp(xi)) / d xi by central differences (GTSAM's right perturbation)."""
+    J = np.zeros((len(f(T)), 6))
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = eps
+        J[:, j] = (f(T @ _exp(step)) - f(T @ _exp(-step))) / (2 * eps)
+    return J
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_factor_jacobians_match_numerical_ones(seed):
+    rng = np.random.default_rng(seed)
+    T_a, T_b = random_pose(rng, tilt=0.4), random_pose(rng, tilt=0.4)
+    J_a, J_b = factors.xyh_jacobians(T_a, T_b)
+    np.testing.assert_allclose(J_a, numeric_jacobian(lambda T: factors.xyh(T, T_b), T_a), atol=1e-6)
+    np.testing.assert_allclose(J_b, numeric_jacobian(lambda T: factors.xyh(T_a, T), T_b), atol=1e-6)
+    np.testing.assert_allclose(factors.zpr_jacobian(T_a), numeric_jacobian(factors.zpr, T_a), atol=1e-6)
+
+
+def drifting_square(rng, laps=2, side=8, step_s=60.0, noise=vj.NavNoise()):
+    """Ground truth and navigation poses of submaps along a square, navigation drifting per
+    Sodhi et al. Eq. 10: relative x, y, yaw noise, absolute z, pitch, roll noise."""
+    truth, nav = [np.eye(4)], [np.eye(4)]
+    for n in range(1, laps * 4 * side):
+        yaw = (n // side) * np.pi / 2
+        T = np.eye(4)
+        T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        T[:3, 3] = truth[-1][:3, 3] + np.array([np.cos(yaw), np.sin(yaw), 0.0]) * 1.0
+        truth.append(T)
+        relative = inverse(truth[-2]) @ T
+        dx, dy, dh = rng.normal(0, np.sqrt(noise.xyh_variances(step_s)))
+        noisy = relative.copy()
+        noisy[:2, 3] += [dx, dy]
+        c, s = np.cos(dh), np.sin(dh)
+        noisy[:2, :2] = np.array([[c, -s], [s, c]]) @ noisy[:2, :2]
+        N = nav[-1] @ noisy
+        N[2, 3] = T[2, 3] + rng.normal(0, np.sqrt(noise.sigma2_z * step_s))
+        nav.append(N)
+    return np.stack(truth), np.stack(nav)
+
+
+def ate(estimate, truth):
+    return np.sqrt(np.mean(np.sum((estimate[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1)))
+
+
+def test_loop_closures_bring_the_error_well_below_odometry_and_shrink_marginals():
+    rng = np.random.default_rng(0)
+    step_s = 60.0
+    truth, nav = drifting_square(rng, laps=3, step_s=step_s)
+    pg = slam.PoseGraph(prior_pose=truth[0])
+    for T in nav:
+        pg.add_submap(T, step_s)
+    odometry_only = pg.update()
+    per_lap = len(nav) // 3
+    sigmas = np.sqrt(pg.marginals(range(len(nav)))[:, 3, 3])
+    assert np.all(np.diff(sigmas[:per_lap]) > 0)  # uncertainty grows along the chain
+    before = pg.marginals([len(nav) - 1])[0]
+    cov = np.diag([1e-4] * 3 + [1e-3] * 3)
+    for k in range(per_lap, len(nav)):  # later laps revisit the places of earlier ones
+        for i in range(k % per_lap, k - per_lap + 1, per_lap):
+            pg.add_loop_closure(i, k, inverse(truth[i]) @ truth[k], cov)
+    optimised = pg.update()
+    assert ate(odometry_only, truth) > 0.5
+    assert ate(optimised, truth) < 0.35 * ate(odometry_only, truth)
+    after = pg.marginals([len(nav) - 1])[0]
+    assert np.linalg.det(after[3:5, 3:5]) < 0.1 * np.linalg.det(before[3:5, 3:5])
+
+
+def test_partial_factor_leaves_the_degenerate_direction_to_odometry():
+    pg = slam.PoseGraph()
+    T = np.eye(4)
+    for _ in range(3):
+        T = T.copy()
+        T[0, 3] += 5.0
+        pg.add_submap(T, 60.0)
+    claimed = np.eye(4)
+    claimed[:3, 3] = [12.0, 0.8, 0.0]  # x far off, y off: a corridor along x gives no x
+    basis = np.eye(6)[:, [0, 1, 2, 4, 5]]  # everything but translation x
+    pg.add_loop_closure(0, 2, claimed, np.diag([1e-6] * 6), basis=basis)
+    poses = pg.update()
+    relative = inverse(poses[0]) @ poses[2]
+    assert abs(relative[0, 3] - 10.0) < 0.05  # odometry's x
+    assert abs(relative[1, 3] - 0.8) < 0.05  # the loop closure's y
+    assert pg.factors[-1][0] == "partial_loop"
+
+
+def structured_cloud(rng, n=3000):
+    """Three walls, a floor and some boxes: constrains every direction."""
+    parts = [np.c_[rng.uniform(0, 6, n // 5), rng.uniform(0, 4, n // 5), np.zeros(n // 5)],
+             np.c_[np.zeros(n // 5), rng.uniform(0, 4, n // 5), rng.uniform(0, 3, n // 5)],
+             np.c_[rng.uniform(0, 6, n // 5), np.zeros(n // 5), rng.uniform(0, 3, n // 5)],
+             np.c_[rng.uniform(2, 3, n // 5), rng.uniform(1, 2, n // 5), np.full(n // 5, 1.0)],
+             np.c_[np.full(n // 5, 4.0), rng.uniform(2, 3, n // 5), rng.uniform(0, 1.5, n // 5)]]
+    return np.concatenate(parts)
+
+
+def small_motion(rng, rotation=0.05, translation=0.2, planar=False):
+    xi = np.concatenate([rng.normal(0, rotation, 3), rng.normal(0, translation, 3)])
+    if planar:
+        xi[[0, 1, 5]] = 0.0
+    return _exp(xi)
+
+
+@pytest.mark.parametrize("method", ["point_to_plane", "point_to_point_xyh"])
+def test_icp_recovers_a_known_transform(method):
+    rng = np.random.default_rng(1)
+    target = structured_cloud(rng)
+    truth = small_motion(rng, planar=method == "point_to_point_xyh")
+    source = (target - truth[:3, 3]) @ truth[:3, :3]  # source = truth^-1 target
+    source += rng.normal(0, 0.005, source.shape)
+    result = slam.icp(source, target, np.eye(4), method=method)
+    assert result.converged and not result.degenerate
+    error = log_se3(inverse(truth) @ result.T_target_source)
+    assert np.linalg.norm(error[:3]) < 0.01 and np.linalg.norm(error[3:]) < 0.02
+    assert result.fitness < 1e-3 and result.num_inliers > 0.9 * len(source)
+
+
+def test_degenerate_scenes_give_a_reduced_basis():
+    rng = np.random.default_rng(2)
+    plane = np.c_[rng.uniform(0, 10, 2000), rng.uniform(0, 10, 2000), rng.normal(0, 0.002, 2000)]
+    corridor = np.concatenate([
+        np.c_[rng.uniform(0, 30, 1500), np.zeros(1500), rng.uniform(0, 3, 1500)],
+        np.c_[rng.uniform(0, 30, 1500), np.full(1500, 2.0), rng.uniform(0, 3, 1500)],
+        np.c_[rng.uniform(0, 30, 1500), rng.uniform(0, 2, 1500), np.zeros(1500)]])
+    shift = np.eye(4)
+    shift[:3, 3] = [0.3, 0.05, 0.05]
+    for cloud, free_directions in ((plane, 3), (corridor, 1)):
+        source = cloud @ np.eye(3) - shift[:3, 3]
+        result = slam.icp(source, cloud, np.eye(4))
+        assert result.basis.shape == (6, 6 - free_directions)
+        if free_directions == 1:  # the corridor's free direction is translation along x
+            assert abs(result.eigenvectors[3, 0]) > 0.99
+
+
+def test_detector_accepts_true_and_rejects_wrong_loop_closures():
+    rng = np.random.default_rng(3)
+    cloud = structured_cloud(rng, 2000)
+    bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
+    poses = np.stack([np.eye(4)] * 3)
+    poses[1, :3, 3] = [20.0, 0, 0]  # far away: not a candidate
+    truth_k = small_motion(rng, 0.02, 0.1)
+    poses[2] = truth_k
+    clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
+    times = np.array([0.0, 600.0, 1200.0])
+    detector = slam.LoopClosureDetector()
+    estimate = poses.copy()
+    estimate[2] = small_motion(rng, 0.01, 0.05) @ truth_k  # the current estimate is a bit off
+    accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, poses, times)
+    assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
+    assert accepted[0].basis is None
+    np.testing.assert_allclose(accepted[0].T_i_k, truth_k, atol=0.02)
+    # Navigation says k is 10 m off from where ICP puts it: more than it can drift in 20 min
+    # (3 sigma of sqrt((0.00138 + 0.00138) * 1200 s) = 5.5 m).
+    lying_nav = poses.copy()
+    lying_nav[2, :3, 3] += [10.0, 0.0, 0.0]
+    accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, lying_nav, times)
+    assert not accepted and [r.reason for r in rejected] == ["drift"]
+    # A cloud of another place entirely does not align well enough.
+    clouds[2] = np.random.default_rng(9).uniform(0, 5, (2000, 3))
+    accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, poses, times)
+    assert not accepted and rejected[0].reason in ("fitness", "not converged")
+
+
+@pytest.mark.parametrize("call, argument", [
+    (lambda pg: pg.add_submap(np.eye(3), 1.0), "T_world_submap_nav"),
+    (lambda pg: pg.add_submap(np.diag([1, 1, 2, 1.0]), 1.0), "T_world_submap_nav"),
+    (lambda pg: pg.add_submap(np.eye(4), 0.0), "duration_s"),
+    (lambda pg: pg.add_loop_closure(0, 5, np.eye(4), np.eye(6)), "k"),
+    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), -np.eye(6)), "covariance"),
+    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.triu(np.ones((6, 6)))), "covariance"),
+    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(5)), "covariance"),
+    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(6), basis=np.ones((6, 2))), "basis"),
+    (lambda pg: pg.add_loop_closure(0, 1, np.ones((4, 4)), np.eye(6)), "T_i_k"),
+    (lambda pg: pg.marginals([7]), "ids"),
+    (lambda pg: slam.icp(np.zeros((0, 3)), np.ones((10, 3))), "source"),
+    (lambda pg: slam.icp(np.ones((10, 3)), np.full((10, 3), np.nan)), "target"),
+    (lambda pg: slam.icp(np.ones((10, 3)), np.ones((10, 3)), method="magic"), "method"),
+])
+def test_bad_input(call, argument):
+    pg = slam.PoseGraph()
+    pg.add_submap(np.eye(4))
+    pg.add_submap(np.eye(4), 10.0)
+    pg.update()
+    factors_before = list(pg.factors)
+    with pytest.raises(ValueError, match=argument):
+        call(pg)
+    assert pg.factors == factors_before

@@ -1,0 +1,18 @@
+"""SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection."""
+
+from vogjax.geometry import pose_deltas
+from vogjax.slam.backend import PoseGraph
+from vogjax.slam.icp import IcpConfig, IcpResult, icp
+from vogjax.slam.loop_closure import LoopClosure, LoopClosureConfig, LoopClosureDetector, Rejection
+
+__all__ = [
+    "IcpConfig",
+    "IcpResult",
+    "LoopClosure",
+    "LoopClosureConfig",
+    "LoopClosureDetector",
+    "PoseGraph",
+    "Rejection",
+    "icp",
+    "pose_deltas",
+]

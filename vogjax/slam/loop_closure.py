@@ -1,0 +1,118 @@
+"""Loop-closure detection between submaps (Ho, thesis 4.2, Algorithm 6 and its criteria).
+
+For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
+centroid of k's cloud (moved by the current relative estimate) is aligned by ICP. A candidate is
+accepted when ICP converged, its fitness is below a threshold, and its result lies within the
+navigation's possible drift of the odometry relative pose. Degenerate alignments give partial
+factors over their well-conditioned directions; the rest get full Pose3 factors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from vogjax.config import NavNoise
+from vogjax.geometry import inverse
+from vogjax.slam.icp import IcpConfig, IcpResult, icp
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopClosureConfig:
+    method: str = "point_to_plane"
+    icp: IcpConfig = IcpConfig()
+    min_points: int = 50  # both clouds need this many occupied voxels
+    min_separation: int = 2  # |i - k| at least this: neighbours are tied by odometry already
+    max_fitness_m2: float = 0.02  # mean squared inlier distance
+    drift_sigmas: float = 3.0  # accept results within this many drift sigmas of odometry
+    min_sigma_rotation_rad: float = 0.005  # floors on the factor's sigmas: ICP's own
+    min_sigma_translation_m: float = 0.02  # covariance is overconfident
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopClosure:
+    """A constraint T_world_i^-1 T_world_k = T_i_k for PoseGraph.add_loop_closure."""
+
+    i: int
+    k: int
+    T_i_k: np.ndarray
+    covariance: np.ndarray  # (6,6), GTSAM order
+    basis: np.ndarray | None  # (6,r) for a partial factor, None for a full one
+    fitness: float
+    num_inliers: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Rejection:
+    i: int
+    k: int
+    reason: str  # "not converged", "fitness", "drift"
+    fitness: float
+    deviation_m: float
+
+
+class LoopClosureDetector:
+    def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None):
+        self.noise = noise or NavNoise()
+        self.config = config or LoopClosureConfig()
+
+    def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
+        """Earlier submaps worth aligning with k (the thesis's precondition)."""
+        cfg = self.config
+        if len(clouds[k]) < cfg.min_points:
+            return []
+        centroid = np.append(clouds[k].mean(axis=0), 1.0)
+        found = []
+        for i in range(0, k - cfg.min_separation + 1):
+            if len(clouds[i]) < cfg.min_points or bounds[i] is None:
+                continue
+            in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
+            if np.all(in_i >= bounds[i][0]) and np.all(in_i <= bounds[i][1]):
+                found.append(i)
+        return found
+
+    def detect(self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray,
+               times_s: np.ndarray) -> tuple[list[LoopClosure], list[Rejection]]:
+        """Loop closures of submap k with earlier submaps.
+
+        clouds[i]: (N,3) occupied points in submap i's frame; bounds[i]: its (lo, hi) box or None;
+        poses, nav_poses: (N,4,4) current estimates and navigation poses; times_s: (N,) times of
+        the base poses, for the drift allowed between two submaps.
+        """
+        accepted, rejected = [], []
+        for i in self.candidates(k, clouds, bounds, poses):
+            T_init = inverse(poses[i]) @ poses[k]
+            result = icp(clouds[k], clouds[i], T_init, self.config.method, self.config.icp)
+            odometry = inverse(nav_poses[i]) @ nav_poses[k]
+            deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
+            reason = self._rejection(result, deviation, abs(times_s[k] - times_s[i]))
+            if reason:
+                rejected.append(Rejection(i, k, reason, result.fitness, deviation))
+            else:
+                accepted.append(self._closure(i, k, result))
+        return accepted, rejected
+
+    def _rejection(self, result: IcpResult, deviation: float, elapsed_s: float) -> str | None:
+        if not result.converged:
+            return "not converged"
+        if result.fitness > self.config.max_fitness_m2:
+            return "fitness"
+        max_drift = self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
+        if deviation > max_drift:
+            return "drift"
+        return None
+
+    def _closure(self, i: int, k: int, result: IcpResult) -> LoopClosure:
+        cfg = self.config
+        good = result.eigenvalues >= cfg.icp.lambda_min * result.num_inliers
+        vectors = result.eigenvectors
+        # sigma^2 H^-1 over the constrained directions; degenerate ones left unconstrained
+        # (a partial factor drops them, a full factor never sees them: r = 6 then).
+        variance = max(result.fitness, 1e-12)
+        covariance = vectors[:, good] @ np.diag(variance / result.eigenvalues[good]) @ vectors[:, good].T
+        floor = np.array([cfg.min_sigma_rotation_rad] * 3 + [cfg.min_sigma_translation_m] * 3) ** 2
+        covariance = covariance + np.diag(floor)
+        basis = None if good.all() else result.basis
+        return LoopClosure(i, k, result.T_target_source, covariance, basis, result.fitness,
+                           result.num_inliers)
