@@ -130,6 +130,21 @@ def test_icp_recovers_a_known_transform(method):
     assert result.fitness < 1e-3 and result.num_inliers > 0.9 * len(source)
 
 
+def test_batched_icp_equals_one_pair_at_a_time():
+    rng = np.random.default_rng(5)
+    targets = [structured_cloud(rng, 1500), structured_cloud(rng, 2500)]
+    truths = [small_motion(rng), small_motion(rng)]
+    sources = [(t - m[:3, 3]) @ m[:3, :3] for t, m in zip(targets, truths)]
+    sources[1] = sources[1][::2]  # pairs of different sizes share the padded arrays
+    for method in ("point_to_plane", "point_to_point_xyh"):
+        batch = slam.icp_batch(sources, targets, None, method)
+        for source, target, together in zip(sources, targets, batch):
+            alone = slam.icp(source, target, method=method)
+            np.testing.assert_allclose(together.T_target_source, alone.T_target_source, atol=1e-9)
+            assert together.iterations == alone.iterations
+            assert together.converged == alone.converged
+
+
 def test_degenerate_scenes_give_a_reduced_basis():
     rng = np.random.default_rng(2)
     plane = np.c_[rng.uniform(0, 10, 2000), rng.uniform(0, 10, 2000), rng.normal(0, 0.002, 2000)]

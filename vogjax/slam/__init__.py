@@ -2,7 +2,7 @@
 
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import PoseGraph
-from vogjax.slam.icp import IcpConfig, IcpResult, icp
+from vogjax.slam.icp import IcpConfig, IcpResult, icp, icp_batch
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureConfig, LoopClosureDetector, Rejection
 
 __all__ = [
@@ -14,5 +14,6 @@ __all__ = [
     "PoseGraph",
     "Rejection",
     "icp",
+    "icp_batch",
     "pose_deltas",
 ]

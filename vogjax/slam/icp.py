@@ -61,96 +61,137 @@ def _skew(p: np.ndarray) -> np.ndarray:
 
 
 def _exp(xi: np.ndarray) -> np.ndarray:
-    """SE(3) exponential of (omega, v) (rotation by Rodrigues, translation by V)."""
-    omega, v = xi[:3], xi[3:]
-    theta = np.linalg.norm(omega)
-    W = _skew(omega[None])[0]
-    if theta < 1e-10:
-        R, V = np.eye(3) + W, np.eye(3) + 0.5 * W
-    else:
-        a, b = np.sin(theta) / theta, (1 - np.cos(theta)) / theta**2
-        R = np.eye(3) + a * W + b * W @ W
-        V = np.eye(3) + b * W + (theta - np.sin(theta)) / theta**3 * W @ W
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, V @ v
-    return T
+    """SE(3) exponential of (omega, v) rows (..., 6) -> (..., 4, 4)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    flat = xi.reshape(-1, 6)
+    omega, v = flat[:, :3], flat[:, 3:]
+    theta = np.linalg.norm(omega, axis=1)
+    W = _skew(omega)
+    WW = W @ W
+    small = theta < 1e-10
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1 - np.cos(t)) / t**2)
+    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    eye = np.eye(3)
+    R = eye + a[:, None, None] * W + b[:, None, None] * WW
+    V = eye + b[:, None, None] * W + c[:, None, None] * WW
+    T = np.tile(np.eye(4), (len(flat), 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = np.einsum("nij,nj->ni", V, v)
+    return T.reshape(*xi.shape[:-1], 4, 4)
 
 
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
     """Unit normals of the target cloud: smallest principal axis of each point's neighbours."""
     k = min(neighbours, len(target))
-    _, index = tree.query(target, k=k)
+    _, index = tree.query(target, k=k, workers=-1)
     patches = target[index.reshape(len(target), k)]
     centred = patches - patches.mean(axis=1, keepdims=True)
     _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
     return vectors[:, :, 0]
 
 
-def _plane_system(source_moved, R, source, target_points, normals):
-    """J (N,6) and residuals (N,) of point-to-plane errors n . (T p - q)."""
-    residuals = np.einsum("ni,ni->n", normals, source_moved - target_points)
-    d_omega = -np.einsum("ni,ij,njk->nk", normals, R, _skew(source))  # n^T R (-[p]x)
-    d_v = normals @ R
-    return np.concatenate([d_omega, d_v], axis=1), residuals
+def _plane_system(moved, rotation, source, matched, normals):
+    """J (..., N, 6) and residuals (..., N) of point-to-plane errors n . (T p - q); `rotation`
+    (..., 3, 3) is T's."""
+    residuals = np.einsum("...ni,...ni->...n", normals, moved - matched)
+    n_rotated = np.einsum("...ni,...ij->...nj", normals, rotation)  # n^T R
+    d_omega = np.cross(source, n_rotated)  # n^T R (-[p]x) = (p x R^T n)^T
+    return np.concatenate([d_omega, n_rotated], axis=-1), residuals
 
 
 def icp(source, target, T_init=None, method: str = "point_to_plane",
         config: IcpConfig | None = None) -> IcpResult:
     """Align `source` (N,3) to `target` (M,3), starting from T_init (4,4) T_target_source."""
+    return icp_batch([source], [target], None if T_init is None else [T_init], method, config)[0]
+
+
+def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
+              config: IcpConfig | None = None) -> list[IcpResult]:
+    """Align many (source, target) pairs at once: the neighbour searches run per pair, the normal
+    equations, eigen-decompositions and updates for all pairs together (padded arrays)."""
     config = config or IcpConfig()
-    source = _cloud("source", source)
-    target = _cloud("target", target)
-    T = rigid_poses("T_init", np.eye(4) if T_init is None else T_init)[0].copy()
     if method not in ("point_to_plane", "point_to_point_xyh"):
         raise ValueError(f"method must be 'point_to_plane' or 'point_to_point_xyh', got {method!r}")
-    tree = cKDTree(target)
-    normals = target_normals(target, tree, config.normal_neighbours)
-    converged, iterations = False, 0
-    for iterations in range(1, config.max_iterations + 1):
-        moved = source @ T[:3, :3].T + T[:3, 3]
-        distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m)
-        inlier = np.isfinite(distance)
-        if inlier.sum() < config.min_inliers:
+    if len(sources) != len(targets):
+        raise ValueError("sources and targets must pair up (same length)")
+    sources = [_cloud("source", c) for c in sources]
+    targets = [_cloud("target", c) for c in targets]
+    count = len(sources)
+    T = (np.tile(np.eye(4), (count, 1, 1)) if T_inits is None
+         else rigid_poses("T_init", T_inits, count=count).copy())
+    trees = [cKDTree(t) for t in targets]
+    normals = [target_normals(t, tree, config.normal_neighbours) for t, tree in zip(targets, trees)]
+    width = max(len(s) for s in sources)
+    active = np.ones(count, bool)
+    converged = np.zeros(count, bool)
+    iterations = np.zeros(count, int)
+    for _ in range(config.max_iterations):
+        ids = np.flatnonzero(active)
+        if len(ids) == 0:
             break
-        p, q = source[inlier], target[index[inlier]]
+        # correspondences, per pair, into padded arrays (weight 0 marks padding and outliers)
+        p = np.zeros((len(ids), width, 3))
+        q, n, moved = np.zeros_like(p), np.zeros_like(p), np.zeros_like(p)
+        weight = np.zeros((len(ids), width))
+        for row, pair in enumerate(ids):
+            source = sources[pair]
+            m = source @ T[pair, :3, :3].T + T[pair, :3, 3]
+            distance, index = trees[pair].query(m, distance_upper_bound=config.max_correspondence_m,
+                                                  workers=-1)
+            inlier = np.isfinite(distance)
+            size = int(inlier.sum())
+            p[row, :size], moved[row, :size] = source[inlier], m[inlier]
+            q[row, :size] = targets[pair][index[inlier]]
+            n[row, :size] = normals[pair][index[inlier]]
+            weight[row, :size] = 1.0
+        inliers = weight.sum(axis=1)
+        iterations[ids] += 1
         if method == "point_to_point_xyh":
-            step = _xyh_step(moved[inlier], q)
+            steps = _xyh_steps(moved, q, weight)
         else:
-            J, r = _plane_system(moved[inlier], T[:3, :3], p, q, normals[index[inlier]])
-            H, g = J.T @ J, J.T @ r
+            J, r = _plane_system(moved, T[ids, :3, :3], p, q, n)
+            J = J * weight[..., None]
+            H = np.einsum("pni,pnj->pij", J, J)
+            g = np.einsum("pni,pn->pi", J, r)
             values, vectors = np.linalg.eigh(H)
-            good = values >= config.lambda_min * len(r)
-            if not good.any():
-                break
+            good = values >= config.lambda_min * np.maximum(inliers, 1)[:, None]
             # Solve only in the well-conditioned eigen-directions; leave the others as they are.
-            xi = -vectors[:, good] @ ((vectors[:, good].T @ g) / values[good])
-            step = T @ _exp(xi) @ np.linalg.inv(T)
-        T = step @ T
-        change = np.linalg.norm(step[:3, 3]) + np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1, 1))
-        if change < config.tolerance:
-            converged = True
-            break
-    return _result(source, target, tree, normals, T, converged, iterations, config)
+            along = np.where(good, np.einsum("pji,pj->pi", vectors, g) / np.where(good, values, 1.0), 0.0)
+            xi = -np.einsum("pij,pj->pi", vectors, along)
+            steps = T[ids] @ _exp(xi) @ np.linalg.inv(T[ids])
+        T[ids] = steps @ T[ids]
+        angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
+        done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
+        starved = inliers < config.min_inliers
+        converged[ids] = done & ~starved
+        active[ids] = ~(done | starved)
+    return [_result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]),
+                    config)
+            for k in range(count)]
 
 
-def _xyh_step(moved: np.ndarray, matched: np.ndarray) -> np.ndarray:
-    """Best 2D rigid motion (x, y, yaw) of `moved` onto `matched` in the world x-y plane."""
-    a, b = moved[:, :2], matched[:, :2]
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    rotation = (u @ vt).T
-    if np.linalg.det(rotation) < 0:
-        vt[-1] *= -1
-        rotation = (u @ vt).T
-    step = np.eye(4)
-    step[:2, :2] = rotation
-    step[:2, 3] = cb - rotation @ ca
-    return step
+def _xyh_steps(moved: np.ndarray, matched: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Best 2D rigid motions (x, y, yaw) of `moved` onto `matched` (P,N,3), weighted."""
+    total = np.maximum(weight.sum(axis=1), 1)[:, None]
+    a, b = moved[..., :2], matched[..., :2]
+    ca = np.einsum("pn,pni->pi", weight, a) / total
+    cb = np.einsum("pn,pni->pi", weight, b) / total
+    cross = np.einsum("pn,pni,pnj->pij", weight, a - ca[:, None], b - cb[:, None])
+    u, _, vt = np.linalg.svd(cross)
+    flip = np.linalg.det(u @ vt) < 0
+    vt[flip, -1] *= -1
+    rotation = np.transpose(u @ vt, (0, 2, 1))
+    steps = np.tile(np.eye(4), (len(moved), 1, 1))
+    steps[:, :2, :2] = rotation
+    steps[:, :2, 3] = cb - np.einsum("pij,pj->pi", rotation, ca)
+    return steps
 
 
 def _result(source, target, tree, normals, T, converged, iterations, config) -> IcpResult:
     moved = source @ T[:3, :3].T + T[:3, 3]
-    distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m)
+    distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m, workers=-1)
     inlier = np.isfinite(distance)
     if inlier.any():
         J, _ = _plane_system(moved[inlier], T[:3, :3], source[inlier], target[index[inlier]],

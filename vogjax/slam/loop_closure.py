@@ -15,7 +15,7 @@ import numpy as np
 
 from vogjax.config import NavNoise
 from vogjax.geometry import inverse
-from vogjax.slam.icp import IcpConfig, IcpResult, icp
+from vogjax.slam.icp import IcpConfig, IcpResult, icp_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,9 +81,13 @@ class LoopClosureDetector:
         the base poses, for the drift allowed between two submaps.
         """
         accepted, rejected = [], []
-        for i in self.candidates(k, clouds, bounds, poses):
-            T_init = inverse(poses[i]) @ poses[k]
-            result = icp(clouds[k], clouds[i], T_init, self.config.method, self.config.icp)
+        found = self.candidates(k, clouds, bounds, poses)
+        if not found:
+            return accepted, rejected
+        results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
+                            [inverse(poses[i]) @ poses[k] for i in found], self.config.method,
+                            self.config.icp)
+        for i, result in zip(found, results):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
             reason = self._rejection(result, deviation, abs(times_s[k] - times_s[i]))
