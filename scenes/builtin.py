@@ -1,0 +1,72 @@
+"""The built-in scenes, built procedurally (no downloads). Sizes, exploration boxes and start
+poses follow the papers' experiments: a ship propeller seen from the starboard side (Ho, thesis
+4.4.2: about 7 x 4 x 6 m, a 12 x 7 x 3.5 m box), a pier's pilings, the test tank (thesis 4.6.1:
+7 m across, 3 m deep, an aluminium box and a ladder, a 12 x 12 x 2.5 m box), and small boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from .scene import Scene, box, cylinder_between, placed, pose
+
+
+def propeller() -> Scene:
+    """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin."""
+    parts = [cylinder_between([-0.7, 0, 0], [0.7, 0, 0], 0.55),  # hub
+             cylinder_between([0.7, 0, 0], [3.5, 0, 0], 0.25),  # shaft into the hull
+             box([-3.2, -0.12, -2.6], [-2.2, 0.12, 2.2])]  # rudder aft of the propeller
+    for k in range(5):
+        blade = trimesh.creation.box(extents=[0.9, 0.08, 2.5])  # chord, thickness, span
+        vertices, faces = trimesh.remesh.subdivide_to_size(blade.vertices, blade.faces, max_edge=0.3)
+        radial = vertices[:, 2] + 1.25 + 0.5  # from the hub axis
+        twist = 0.9 - 0.25 * radial  # pitch angle falls off along the span
+        c, s = np.cos(twist), np.sin(twist)
+        x, y = vertices[:, 0], vertices[:, 1]
+        vertices = np.stack([c * x - s * y, s * x + c * y, radial], axis=1)
+        angle = 2 * np.pi * k / 5
+        rotation = trimesh.transformations.rotation_matrix(angle, [1, 0, 0])
+        parts.append(placed(trimesh.Trimesh(vertices, faces), rotation))
+    mesh = trimesh.util.concatenate(parts)
+    bounds = np.array([[-6.0, -10.5, -1.75], [6.0, -3.5, 1.75]])  # starboard of the propeller
+    return Scene("propeller", mesh, bounds, pose(0.0, -7.0, 0.0, np.pi / 2))
+
+
+def pilings() -> Scene:
+    """Two rows of slanted piles at uneven spacing between a seabed and a deck."""
+    rng = np.random.default_rng(7)
+    parts = [box([-11, -8, -0.4], [11, 8, 0.0]), box([-11, -3.5, 6.0], [11, 3.5, 6.4])]
+    xs = np.array([-7.5, -4.2, -0.9, 1.8, 5.6])
+    for row_y in (-2.5, 2.5):
+        for x in xs + rng.uniform(-0.6, 0.6, len(xs)):
+            lean = rng.uniform(-0.5, 0.5, 2)  # metres of lean over the height
+            parts.append(cylinder_between([x, row_y, -0.2], [x + lean[0], row_y + lean[1], 6.2],
+                                          rng.uniform(0.25, 0.4)))
+    bounds = np.array([[-9.0, -6.5, 1.0], [9.0, 6.5, 5.0]])
+    return Scene("pilings", trimesh.util.concatenate(parts), bounds, pose(-8.0, -5.5, 3.0, 0.0))
+
+
+def tank() -> Scene:
+    """A cylindrical tank 7 m across and 3 m deep, an aluminium box on its floor, a ladder."""
+    parts = [trimesh.creation.annulus(r_min=3.5, r_max=3.7, height=3.2,
+                                      transform=trimesh.transformations.translation_matrix([0, 0, 1.5])),
+             trimesh.creation.cylinder(radius=3.7, height=0.2,
+                                       transform=trimesh.transformations.translation_matrix([0, 0, -0.1])),
+             box([1.0, -1.6, 0.0], [2.2, -0.8, 0.8])]
+    for y in (-0.25, 0.25):  # ladder rails against the wall
+        parts.append(cylinder_between([-3.35, y, 0.0], [-3.35, y, 3.0], 0.03, sections=8))
+    for z in np.arange(0.3, 3.0, 0.3):
+        parts.append(cylinder_between([-3.35, -0.25, z], [-3.35, 0.25, z], 0.02, sections=8))
+    bounds = np.array([[-6.0, -6.0, 0.25], [6.0, 6.0, 2.75]])
+    return Scene("tank", trimesh.util.concatenate(parts), bounds, pose(-1.5, 1.5, 1.5, 0.0))
+
+
+def boxes() -> Scene:
+    """Three boxes on a floor: a small scene for fast tests."""
+    parts = [box([-4, -4, -0.2], [4, 4, 0.0]), box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),
+             box([0.6, 0.5, 0.0], [1.8, 1.4, 0.7]), box([0.4, -1.8, 0.0], [1.0, -1.2, 1.6])]
+    bounds = np.array([[-3.0, -3.0, 0.5], [3.0, 3.0, 2.0]])
+    return Scene("boxes", trimesh.util.concatenate(parts), bounds, pose(-2.5, -2.5, 1.2, np.pi / 4))
+
+
+BUILDERS = {"propeller": propeller, "pilings": pilings, "tank": tank, "boxes": boxes}
