@@ -14,7 +14,25 @@ def main(argv=None) -> int:
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     demo.add_argument("--scans", type=int, default=3000, help="number of sonar scans")
     demo.add_argument("--device", default=None, help="Warp device (default: CUDA if present)")
+    sim = commands.add_parser("simulate", help="simulate a sonar survey of a built-in scene")
+    sim.add_argument("--scene", required=True, help="propeller, pilings, tank or boxes")
+    sim.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
+    sim.add_argument("--laps", type=int, default=2, help="times the survey is flown")
+    sim.add_argument("--scans", type=int, default=None, help="number of scans (default: enough)")
+    sim.add_argument("--seed", type=int, default=0, help="seed of the navigation and range noise")
+    sim.add_argument("--range-noise", type=float, default=0.02, help="sonar range noise, metres")
     args = parser.parse_args(argv)
+    if args.command == "simulate":
+        from vogjax.config import SonarConfig
+        from vogjax.sim import simulate_run
+
+        try:
+            summary = simulate_run(args.scene, args.out, laps=args.laps, seed=args.seed,
+                                   num_scans=args.scans, sonar_config=SonarConfig(range_noise_m=args.range_noise))
+        except ValueError as error:
+            parser.error(str(error))
+        print(f"wrote {summary.path}: {summary.scans} scans, {summary.duration_s:.0f} s of survey, "
+              f"{summary.returns:.0%} of beams returned")
     if args.command == "demo":
         if args.scans < 1:
             parser.error("--scans must be at least 1")

@@ -119,3 +119,40 @@ class NavNoise:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class SonarConfig:
+    """A profiling sonar rolled 90 degrees so its fan is vertical, looking ahead (Ho, thesis 4.1).
+
+    beams over fov_deg in the vehicle's x-z plane, centred tilt_deg above the horizontal;
+    rate_hz scans per second; returns between min_range_m and max_range_m; range_noise_m
+    Gaussian range noise; aperture_deg across the fan sampled by `subrays` rays (nearest return
+    kept; 1 sub-ray: a line sensor, as the papers simulate).
+    """
+
+    beams: int = 96
+    fov_deg: float = 29.0
+    tilt_deg: float = -10.0
+    rate_hz: float = 5.0
+    min_range_m: float = 0.5
+    max_range_m: float = 11.0
+    range_noise_m: float = 0.0
+    aperture_deg: float = 1.0
+    subrays: int = 1
+
+    def __post_init__(self):
+        if not (isinstance(self.beams, int) and self.beams >= 1):
+            raise ValueError(f"SonarConfig.beams must be a positive integer, got {self.beams!r}")
+        if not (isinstance(self.subrays, int) and self.subrays >= 1):
+            raise ValueError(f"SonarConfig.subrays must be a positive integer, got {self.subrays!r}")
+        for name in ("fov_deg", "rate_hz", "max_range_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SonarConfig.{name} must be positive, got {getattr(self, name)!r}")
+        if not 0 <= self.min_range_m < self.max_range_m:
+            raise ValueError("SonarConfig.min_range_m must lie in [0, max_range_m)")
+        if self.range_noise_m < 0 or self.aperture_deg < 0:
+            raise ValueError("SonarConfig.range_noise_m and aperture_deg must be >= 0")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

@@ -1,0 +1,45 @@
+"""Drifting navigation (Sodhi et al., Eq. 10): relative noise in x, y and yaw accumulates; z,
+pitch and roll come from absolute sensors and carry independent noise."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vogjax.config import NavNoise
+from vogjax.geometry import inverse
+from vogjax.slam.factors import yaw_pitch_roll
+
+
+def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None,
+                        seed: int = 0) -> np.ndarray:
+    """Navigation poses (N,4,4) for ground-truth poses (N,4,4) at times (N,), seeded.
+
+    Each step's true motion is perturbed in x, y (its own frame) and yaw with variances
+    sigma^2 * dt and chained onto the previous navigation pose; z, pitch and roll are then
+    replaced by the truth's plus noise of variance sigma^2 * dt."""
+    noise = noise or NavNoise()
+    rng = np.random.default_rng(seed)
+    nav = np.empty_like(truth)
+    nav[0] = truth[0]
+    for t in range(1, len(truth)):
+        dt = float(times_s[t] - times_s[t - 1])
+        step = inverse(truth[t - 1]) @ truth[t]
+        dx, dy, dyaw = rng.normal(0.0, np.sqrt(noise.xyh_variances(dt)))
+        dz, dpitch, droll = rng.normal(0.0, np.sqrt(noise.zpr_variances(dt)))
+        wobble = np.eye(4)
+        wobble[:2, :2] = [[np.cos(dyaw), -np.sin(dyaw)], [np.sin(dyaw), np.cos(dyaw)]]
+        wobble[:2, 3] = [dx, dy]
+        pose = nav[t - 1] @ step @ wobble
+        yaw = yaw_pitch_roll(pose[:3, :3])[0]
+        _, pitch, roll = yaw_pitch_roll(truth[t, :3, :3])
+        pose[:3, :3] = _rotation(yaw, pitch + dpitch, roll + droll)
+        pose[2, 3] = truth[t, 2, 3] + dz
+        nav[t] = pose
+    return nav
