@@ -50,11 +50,7 @@ class Scene:
 
     @functools.cached_property
     def warp_mesh(self) -> wp.Mesh:
-        from vogjax import _warp
-
-        _warp.init()
-        return wp.Mesh(points=wp.array(self.mesh.vertices, dtype=wp.vec3, device="cpu"),
-                       indices=wp.array(self.mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
+        return _warp_mesh(self.mesh)
 
     def region(self) -> np.ndarray:
         """(2,3) box holding the mesh and the exploration box."""
@@ -71,7 +67,9 @@ class Scene:
         # inside solids: generalised winding number of each voxel centre
         grid = np.stack(np.meshgrid(*[np.arange(n) for n in shape], indexing="ij"), -1).reshape(-1, 3)
         centres = (grid + first + 0.5) * voxel_size
-        labels.reshape(-1)[_inside(self.warp_mesh, centres)] = INSIDE
+        # Parts touch (boxes on a floor); a winding number per closed part stays exact there.
+        for part in self.mesh.split(only_watertight=False):
+            labels.reshape(-1)[_inside(_warp_mesh(part), centres)] = INSIDE
         # the surface: points on every triangle, a quarter voxel apart
         for points in triangle_points(self.mesh, voxel_size / 4):
             labels[tuple((np.floor(points / voxel_size).astype(np.int64) - first).T)] = OCCUPIED
@@ -103,6 +101,14 @@ def _winding_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), inside: wp
     # Built-in solids are at most a couple of metres thick: farther from a surface is water.
     query = wp.mesh_query_point_sign_winding_number(mesh, points[tid], 1.5, 2.0, 0.5)
     inside[tid] = wp.where(query.result and query.sign < 0.0, 1, 0)
+
+
+def _warp_mesh(mesh: trimesh.Trimesh) -> wp.Mesh:
+    from vogjax import _warp
+
+    _warp.init()
+    return wp.Mesh(points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
 
 
 def _inside(mesh: wp.Mesh, points: np.ndarray) -> np.ndarray:

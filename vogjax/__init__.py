@@ -1,7 +1,7 @@
 """vogjax: GPU/JAX-accelerated batch occupancy mapping for SLAM-corrected robots."""
 
 from vogjax.blockmap import FREE, OCCUPIED, UNKNOWN, RaycastResult
-from vogjax.config import MapConfig, NavNoise
+from vogjax.config import MapConfig, NavNoise, SonarConfig
 from vogjax.globalmap import GlobalMap, UpdateReport
 from vogjax.submaps import Submap, VogMap
 from vogjax.voxelmap import VoxelMap
@@ -16,6 +16,7 @@ __all__ = [
     "MapConfig",
     "NavNoise",
     "RaycastResult",
+    "SonarConfig",
     "Submap",
     "UpdateReport",
     "VogMap",
