@@ -8,6 +8,17 @@ from vogjax.voxelmap import VoxelMap
 
 __version__ = "0.1.0"
 
+_SUBPACKAGES = ("io", "pipeline", "scenes", "sim", "slam")
+
+
+def __getattr__(name):
+    # vj.slam, vj.sim, vj.pipeline, ...: imported on first use (GTSAM, MJX and h5py are heavy)
+    if name in _SUBPACKAGES:
+        import importlib
+
+        return importlib.import_module(f"vogjax.{name}")
+    raise AttributeError(f"module 'vogjax' has no attribute {name!r}")
+
 __all__ = [
     "FREE",
     "OCCUPIED",

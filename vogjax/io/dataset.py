@@ -46,6 +46,11 @@ class ScanBatch:
     def __len__(self) -> int:
         return len(self.time_s)
 
+    def rows(self, lo: int, hi: int) -> "ScanBatch":
+        """Scans lo to hi of this batch."""
+        fields = {f.name: getattr(self, f.name)[lo:hi] for f in dataclasses.fields(self) if f.name != "first"}
+        return ScanBatch(self.first + lo, **fields)
+
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Sonar origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
         Beams without a return end past max_range_m (free space up to it, no hit)."""

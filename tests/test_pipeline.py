@@ -1,0 +1,54 @@
+"""The batch pipeline end to end on a short simulated run of the boxes scene."""
+
+import numpy as np
+import pytest
+
+import vogjax as vj
+from vogjax import pipeline
+from vogjax.sim import simulate_run
+
+
+@pytest.fixture(scope="module")
+def boxes_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("runs") / "boxes.h5"
+    simulate_run("boxes", path, laps=1, num_scans=400, progress=False)
+    return path
+
+
+def test_pipeline_keeps_the_online_map_equal_to_a_full_merge(boxes_run, tmp_path):
+    config = pipeline.PipelineConfig(scans_per_submap=60, batch_scans=90, eps_rot=0.0, eps_trans=0.0,
+                                     eps_cov=0.0)
+    result = pipeline.run(boxes_run, config, progress=False)
+    # 400 scans cut every 60: six full submaps and a last one of 40, across batch boundaries
+    assert result.vog.num_submaps == 7
+    np.testing.assert_array_equal(result.submap_first_scan, np.arange(0, 400, 60))
+    # submaps 1 and 4 straddle batches (90 scans each) and were integrated in two pieces
+    assert [result.vog.submap(i).revision for i in range(7)] == [1, 2, 1, 1, 2, 1, 1]
+    np.testing.assert_array_equal(result.optimized, result.vog.poses())
+    assert result.global_map.applied_ids == tuple(range(7))
+    fresh = vj.GlobalMap(config.map)
+    fresh.merge(result.vog)
+    a, b = result.global_map.sums(), fresh.sums()
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    # the standard map holds every scan at its navigation pose
+    assert result.standard_map.voxels()[0].shape[0] > 10_000
+    pipeline.save_trajectories(result, tmp_path / "trajectories.csv")
+    table = np.genfromtxt(tmp_path / "trajectories.csv", delimiter=",", names=True)
+    assert len(table) == 7
+    np.testing.assert_allclose(table["truth_x"], result.truth[:, 0, 3], atol=1e-6)
+
+
+def test_submaps_cut_by_the_covariance_bound(boxes_run):
+    noise = vj.NavNoise()
+    config = pipeline.PipelineConfig(scans_per_submap=None, max_xy_variance_m2=noise.sigma2_x * 30.0,
+                                     max_yaw_variance_rad2=1.0)
+    result = pipeline.run(boxes_run, config, progress=False)
+    # 30 s of drift at 5 Hz: 150 scans per submap (the first scan of the next one crosses it)
+    np.testing.assert_array_equal(result.submap_first_scan, [0, 151, 302])
+
+
+def test_bad_pipeline_config():
+    with pytest.raises(ValueError, match="scans_per_submap"):
+        pipeline.PipelineConfig(scans_per_submap=1)
+    with pytest.raises(ValueError, match="batch_scans"):
+        pipeline.PipelineConfig(batch_scans=0)
