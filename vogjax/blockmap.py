@@ -86,17 +86,12 @@ class BlockMap:
 
         origins (R,3), directions (R,3) (any nonzero length; normalised here).
         """
-        origins = float_array("origins", origins, (-1, 3), np.float64)
-        directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
-        norms = np.linalg.norm(directions, axis=1)
-        if np.any(norms == 0):
-            raise ValueError("directions must be nonzero")
-        ranges = positive_range("max_range", max_range, origins.shape[0])
+        origins, directions, ranges = ray_arguments(origins, directions, max_range)
         count = origins.shape[0]
         device = self.device
         d = {
             "origins": wp.array(origins, dtype=wp.vec3d, device=device),
-            "directions": wp.array(directions / norms[:, None], dtype=wp.vec3d, device=device),
+            "directions": wp.array(directions, dtype=wp.vec3d, device=device),
             "ranges": wp.array(ranges, dtype=wp.float64, device=device),
         }
         out = {
@@ -173,6 +168,16 @@ def classify(values: np.ndarray, config: MapConfig) -> np.ndarray:
         state[values >= config.log_occupied] = OCCUPIED
         state[values <= config.log_free] = FREE
     return state
+
+
+def ray_arguments(origins, directions, max_range):
+    """Validated rays: origins (R,3), unit directions (R,3), ranges (R,), all float64."""
+    origins = float_array("origins", origins, (-1, 3), np.float64)
+    directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
+    norms = np.linalg.norm(directions, axis=1)
+    if np.any(norms == 0):
+        raise ValueError("directions must be nonzero")
+    return origins, directions / norms[:, None], positive_range("max_range", max_range, origins.shape[0])
 
 
 def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:

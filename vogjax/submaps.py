@@ -9,12 +9,12 @@ import numpy as np
 import warp as wp
 
 from vogjax import _warp, parallel
-from vogjax.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds
+from vogjax.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds, ray_arguments
 from vogjax.config import MapConfig
 from vogjax.geometry import rigid_poses
 from vogjax.kernels import accumulation, virtual
 from vogjax.locking import ReadWriteLock
-from vogjax.validation import float_array, positive_range
+from vogjax.validation import float_array
 from vogjax.voxelmap import VoxelMap
 
 
@@ -162,15 +162,10 @@ class VogMap:
 
     def raycast(self, origins, directions, max_range) -> RaycastResult:
         """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre."""
-        origins = float_array("origins", origins, (-1, 3), np.float64)
-        directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
-        norms = np.linalg.norm(directions, axis=1)
-        if np.any(norms == 0):
-            raise ValueError("directions must be nonzero")
-        ranges = positive_range("max_range", max_range, origins.shape[0])
+        origins, directions, ranges = ray_arguments(origins, directions, max_range)
         cfg, device, count = self.config, self.device, origins.shape[0]
         rays = [wp.array(origins, dtype=wp.vec3d, device=device),
-                wp.array(directions / norms[:, None], dtype=wp.vec3d, device=device),
+                wp.array(directions, dtype=wp.vec3d, device=device),
                 wp.array(ranges, dtype=wp.float64, device=device)]
         out = {"hit": wp.zeros(count, dtype=wp.bool, device=device),
                "distance": wp.array(ranges.astype(np.float32), dtype=wp.float32, device=device),
