@@ -117,22 +117,6 @@ def column_range(i: int, j: int, start_k: int, block: wp.vec3i, rotation_t: wp.m
 
 
 @wp.func
-def block_column(key: wp.int64, u: int, v: int, rotation: wp.mat33d, rotation_t: wp.mat33d,
-                 translation: wp.vec3d, resolution: wp.float64):
-    """Submap block of `key`, the first voxel of its box, and the z range (empty: first > last)
-    of column (start + u, start + v); empty too for released slots and columns past the box."""
-    if key == EMPTY_KEY:
-        return wp.vec3i(0, 0, 0), wp.vec3i(0, 0, 0), wp.vec2i(0, -1)
-    block = unpack_block(key)
-    start, last = block_box(block, rotation, translation, resolution)
-    i = start[0] + u
-    j = start[1] + v
-    if i > last[0] or j > last[1]:
-        return block, start, wp.vec2i(0, -1)
-    return block, start, column_range(i, j, start[2], block, rotation_t, translation, resolution)
-
-
-@wp.func
 def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
                  translation: wp.vec3d, resolution: wp.float64, inv_resolution: wp.float64,
                  local_log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
@@ -143,6 +127,10 @@ def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
     return local_log_odds[slot * BLOCK_VOXELS + index_in_block(local)]
 
 
+# The two kernels below open with the same dozen lines; a shared func returning the column
+# measured 10-20% slower on the CPU, so they stay written out.
+
+
 @wp.kernel
 def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
                         local_log_odds: wp.array(dtype=wp.float32), rotation: wp.mat33d,
@@ -151,9 +139,16 @@ def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: i
     """global_keys[b, :] = the global blocks submap block b contributes to (EMPTY elsewhere)."""
     b, u, v = wp.tid()
     slot = first_slot + b
-    block, start, ks = block_column(local_slot_keys[slot], u, v, rotation, rotation_t, translation, resolution)
+    key = local_slot_keys[slot]
+    if key == EMPTY_KEY:
+        return
+    block = unpack_block(key)
+    start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
     j = start[1] + v
+    if i > last[0] or j > last[1]:
+        return
+    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
     first_block = block_of(start)
     for k in range(ks[0], ks[1] + 1):
         g = wp.vec3i(i, j, k)
@@ -175,9 +170,16 @@ def accumulate_pulls(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
     """Add (sign +1) or remove (sign -1) submap block b's values at every voxel that pulls them."""
     b, u, v = wp.tid()
     slot = first_slot + b
-    block, start, ks = block_column(local_slot_keys[slot], u, v, rotation, rotation_t, translation, resolution)
+    key = local_slot_keys[slot]
+    if key == EMPTY_KEY:
+        return
+    block = unpack_block(key)
+    start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
     j = start[1] + v
+    if i > last[0] or j > last[1]:
+        return
+    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
     global_slot = int(-1)
     current = wp.vec3i(0, 0, 0)
     n = int(0)
