@@ -8,7 +8,7 @@ from vogjax.voxelmap import VoxelMap
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("io", "pipeline", "scenes", "sim", "slam")
+_SUBPACKAGES = ("eval", "io", "pipeline", "scenes", "sim", "slam")
 
 
 def __getattr__(name):
