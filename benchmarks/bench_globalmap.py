@@ -134,10 +134,7 @@ def main():
 
 def _prefix(vog: vj.VogMap, n: int) -> vj.VogMap:
     """A VogMap sharing the first n submaps of `vog` (no copies)."""
-    sub = vj.VogMap(vog.config, device=vog.device)
-    sub._submaps = vog._submaps[:n]
-    sub._poses = vog.poses()[:n]
-    return sub
+    return vog.view(np.arange(n))
 
 
 def _plot(result: dict, path: Path) -> None:

@@ -38,6 +38,22 @@ def test_pipeline_keeps_the_online_map_equal_to_a_full_merge(boxes_run, tmp_path
     np.testing.assert_allclose(table["truth_x"], result.truth[:, 0, 3], atol=1e-6)
 
 
+def test_run_evaluation_against_ground_truth(boxes_run):
+    from vogjax import eval as vj_eval
+    from vogjax import scenes
+
+    config = pipeline.PipelineConfig(scans_per_submap=80, eps_rot=0.0, eps_trans=0.0, eps_cov=0.0)
+    result = pipeline.run(boxes_run, config, progress=False)
+    metrics, curves = vj_eval.evaluate_run(result, scenes.load("boxes"), surface_points=20_000)
+    auc = metrics["auc"]
+    # the online map, the virtual map at voxel centres and a full merge are the same map
+    assert auc["online"] == auc["virtual"] == auc["full_merge"]
+    assert metrics["agreement"]["misclassified"] == 0
+    assert all(0.5 < value <= 1.0 for value in auc.values())  # better than chance (see README)
+    assert all(0.0 < value < 0.3 for value in metrics["rmse_m"].values())
+    assert curves["standard"].true_positive_rate[-1] == 1.0
+
+
 def test_submaps_cut_by_the_covariance_bound(boxes_run):
     noise = vj.NavNoise()
     config = pipeline.PipelineConfig(scans_per_submap=None, max_xy_variance_m2=noise.sigma2_x * 30.0,

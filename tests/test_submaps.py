@@ -72,3 +72,19 @@ def test_bad_input(call, argument):
         call(vog)
     np.testing.assert_array_equal(vog.poses(), before)
     assert vog.num_submaps == 2
+
+
+def test_view_shares_submaps_at_other_poses():
+    rng = np.random.default_rng(3)
+    vog = vj.VogMap(vj.MapConfig(voxel_size=0.2))
+    for _ in range(3):
+        vog.submap(vog.add_submap(random_pose(rng))).integrate_scans(*ref.random_scans(rng, 1, 30))
+    moved = np.stack([random_pose(rng) for _ in range(2)])
+    view = vog.view([2, 0], moved)
+    assert view.submap(0) is vog.submap(2) and view.num_submaps == 2
+    np.testing.assert_array_equal(view.poses(), moved)
+    np.testing.assert_array_equal(vog.pose(2), vog.poses()[2])  # the original keeps its poses
+    points = (vog.submap(2).voxels()[0] @ moved[0][:3, :3].T + moved[0][:3, 3])[:50]
+    lone = vj.VogMap(vog.config)
+    lone._submaps, lone._poses = [vog.submap(2)], moved[:1]
+    np.testing.assert_array_equal(vj.VogMap.view(vog, [2], moved[:1]).log_odds(points), lone.log_odds(points))

@@ -59,3 +59,53 @@ def misclassified(states_a: np.ndarray, states_b: np.ndarray) -> dict:
     differ = states_a != states_b
     return {"voxels": int(len(states_a)), "misclassified": int(differ.sum()),
             "occupied_disagreements": int((differ & ((states_a == OCCUPIED) | (states_b == OCCUPIED))).sum())}
+
+
+def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dict]:
+    """Measures of a pipeline Result against a Scene's ground truth.
+
+    Returns (metrics, curves): metrics holds `auc` for the online global map, the virtual map at
+    the optimised poses, a full merge and the standard map; `rmse_m` for the standard map and
+    the virtual map without and with loop closures; `agreement` of the online map with the full
+    merge. curves holds the ROC curves (for plots).
+    """
+    import time
+
+    from vogjax.globalmap import GlobalMap
+    from vogjax.scenes import FREE, OCCUPIED as TRUE_OCCUPIED
+
+    cfg = result.config.map
+    truth = scene.occupancy(cfg.voxel_size)
+    start = time.perf_counter()
+    full_merge = GlobalMap(cfg)
+    full_merge.merge(result.vog)
+    merge_s = time.perf_counter() - start
+    without = GlobalMap(cfg)  # the virtual map at navigation poses, at voxel centres
+    without.merge(result.vog.view(poses=result.navigation))
+    maps = {"online": result.global_map, "virtual": result.vog, "full_merge": full_merge}
+    if result.standard_map is not None:
+        maps["standard"] = result.standard_map
+    # voxels of the truth (water or surface) that some map observed
+    centres = truth.centres(FREE), truth.centres(TRUE_OCCUPIED)
+    centres = np.concatenate(centres)
+    occupied = np.r_[np.zeros(len(truth.keys(FREE)), bool), np.ones(len(truth.keys(TRUE_OCCUPIED)), bool)]
+    observed = np.zeros(len(centres), bool)
+    for name in ("online", "standard"):
+        if name in maps:
+            observed |= maps[name].log_odds(centres) != 0  # 0.0: never observed
+    centres, occupied = centres[observed], occupied[observed]
+    curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()}
+    surface = scene.surface_points(surface_points)
+
+    def occupied_centres(m):
+        points, values = m.voxels()
+        return points[values >= cfg.log_occupied]
+
+    rmse = {"without_loop_closures": reconstruction_rmse(occupied_centres(without), surface),
+            "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
+    if "standard" in maps:
+        rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
+    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "rmse_m": rmse,
+               "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
+               "evaluated_voxels": int(len(centres)), "full_merge_s": merge_s}
+    return metrics, curves

@@ -97,6 +97,16 @@ class VogMap:
         with self._lock.writing():
             self._poses[ids] = poses
 
+    def view(self, ids=None, poses=None) -> "VogMap":
+        """A VogMap over the same submap objects (no copies): `ids` of them (all when None), at
+        `poses` (their own when None). Handy for "the map without loop closures"."""
+        ids = np.arange(self.num_submaps) if ids is None else self._ids("ids", ids)
+        poses = self._poses[ids] if poses is None else rigid_poses("poses", poses, count=len(ids))
+        other = VogMap(self.config, self.device)
+        other._submaps = [self._submaps[i] for i in ids]
+        other._poses = poses.copy()
+        return other
+
     def _ids(self, name: str, ids) -> np.ndarray:
         array = np.atleast_1d(np.asarray(ids))
         if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
