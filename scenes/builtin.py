@@ -10,6 +10,14 @@ import trimesh
 
 from .scene import Scene, box, cylinder_between, placed, pose
 
+# Faces at round coordinates would lie exactly on voxel boundaries, where "the voxel the surface
+# passes through" is the water on one side; an odd offset puts every face inside a voxel.
+OFF_GRID = trimesh.transformations.translation_matrix([0.0137, 0.0291, 0.0443])
+
+
+def _scene(name: str, parts: list, bounds: np.ndarray, start_pose: np.ndarray) -> Scene:
+    return Scene(name, placed(trimesh.util.concatenate(parts), OFF_GRID), bounds, start_pose)
+
 
 def propeller() -> Scene:
     """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin."""
@@ -27,9 +35,8 @@ def propeller() -> Scene:
         angle = 2 * np.pi * k / 5
         rotation = trimesh.transformations.rotation_matrix(angle, [1, 0, 0])
         parts.append(placed(trimesh.Trimesh(vertices, faces), rotation))
-    mesh = trimesh.util.concatenate(parts)
     bounds = np.array([[-6.0, -10.5, -1.75], [6.0, -3.5, 1.75]])  # starboard of the propeller
-    return Scene("propeller", mesh, bounds, pose(0.0, -7.0, 0.0, np.pi / 2))
+    return _scene("propeller", parts, bounds, pose(0.0, -7.0, 0.0, np.pi / 2))
 
 
 def pilings() -> Scene:
@@ -43,7 +50,7 @@ def pilings() -> Scene:
             parts.append(cylinder_between([x, row_y, -0.2], [x + lean[0], row_y + lean[1], 6.2],
                                           rng.uniform(0.25, 0.4)))
     bounds = np.array([[-9.0, -6.5, 1.0], [9.0, 6.5, 5.0]])
-    return Scene("pilings", trimesh.util.concatenate(parts), bounds, pose(-8.0, -5.5, 3.0, 0.0))
+    return _scene("pilings", parts, bounds, pose(-8.0, -5.5, 3.0, 0.0))
 
 
 def tank() -> Scene:
@@ -58,7 +65,7 @@ def tank() -> Scene:
     for z in np.arange(0.3, 3.0, 0.3):
         parts.append(cylinder_between([-3.35, -0.25, z], [-3.35, 0.25, z], 0.02, sections=8))
     bounds = np.array([[-6.0, -6.0, 0.25], [6.0, 6.0, 2.75]])
-    return Scene("tank", trimesh.util.concatenate(parts), bounds, pose(-1.5, 1.5, 1.5, 0.0))
+    return _scene("tank", parts, bounds, pose(-1.5, 1.5, 1.5, 0.0))
 
 
 def boxes() -> Scene:
@@ -66,7 +73,7 @@ def boxes() -> Scene:
     parts = [box([-4, -4, -0.2], [4, 4, 0.0]), box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),
              box([0.6, 0.5, 0.0], [1.8, 1.4, 0.7]), box([0.4, -1.8, 0.0], [1.0, -1.2, 1.6])]
     bounds = np.array([[-3.0, -3.0, 0.5], [3.0, 3.0, 2.0]])
-    return Scene("boxes", trimesh.util.concatenate(parts), bounds, pose(-2.5, -2.5, 1.2, np.pi / 4))
+    return _scene("boxes", parts, bounds, pose(-2.5, -2.5, 1.2, np.pi / 4))
 
 
 BUILDERS = {"propeller": propeller, "pilings": pilings, "tank": tank, "boxes": boxes}
