@@ -29,14 +29,6 @@ class GroundTruth:
     def centres(self, label: int) -> np.ndarray:
         return (self.keys(label) + 0.5) * self.voxel_size
 
-    def label_at(self, points: np.ndarray) -> np.ndarray:
-        """Labels of the voxels holding `points` (M,3); 0 outside the box."""
-        index = np.floor(np.asarray(points) / self.voxel_size).astype(np.int64) - self.first_key
-        inside = np.all((index >= 0) & (index < self.labels.shape), axis=1)
-        out = np.zeros(len(index), np.int8)
-        out[inside] = self.labels[tuple(index[inside].T)]
-        return out
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Scene:

@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 
 from vogjax import _warp, parallel
-from vogjax.blocks import BlockStore, unpack_blocks, voxel_offsets
+from vogjax.blocks import BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
 from vogjax.locking import ReadWriteLock
@@ -141,8 +141,7 @@ class BlockMap:
             keys, layers = self._store.host_blocks()
         values = layers["log_odds"]
         block_index, local = np.nonzero(~np.isnan(values))
-        voxel = unpack_blocks(keys)[block_index] * hashing.BLOCK_EDGE + voxel_offsets()[local]
-        return (voxel + 0.5) * self.config.voxel_size, values[block_index, local]
+        return (voxel_keys(keys, block_index, local) + 0.5) * self.config.voxel_size, values[block_index, local]
 
     @property
     def num_blocks(self) -> int:

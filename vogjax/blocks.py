@@ -33,6 +33,11 @@ def unpack_blocks(keys: np.ndarray) -> np.ndarray:
     return np.stack([(keys >> 42) & _FIELD, (keys >> 21) & _FIELD, keys & _FIELD], axis=1) - _BIAS
 
 
+def voxel_keys(block_keys: np.ndarray, block_index: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """(K,3) voxel keys of voxel `local` (0..511) in block `block_keys[block_index]`."""
+    return unpack_blocks(block_keys)[block_index] * BLOCK_EDGE + voxel_offsets()[local]
+
+
 def voxel_offsets() -> np.ndarray:
     """(512,3) voxel offsets inside a block, in the order of `hashing.index_in_block`."""
     i = np.arange(BLOCK_VOXELS)

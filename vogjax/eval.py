@@ -4,11 +4,15 @@ reconstruction RMSE after ICP registration (Ho, Table 4.3), and agreement betwee
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from vogjax.blockmap import OCCUPIED
+from vogjax.globalmap import GlobalMap
+from vogjax.scenes import FREE
+from vogjax.scenes import OCCUPIED as TRUE_OCCUPIED
 from vogjax.slam import IcpConfig, icp
 
 
@@ -69,11 +73,6 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     the virtual map without and with loop closures; `agreement` of the online map with the full
     merge. curves holds the ROC curves (for plots).
     """
-    import time
-
-    from vogjax.globalmap import GlobalMap
-    from vogjax.scenes import FREE, OCCUPIED as TRUE_OCCUPIED
-
     cfg = result.config.map
     truth = scene.occupancy(cfg.voxel_size)
     start = time.perf_counter()

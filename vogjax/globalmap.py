@@ -18,7 +18,7 @@ import warp as wp
 
 from vogjax import parallel
 from vogjax.blockmap import BlockMap
-from vogjax.blocks import BLOCK_VOXELS, BlockStore
+from vogjax.blocks import BLOCK_VOXELS, BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.geometry import confidence_volume, pose_deltas
 from vogjax.io import read_map_file, write_map_file
@@ -251,13 +251,10 @@ class GlobalMap(BlockMap):
     def sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Voxels with contributions: keys (K,3) int64, fixed-point sums (K,) int64 (units of
         2^-24 log-odds) and contributing submap counts (K,) int32, sorted by key."""
-        from vogjax.blocks import unpack_blocks, voxel_offsets
-
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
         block_index, local = np.nonzero(layers["count"] != 0)
-        voxel = unpack_blocks(keys)[block_index] * 8 + voxel_offsets()[local]
-        return voxel, layers["sum"][block_index, local], layers["count"][block_index, local]
+        return voxel_keys(keys, block_index, local), layers["sum"][block_index, local], layers["count"][block_index, local]
 
     def save(self, path) -> None:
         """One file: config, applied poses and revisions, sums and counts."""

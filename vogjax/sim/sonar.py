@@ -22,12 +22,6 @@ class SonarScans:
     ranges: np.ndarray
     no_return: np.ndarray
 
-    def endpoints(self, max_range_m: float) -> np.ndarray:
-        """(S,B,3) beam endpoints; beams without a return end past max_range_m, so integrating
-        them clears free space up to it and marks nothing occupied."""
-        ranges = np.where(self.no_return, max_range_m * 1.05 + 0.1, self.ranges)
-        return self.origins[:, None] + self.directions * ranges[..., None]
-
 
 def beam_directions(config: SonarConfig) -> np.ndarray:
     """(B, U, 3) unit directions in the vehicle frame: B beams in the x-z plane, each with U
