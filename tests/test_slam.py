@@ -1,6 +1,7 @@
 """SLAM backend: factor Jacobians, ICP, partial factors, loop closures, marginals, bad input."""
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 import pytest
 
 import vogjax as vj
@@ -188,7 +189,53 @@ def test_detector_accepts_true_and_rejects_wrong_loop_closures():
     # A cloud of another place entirely does not align well enough.
     clouds[2] = np.random.default_rng(9).uniform(0, 5, (2000, 3))
     accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, poses, times)
-    assert not accepted and rejected[0].reason in ("fitness", "not converged")
+    assert not accepted and rejected[0].reason in ("overlap", "fitness", "not converged")
+
+
+def test_detector_finds_closures_beyond_icps_reach():
+    """Navigation 1.5 m and 0.8 degrees off after 30 min: the correlative search brings ICP home."""
+    rng = np.random.default_rng(4)
+    cloud = np.floor(structured_cloud(rng, 6000) / 0.1) * 0.1 + 0.05  # occupied voxel centres
+    truth_k = np.eye(4)
+    truth_k[:3, 3] = [0.3, -0.2, 0.0]
+    clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
+    bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
+    poses = np.stack([np.eye(4), np.eye(4), truth_k])
+    poses[1, :3, 3] = [20.0, 0, 0]
+    off = np.eye(4)
+    off[:3, :3] = Rotation.from_euler("z", 0.014).as_matrix()
+    off[:3, 3] = [1.2, 0.9, 0.0]
+    nav = poses.copy()
+    nav[2] = truth_k @ off
+    times = np.array([0.0, 900.0, 1800.0])
+    assert slam.icp(clouds[2], cloud, nav[2]).T_target_source[0, 3] > truth_k[0, 3] + 0.2  # ICP alone fails
+    accepted, rejected = slam.LoopClosureDetector().detect(2, clouds, [bounds, None, bounds], nav, nav, times)
+    assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
+    np.testing.assert_allclose(accepted[0].T_i_k, truth_k, atol=0.02)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_correlative_search_recovers_planar_offsets(seed):
+    rng = np.random.default_rng(seed)
+    target = structured_cloud(rng, 5000)
+    yaw = rng.uniform(-0.02, 0.02)
+    truth = np.eye(4)
+    truth[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+    truth[:2, 3] = rng.uniform(-2, 2, 2)
+    source = (target - truth[:3, 3]) @ truth[:3, :3]  # the same place seen from `truth`
+    match = slam.correlative_xyh(source, target, np.eye(4), radius_m=2.5, yaw_radius_rad=0.03)
+    moved = source @ match.T_target_source[:3, :3].T + match.T_target_source[:3, 3]
+    expected = source @ truth[:3, :3].T + truth[:3, 3]
+    # whole-voxel shifts and 5 mrad yaw steps: every point within a voxel of where it belongs
+    assert np.abs(moved - expected).max() < 0.1 + 5e-3 * 7
+    assert match.score > 0.5 and match.ratio < 0.7
+
+
+def test_correlative_search_reports_ambiguity_along_a_wall():
+    rng = np.random.default_rng(5)
+    wall = np.c_[rng.uniform(0, 8, 3000), np.zeros(3000), rng.uniform(0, 3, 3000)]
+    match = slam.correlative_xyh(wall[:1500], wall, np.eye(4), radius_m=1.0, yaw_radius_rad=0.0)
+    assert match.ratio > 0.85  # sliding along the wall scores nearly as well as the answer
 
 
 @pytest.mark.parametrize("call, argument", [

@@ -2,10 +2,13 @@
 
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import PoseGraph
+from vogjax.slam.correlative import CorrelativeConfig, CorrelativeMatch, correlative_xyh
 from vogjax.slam.icp import IcpConfig, IcpResult, icp, icp_batch
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureConfig, LoopClosureDetector, Rejection
 
 __all__ = [
+    "CorrelativeConfig",
+    "CorrelativeMatch",
     "IcpConfig",
     "IcpResult",
     "LoopClosure",
@@ -13,6 +16,7 @@ __all__ = [
     "LoopClosureDetector",
     "PoseGraph",
     "Rejection",
+    "correlative_xyh",
     "icp",
     "icp_batch",
     "pose_deltas",

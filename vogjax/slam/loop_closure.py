@@ -1,10 +1,13 @@
 """Loop-closure detection between submaps (Ho, thesis 4.2, Algorithm 6 and its criteria).
 
 For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
-centroid of k's cloud (moved by the current relative estimate) is aligned by ICP. A candidate is
-accepted when ICP converged, its fitness is below a threshold, and its result lies within the
-navigation's possible drift of the odometry relative pose. Degenerate alignments give partial
-factors over their well-conditioned directions; the rest get full Pose3 factors.
+centroid of k's cloud (moved by the current relative estimate) is a candidate. Navigation can
+have drifted metres between the two visits, beyond ICP's reach, so a correlative x-y-yaw search
+over that drift (`correlative.py`) finds the best overlap first and ICP refines it. A candidate
+is accepted when the overlap peak is high enough, ICP converged near the peak with a low
+fitness, and the result lies within the navigation's possible drift of the odometry relative
+pose. Degenerate alignments give partial factors over their well-conditioned directions; the
+rest get full Pose3 factors.
 """
 
 from __future__ import annotations
@@ -15,19 +18,25 @@ import numpy as np
 
 from vogjax.config import NavNoise
 from vogjax.geometry import inverse
+from vogjax.slam.correlative import CorrelativeConfig, correlative_xyh
 from vogjax.slam.icp import IcpConfig, IcpResult, icp_batch
 
 
 @dataclasses.dataclass(frozen=True)
 class LoopClosureConfig:
     method: str = "point_to_plane"
-    icp: IcpConfig = IcpConfig()
+    icp: IcpConfig = IcpConfig(max_correspondence_m=0.3)  # ICP starts at the correlative peak
+    correlative: CorrelativeConfig = CorrelativeConfig()
+    max_search_m: float = 4.0  # the correlative search radius: the drift bound, capped here
+    min_overlap_score: float = 0.3  # the correlative peak's mean blurred occupancy
+    max_refinement_m: float = 0.2  # ICP may move the peak's result this far in x-y
     min_points: int = 50  # both clouds need this many occupied voxels
     min_separation: int = 2  # |i - k| at least this: neighbours are tied by odometry already
+    max_candidates: int = 4  # the earlier submaps nearest to k are aligned, at most this many
     max_fitness_m2: float = 0.02  # mean squared inlier distance
     drift_sigmas: float = 3.0  # accept results within this many drift sigmas of odometry
     min_sigma_rotation_rad: float = 0.005  # floors on the factor's sigmas: ICP's own
-    min_sigma_translation_m: float = 0.02  # covariance is overconfident
+    min_sigma_translation_m: float = 0.2  # covariance is overconfident
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,7 +56,7 @@ class LoopClosure:
 class Rejection:
     i: int
     k: int
-    reason: str  # "not converged", "fitness", "drift"
+    reason: str  # "overlap", "not converged", "fitness", "refinement", "drift"
     fitness: float
     deviation_m: float
 
@@ -63,14 +72,17 @@ class LoopClosureDetector:
         if len(clouds[k]) < cfg.min_points:
             return []
         centroid = np.append(clouds[k].mean(axis=0), 1.0)
-        found = []
+        found, distances = [], []
         for i in range(0, k - cfg.min_separation + 1):
             if len(clouds[i]) < cfg.min_points or bounds[i] is None:
                 continue
             in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
             if np.all(in_i >= bounds[i][0]) and np.all(in_i <= bounds[i][1]):
                 found.append(i)
-        return found
+                distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
+        # the correlative search costs most of a submap's time: bound it by the best-placed few
+        nearest = np.argsort(distances, kind="stable")[:cfg.max_candidates]
+        return sorted(found[j] for j in nearest)
 
     def detect(self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray,
                times_s: np.ndarray) -> tuple[list[LoopClosure], list[Rejection]]:
@@ -84,24 +96,37 @@ class LoopClosureDetector:
         found = self.candidates(k, clouds, bounds, poses)
         if not found:
             return accepted, rejected
+        cfg, noise = self.config, self.noise
+        seeds = []
+        for i in found:
+            elapsed = abs(times_s[k] - times_s[i])
+            radius = min(cfg.drift_sigmas * np.sqrt((noise.sigma2_x + noise.sigma2_y) * elapsed), cfg.max_search_m)
+            yaw_radius = cfg.drift_sigmas * np.sqrt(noise.sigma2_yaw * elapsed)
+            seeds.append(correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k], radius,
+                                         yaw_radius, cfg.correlative))
         results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
-                            [inverse(poses[i]) @ poses[k] for i in found], self.config.method,
-                            self.config.icp)
-        for i, result in zip(found, results):
+                            [seed.T_target_source for seed in seeds], cfg.method, cfg.icp)
+        for i, seed, result in zip(found, seeds, results):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
-            reason = self._rejection(result, deviation, abs(times_s[k] - times_s[i]))
+            refinement = float(np.linalg.norm((inverse(seed.T_target_source) @ result.T_target_source)[:2, 3]))
+            reason = self._rejection(seed.score, result, refinement, deviation, abs(times_s[k] - times_s[i]))
             if reason:
                 rejected.append(Rejection(i, k, reason, result.fitness, deviation))
             else:
                 accepted.append(self._closure(i, k, result))
         return accepted, rejected
 
-    def _rejection(self, result: IcpResult, deviation: float, elapsed_s: float) -> str | None:
+    def _rejection(self, score: float, result: IcpResult, refinement_m: float, deviation: float,
+                   elapsed_s: float) -> str | None:
+        if score < self.config.min_overlap_score:
+            return "overlap"
         if not result.converged:
             return "not converged"
         if result.fitness > self.config.max_fitness_m2:
             return "fitness"
+        if refinement_m > self.config.max_refinement_m:
+            return "refinement"
         max_drift = self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
         if deviation > max_drift:
             return "drift"

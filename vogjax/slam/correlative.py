@@ -1,0 +1,110 @@
+"""Correlative x-y-yaw search: where two submap clouds overlap best within the navigation's drift.
+
+ICP converges only from within a few voxels of the answer, while navigation drifts metres
+between revisits. Depth, pitch and roll are measured absolutely, so the unknowns are x, y and
+yaw: for each yaw on a grid, the source cloud is voxelised and cross-correlated with a blurred
+occupancy grid of the target over every x-y offset at once (FFT, summed over z layers). The
+peak seeds ICP, and the peak's margin over the best clearly different offset tells whether the
+match is unambiguous.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage
+
+
+@dataclasses.dataclass(frozen=True)
+class CorrelativeConfig:
+    resolution_m: float = 0.1
+    yaw_step_rad: float = 0.005
+    blur_voxels: float = 1.0  # Gaussian blur of the target: tolerance to small distortions
+    exclusion_m: float = 0.5  # the runner-up peak is the best one at least this far away
+
+
+@dataclasses.dataclass(frozen=True)
+class CorrelativeMatch:
+    """T_target_source (4,4) at the peak; score: mean blurred occupancy under the source points
+    (1 when every point lands on a target voxel); runner_up: the best score at least
+    `exclusion_m` from the peak in x-y; ratio = runner_up / score (small: unambiguous)."""
+
+    T_target_source: np.ndarray
+    score: float
+    runner_up: float
+
+    @property
+    def ratio(self) -> float:
+        return self.runner_up / self.score if self.score > 0 else 1.0
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, radius_m: float,
+                    yaw_radius_rad: float, config: CorrelativeConfig = CorrelativeConfig()) -> CorrelativeMatch:
+    """Best x-y-yaw correction of T_init (source -> target frame) within radius_m and yaw_radius_rad.
+
+    The correction rotates about the source cloud's centroid (in the target frame) and then
+    shifts by whole voxels in x and y.
+    """
+    source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
+    if len(source) == 0 or len(target) == 0:
+        raise ValueError("source and target must hold points")
+    if not radius_m >= 0 or not yaw_radius_rad >= 0:
+        raise ValueError("radius_m and yaw_radius_rad must be >= 0")
+    res = config.resolution_m
+    moved = source @ T_init[:3, :3].T + T_init[:3, 3]
+    pivot = moved.mean(axis=0)
+    shift_cells = int(np.ceil(radius_m / res))
+    reach = np.linalg.norm(moved[:, :2] - pivot[:2], axis=1).max() * yaw_radius_rad
+    # One grid holds the source at every yaw and the part of the target it can reach, padded by
+    # the search radius so circular correlation never wraps a real overlap.
+    margin = res * (shift_cells + 2) + reach
+    lo, hi = moved.min(axis=0) - margin, moved.max(axis=0) + margin
+    target = target[np.all((target[:, :2] >= lo[:2] + res) & (target[:, :2] <= hi[:2] - res), axis=1)]
+    if len(target) == 0:
+        return CorrelativeMatch(T_init.copy(), 0.0, 0.0)
+    lo[2] = min(target[:, 2].min(), moved[:, 2].min()) - res
+    hi[2] = max(target[:, 2].max(), moved[:, 2].max()) + res
+    shape = np.ceil((hi - lo) / res).astype(int) + 1
+    field = np.zeros(shape, np.float32)
+    cells = np.floor((target - lo) / res).astype(int)
+    field[cells[:, 0], cells[:, 1], cells[:, 2]] = 1.0
+    if config.blur_voxels > 0:
+        field = ndimage.gaussian_filter(field, (config.blur_voxels, config.blur_voxels, config.blur_voxels))
+        field /= max(float(field.max()), 1e-12)
+    field_spectrum = np.fft.rfft2(field, axes=(0, 1))
+    steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
+    best = (-np.inf, None, None, None)
+    for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
+        rotation = _rotation_z(yaw)
+        points = (moved - pivot) @ rotation.T + pivot
+        counts = np.zeros(shape, np.float32)
+        cells = np.floor((points - lo) / res).astype(int)
+        np.add.at(counts, (cells[:, 0], cells[:, 1], cells[:, 2]), 1.0)
+        # score(d) = sum_x counts(x) field(x + d), for every x-y offset d at once
+        spectrum = (np.conj(np.fft.rfft2(counts, axes=(0, 1))) * field_spectrum).sum(axis=2)
+        scores = np.fft.irfft2(spectrum, s=shape[:2])
+        window = _window(scores, shift_cells) / len(points)
+        peak = np.unravel_index(np.argmax(window), window.shape)
+        if window[peak] > best[0]:
+            best = (float(window[peak]), yaw, peak, window)
+    score, yaw, peak, window = best
+    offsets = (np.array(peak) - shift_cells) * res
+    ii, jj = np.meshgrid(np.arange(window.shape[0]), np.arange(window.shape[1]), indexing="ij")
+    far = np.hypot(ii - peak[0], jj - peak[1]) * res >= config.exclusion_m
+    runner_up = float(window[far].max()) if far.any() else 0.0
+    correction = np.eye(4)
+    correction[:3, :3] = _rotation_z(yaw)
+    correction[:3, 3] = pivot - correction[:3, :3] @ pivot + np.array([offsets[0], offsets[1], 0.0])
+    return CorrelativeMatch(correction @ T_init, score, runner_up)
+
+
+def _window(scores: np.ndarray, cells: int) -> np.ndarray:
+    """Scores of offsets -cells..cells in x and y (circular indices), offset 0 at the centre."""
+    index = np.arange(-cells, cells + 1)
+    return scores[np.ix_(index % scores.shape[0], index % scores.shape[1])]
