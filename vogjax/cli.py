@@ -21,7 +21,22 @@ def main(argv=None) -> int:
     sim.add_argument("--scans", type=int, default=None, help="number of scans (default: enough)")
     sim.add_argument("--seed", type=int, default=0, help="seed of the navigation and range noise")
     sim.add_argument("--range-noise", type=float, default=0.02, help="sonar range noise, metres")
+    mapping = commands.add_parser("map", help="reprocess runs into loop-closure-consistent maps, with reports")
+    mapping.add_argument("runs", nargs="+", type=Path, help="run files (HDF5, from `vogjax simulate` or a logger)")
+    mapping.add_argument("--out", type=Path, required=True, help="output folder: one sub-folder per run")
+    mapping.add_argument("--config", type=Path, default=None, help="TOML settings (see README)")
+    mapping.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
+    if args.command == "map":
+        from vogjax import job
+
+        try:
+            config = job.load_config(args.config) if args.config else job.JobConfig()
+            reports = job.map_runs(args.runs, args.out, config, progress=not args.quiet)
+        except ValueError as error:
+            parser.error(str(error))
+        print(job.summary_table(reports))
+        print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
     if args.command == "simulate":
         from vogjax.config import SonarConfig
         from vogjax.sim import simulate_run

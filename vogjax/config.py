@@ -156,3 +156,34 @@ class SonarConfig:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def replace_from_dict(config, values: dict, where: str):
+    """A copy of the frozen dataclass `config` with `values` (nested dicts for nested
+    dataclasses) replacing its fields. Unknown keys and values of the wrong type are
+    ValueErrors naming the key as `where.key`."""
+    if not isinstance(values, dict):
+        raise ValueError(f"{where} must be a table of settings, got {values!r}")
+    fields = {f.name: f for f in dataclasses.fields(config)}
+    changes = {}
+    for key, value in values.items():
+        name = f"{where}.{key}"
+        if key not in fields:
+            raise ValueError(f"unknown setting {name} (known: {', '.join(sorted(fields))})")
+        current = getattr(config, key)
+        if dataclasses.is_dataclass(current):
+            changes[key] = replace_from_dict(current, value, name)
+        elif isinstance(current, bool) or isinstance(value, bool):
+            if not isinstance(value, bool) or not isinstance(current, bool):
+                raise ValueError(f"{name} must be {type(current).__name__}, got {value!r}")
+            changes[key] = value
+        elif isinstance(current, float) and isinstance(value, int):
+            changes[key] = float(value)
+        elif current is not None and not isinstance(value, type(current)) and not isinstance(current, str):
+            raise ValueError(f"{name} must be {type(current).__name__}, got {value!r}")
+        else:
+            changes[key] = value
+    try:
+        return dataclasses.replace(config, **changes)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{where}: {error}") from None

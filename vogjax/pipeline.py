@@ -59,12 +59,19 @@ class PipelineConfig:
             raise ValueError(f"batch_scans must be a positive integer, got {self.batch_scans!r}")
         if not (self.max_xy_variance_m2 > 0 and self.max_yaw_variance_rad2 > 0):
             raise ValueError("max_xy_variance_m2 and max_yaw_variance_rad2 must be positive")
+        for name in ("eps_rot", "eps_trans"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 <= value < float("inf")):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.eps_cov != "auto" and not (isinstance(self.eps_cov, (int, float)) and 0 <= self.eps_cov < float("inf")):
+            raise ValueError(f"eps_cov must be 'auto' or a finite number >= 0, got {self.eps_cov!r}")
 
 
 @dataclasses.dataclass
 class Result:
-    """What a run produced. Trajectories are submap base poses (N,4,4); `scan_truth` and
-    `scan_nav` are per scan."""
+    """What a run produced. `navigation`, `optimized`, `truth`: submap base poses (N,4,4);
+    `scan_navigation`, `scan_truth`: every scan's pose (S,4,4); `scan_poses("optimized")`
+    carries each scan along with its submap."""
 
     config: PipelineConfig
     global_map: GlobalMap
@@ -79,6 +86,21 @@ class Result:
     timings: dict  # step name -> list of seconds, one per submap (or per batch)
     scans: int
     metadata: dict
+    scan_navigation: np.ndarray
+    scan_truth: np.ndarray | None
+
+    def scan_poses(self, which: str) -> np.ndarray:
+        """(S,4,4) per-scan poses: "navigation", "truth" or "optimized" (each scan moved rigidly
+        with its submap's base pose, as the maps place it)."""
+        if which == "navigation":
+            return self.scan_navigation
+        if which == "truth":
+            return self.scan_truth
+        if which != "optimized":
+            raise ValueError(f"which must be 'navigation', 'truth' or 'optimized', got {which!r}")
+        submap = np.searchsorted(self.submap_first_scan, np.arange(self.scans), side="right") - 1
+        correction = self.optimized @ np.linalg.inv(self.navigation)
+        return correction[submap] @ self.scan_navigation
 
 
 class _SubmapCutter:
@@ -123,6 +145,7 @@ class _Pipeline:
         self.nav_bases, self.truth_bases, self.base_times, self.first_scans = [], [], [], []
         self.accepted, self.rejected = [], []
         self.scans_in_submap = 0
+        self.scan_nav, self.scan_truth = [], []
 
     def run(self, progress: bool) -> Result:
         cfg, ds = self.config, self.ds
@@ -134,10 +157,13 @@ class _Pipeline:
             self._finish_submap()
         return Result(cfg, self.global_map, self.vog, self.standard, np.array(self.nav_bases),
                       self.vog.poses(), np.array(self.truth_bases), np.array(self.first_scans),
-                      self.accepted, self.rejected, dict(self.timings), len(ds), ds.metadata)
+                      self.accepted, self.rejected, dict(self.timings), len(ds), ds.metadata,
+                      np.concatenate(self.scan_nav), np.concatenate(self.scan_truth))
 
     def _process(self, batch) -> None:
         cfg = self.config
+        self.scan_nav.append(batch.pose_nav)
+        self.scan_truth.append(batch.pose_truth)
         # 1. the standard map: every scan at its navigation pose, in one batch
         origins, endpoints = batch.world(batch.pose_nav, cfg.map.max_range)
         if self.standard is not None:
