@@ -124,8 +124,13 @@ def test_undo_then_redo_at_the_same_pose_is_bit_identical_and_memory_stays_flat(
 def test_thresholds_select_the_submaps_to_reapply():
     rng = np.random.default_rng(4)
     vog = random_vog(rng, 12, scans=1, beams=20)
+    # marginals: the first ten set eps_cov (the largest is 2x the base), 11 is far above it
+    marginals = np.tile(np.eye(6) * 1e-4, (12, 1, 1))
+    marginals[2] *= 2.0
+    marginals[4] *= 0.5  # moved, but certain: not re-applied
+    marginals[11] *= 10.0
     gmap = vj.GlobalMap(vog.config)
-    gmap.merge(vog)
+    gmap.merge(vog, marginals)
     poses = vog.poses()
     poses[3, :3, 3] += [0.001, 0, 0]  # below eps_trans = 2e-3
     poses[4, :3, 3] += [0.01, 0, 0]  # above
@@ -137,11 +142,6 @@ def test_thresholds_select_the_submaps_to_reapply():
     poses[6, :3, :3] = turn @ poses[6, :3, :3]  # a large turn
     poses[11, :3, 3] += [0.5, 0, 0]
     vog.set_poses(np.arange(12), poses)
-    # marginals: the first ten set eps_cov (the largest is 2x the base), 11 is far above it
-    marginals = np.tile(np.eye(6) * 1e-4, (12, 1, 1))
-    marginals[2] *= 2.0
-    marginals[4] *= 0.5  # moved, but certain: not re-applied
-    marginals[11] *= 10.0
     report = gmap.update_poses(vog, marginals)
     assert report.moved == (4, 6, 11)
     assert report.uncertain == (11,)
@@ -155,6 +155,35 @@ def test_thresholds_select_the_submaps_to_reapply():
     fresh.merge(vog)
     # Submaps 3 and 5 stayed at their applied poses in the global map: they differ from a merge.
     assert as_dict(fresh) != as_dict(gmap)
+
+
+def test_a_submap_applied_while_uncertain_is_reapplied_when_a_closure_moves_it():
+    rng = np.random.default_rng(6)
+    vog = random_vog(rng, 12, scans=1, beams=20)
+    marginals = np.tile(np.eye(6) * 1e-4, (12, 1, 1))
+    marginals[11] *= 10.0  # far from the start, before any loop closure
+    gmap = vj.GlobalMap(vog.config)
+    gmap.add(vog, range(12), marginals)
+    # a loop closure moves submap 11 and makes it as certain as the first ones
+    poses = vog.poses()
+    poses[11, :3, 3] += [0.3, 0, 0]
+    vog.set_poses(np.arange(12), poses)
+    marginals[11] = np.eye(6) * 1e-4
+    assert gmap.update_poses(vog, marginals).reapplied == (11,)
+    fresh = vj.GlobalMap(vog.config)
+    fresh.merge(vog)
+    assert as_dict(fresh) == as_dict(gmap)
+    # applied now while certain: a further small move is left alone, as Algorithm 1 intends
+    poses[11, :3, 3] += [0.01, 0, 0]
+    vog.set_poses(np.arange(12), poses)
+    report = gmap.update_poses(vog, marginals)
+    assert report.moved == (11,) and report.reapplied == ()
+    # without marginals the global map cannot know: every submap counts as uncertain
+    unknown = vj.GlobalMap(vog.config)
+    unknown.merge(vog)
+    poses[11, :3, 3] += [0.01, 0, 0]
+    vog.set_poses(np.arange(12), poses)
+    assert unknown.update_poses(vog, marginals).reapplied == (11,)
 
 
 def test_queries_during_updates_see_before_or_after_never_half():

@@ -10,6 +10,7 @@ p_min = 0, p_max = 1 restriction lifted).
 from __future__ import annotations
 
 import dataclasses
+import math
 import numbers
 import time
 
@@ -33,10 +34,12 @@ _SYMMETRY_TOLERANCE = 1e-9
 
 @dataclasses.dataclass(frozen=True)
 class Applied:
-    """A submap as the global map holds it: the pose it was added at and its revision then."""
+    """A submap as the global map holds it: the pose it was added at, its revision then, and
+    the 95% x-y-yaw confidence volume of that pose (inf: not known)."""
 
     pose: np.ndarray
     revision: int
+    volume: float = math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +48,8 @@ class UpdateReport:
 
     reapplied: ids undone at their applied pose and redone at their current one (S1 and S2)
     moved: ids whose pose moved by more than eps_rot or eps_trans (S1)
-    uncertain: ids whose x-y-yaw confidence volume exceeds eps_cov (S2); None: all, no marginals
+    uncertain: ids whose x-y-yaw confidence volume exceeds eps_cov now or did when they were
+        last applied (S2); None: all, no marginals
     eps_cov: the volume threshold used (None without marginals)
     voxels_touched: global voxel updates made (each undo and each redo counts its voxels)
     seconds: wall time of the update
@@ -81,22 +85,28 @@ class GlobalMap(BlockMap):
         return self._applied[i].pose.copy()
 
     # ---------------------------------------------------------------- building
-    def merge(self, vog: VogMap) -> int:
+    def merge(self, vog: VogMap, marginals=None) -> int:
         """Rebuild from scratch with every submap at its current pose (the "full merge").
 
+        marginals: (N,6,6) covariances of the poses, as for update_poses (None: not known).
         Returns the number of voxel updates made."""
         self._check_vog(vog)
+        volumes = self._volumes(vog, marginals)
         with self._lock.writing():
             self._store = BlockStore(self.device, self._store.layer_specs)
             self._applied = {}
             touched = []
-            pulls = sum(self._apply(vog, i, touched) for i in range(vog.num_submaps))
+            pulls = sum(self._apply(vog, i, touched, volumes) for i in range(vog.num_submaps))
             self._refresh(touched)
         return pulls
 
-    def add(self, vog: VogMap, ids) -> int:
-        """Add submaps not yet in the map at their current poses (the cached merge)."""
+    def add(self, vog: VogMap, ids, marginals=None) -> int:
+        """Add submaps not yet in the map at their current poses (the cached merge).
+
+        marginals: (N,6,6) covariances of all N submaps' poses (rows of `ids` are read), as for
+        update_poses; None: not known, so these submaps count as uncertain until re-applied."""
         self._check_vog(vog)
+        volumes = self._volumes(vog, marginals)
         ids = [int(i) for i in vog._ids("ids", ids)]
         already = [i for i in ids if i in self._applied]
         if already or len(set(ids)) != len(ids):
@@ -104,7 +114,7 @@ class GlobalMap(BlockMap):
                              "moved submaps are re-applied by update_poses")
         with self._lock.writing():
             touched = []
-            pulls = sum(self._apply(vog, i, touched) for i in ids)
+            pulls = sum(self._apply(vog, i, touched, volumes) for i in ids)
             self._refresh(touched)
         return pulls
 
@@ -116,15 +126,26 @@ class GlobalMap(BlockMap):
         above `eps_rot` (rad) or a translation above `eps_trans` (m), both from the SE(3) log of
         the relative pose. S2: submaps whose marginal covariance (`marginals`, (N,6,6) for all
         N submaps, GTSAM tangent order: rotation then translation) has a 95% x-y-yaw confidence
-        ellipsoid larger than `eps_cov`; "auto" takes the largest volume among submaps 0-9, as
-        the paper does. `marginals=None` puts every submap in S2.
+        ellipsoid larger than `eps_cov` now, or had when the submap was last applied; "auto"
+        takes the largest current volume among submaps 0-9, as the paper does.
+        `marginals=None` puts every submap in S2.
+
+        Why "or when last applied": a loop closure that moves an uncertain submap usually also
+        makes it certain. Judged by the new marginal alone, it would be left in the map at its
+        old, wrong pose, and the online map would stop agreeing with a full merge.
         """
         start = time.perf_counter()
         self._check_vog(vog)
         for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans)):
             if not isinstance(value, numbers.Real) or not value >= 0 or not np.isfinite(value):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        uncertain, threshold = self._uncertain_set(vog, marginals, eps_cov)
+        volumes = self._volumes(vog, marginals)
+        threshold = self._threshold(volumes, eps_cov)
+        uncertain = None if volumes is None else set()
+        if threshold is not None:
+            was = np.array([self._applied[i].volume if i in self._applied else 0.0
+                            for i in range(vog.num_submaps)])
+            uncertain = set(np.flatnonzero(np.maximum(volumes, was) > threshold).tolist())
         ids = np.array(self.applied_ids, dtype=np.int64)
         moved = ()
         if len(ids):
@@ -143,14 +164,15 @@ class GlobalMap(BlockMap):
             touched, pulls = [], 0
             for i in reapply:
                 pulls += self._contribute(vog.submap(i), self._applied[i].pose, -1, touched)
-                pulls += self._apply(vog, i, touched)
+                pulls += self._apply(vog, i, touched, volumes)
             self._refresh(touched, release=True)
         return UpdateReport(tuple(reapply), moved, None if uncertain is None else tuple(sorted(uncertain)),
                             threshold, pulls, time.perf_counter() - start)
 
-    def _uncertain_set(self, vog: VogMap, marginals, eps_cov):
+    def _volumes(self, vog: VogMap, marginals) -> np.ndarray | None:
+        """(N,) 95% x-y-yaw confidence volumes of checked marginals; None without marginals."""
         if marginals is None:
-            return None, None
+            return None
         try:
             marginals = np.asarray(marginals, dtype=np.float64)
         except (TypeError, ValueError):
@@ -164,16 +186,15 @@ class GlobalMap(BlockMap):
             raise ValueError("marginals must be symmetric")
         if len(marginals) and np.linalg.eigvalsh(marginals).min() < -1e-9 * scale:
             raise ValueError("marginals must be positive semi-definite")
-        volumes = confidence_volume(marginals)
+        return confidence_volume(marginals)
+
+    @staticmethod
+    def _threshold(volumes: np.ndarray | None, eps_cov) -> float | None:
         if isinstance(eps_cov, str) and eps_cov == "auto":
-            if not len(volumes):
-                return set(), None
-            threshold = float(volumes[:10].max())
-        elif isinstance(eps_cov, numbers.Real) and eps_cov >= 0 and np.isfinite(eps_cov):
-            threshold = float(eps_cov)
-        else:
-            raise ValueError(f"eps_cov must be 'auto' or a finite number >= 0, got {eps_cov!r}")
-        return set(np.flatnonzero(volumes > threshold).tolist()), threshold
+            return float(volumes[:10].max()) if volumes is not None and len(volumes) else None
+        if isinstance(eps_cov, numbers.Real) and eps_cov >= 0 and np.isfinite(eps_cov):
+            return None if volumes is None else float(eps_cov)
+        raise ValueError(f"eps_cov must be 'auto' or a finite number >= 0, got {eps_cov!r}")
 
     def _check_vog(self, vog) -> None:
         if not isinstance(vog, VogMap):
@@ -182,11 +203,11 @@ class GlobalMap(BlockMap):
             raise ValueError("vog has another MapConfig than this global map")
 
     # ---------------------------------------------------------------- contributions
-    def _apply(self, vog: VogMap, i: int, touched: list) -> int:
+    def _apply(self, vog: VogMap, i: int, touched: list, volumes: np.ndarray | None) -> int:
         pose = vog.pose(i)
         submap = vog.submap(i)
         pulls = self._contribute(submap, pose, +1, touched)
-        self._applied[i] = Applied(pose, submap.revision)
+        self._applied[i] = Applied(pose, submap.revision, math.inf if volumes is None else float(volumes[i]))
         return pulls
 
     def _contribute(self, submap: Submap, pose: np.ndarray, sign: int, touched: list) -> int:
@@ -260,7 +281,8 @@ class GlobalMap(BlockMap):
         """One file: config, applied poses and revisions, sums and counts."""
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
-            applied = {str(i): {"pose": a.pose.tolist(), "revision": a.revision}
+            applied = {str(i): {"pose": a.pose.tolist(), "revision": a.revision,
+                                "volume": None if math.isinf(a.volume) else a.volume}
                        for i, a in self._applied.items()}
         write_map_file(path, "GlobalMap", {"config": self.config.to_dict(), "applied": applied},
                        {"block_keys": keys, "sum": layers["sum"], "count": layers["count"]})
@@ -270,7 +292,8 @@ class GlobalMap(BlockMap):
         metadata, arrays = read_map_file(path, "GlobalMap")
         try:
             config = MapConfig.from_dict(metadata["config"])
-            applied = {int(i): Applied(np.array(a["pose"], dtype=np.float64), int(a["revision"]))
+            applied = {int(i): Applied(np.array(a["pose"], dtype=np.float64), int(a["revision"]),
+                                       math.inf if a.get("volume") is None else float(a["volume"]))
                        for i, a in metadata["applied"].items()}
             keys, sums, counts = arrays["block_keys"], arrays["sum"], arrays["count"]
         except (KeyError, TypeError, ValueError) as error:

@@ -239,10 +239,10 @@ class _Pipeline:
             self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
         before = self.vog.poses()
         poses = self.graph.update()
-        # marginals of the submaps that moved, and of the first ten (they set eps_cov)
+        # marginals of the submaps that moved, of the first ten (they set eps_cov) and the new one
         angle, shift = pose_deltas(before, poses)
         wanted = sorted(set(np.flatnonzero((angle > cfg.eps_rot) | (shift > cfg.eps_trans)).tolist())
-                        | set(range(min(10, k + 1))))
+                        | set(range(min(10, k + 1))) | {k})
         marginals = np.zeros((k + 1, 6, 6))
         marginals[wanted] = self.graph.marginals(wanted)
         self.timings["isam2"][-1] += time.perf_counter() - start
@@ -256,7 +256,7 @@ class _Pipeline:
         self.timings["undo_redo"].append(time.perf_counter() - start)
         self.timings["reapplied"].append(len(report.reapplied))
         start = time.perf_counter()
-        self.global_map.add(self.vog, [k])
+        self.global_map.add(self.vog, [k], marginals)
         self.timings["add"].append(time.perf_counter() - start)
 
 
