@@ -10,10 +10,11 @@ from pathlib import Path
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="vogjax", description="GPU/JAX occupancy mapping")
     commands = parser.add_subparsers(dest="command", required=True)
-    demo = commands.add_parser("demo", help="map a built-in scene from simulated sonar scans")
+    demo = commands.add_parser("demo", help="simulate a survey of a built-in scene and map it with loop closures")
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
-    demo.add_argument("--scans", type=int, default=3000, help="number of sonar scans")
-    demo.add_argument("--device", default=None, help="Warp device (default: CUDA if present)")
+    demo.add_argument("--scene", default="propeller", help="propeller, pilings, tank or boxes")
+    demo.add_argument("--laps", type=int, default=2, help="times the survey is flown")
+    demo.add_argument("--quiet", action="store_true", help="no progress bars")
     sim = commands.add_parser("simulate", help="simulate a sonar survey of a built-in scene")
     sim.add_argument("--scene", required=True, help="propeller, pilings, tank or boxes")
     sim.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
@@ -49,11 +50,12 @@ def main(argv=None) -> int:
         print(f"wrote {summary.path}: {summary.scans} scans, {summary.duration_s:.0f} s of survey, "
               f"{summary.returns:.0%} of beams returned")
     if args.command == "demo":
-        if args.scans < 1:
-            parser.error("--scans must be at least 1")
         from vogjax import demo as demo_module
 
-        demo_module.run(args.out, args.scans, args.device)
+        try:
+            demo_module.run(args.out, args.scene, args.laps, progress=not args.quiet)
+        except ValueError as error:
+            parser.error(str(error))
     return 0
 
 

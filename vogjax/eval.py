@@ -13,7 +13,7 @@ from vogjax.blockmap import OCCUPIED
 from vogjax.globalmap import GlobalMap
 from vogjax.scenes import FREE
 from vogjax.scenes import OCCUPIED as TRUE_OCCUPIED
-from vogjax.slam import IcpConfig, icp
+from vogjax.slam import IcpConfig, correlative_xyh, icp
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,11 +47,14 @@ def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
     return Roc(fpr, tpr, np.r_[np.inf, s[last_of_tie]], float(np.trapezoid(tpr, fpr)))
 
 
-def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None) -> float:
+def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
+                        search_radius_m: float = 3.0) -> float:
     """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
-    registering them to it with point-to-plane ICP from the identity."""
+    registering them to it: a correlative x-y-yaw search within `search_radius_m` (a drifted
+    map can sit farther off than ICP reaches), then point-to-plane ICP."""
     config = config or IcpConfig(max_correspondence_m=0.5)
-    result = icp(points, surface, np.eye(4), config=config)
+    seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
+    result = icp(points, surface, seed.T_target_source, config=config)
     moved = points @ result.T_target_source[:3, :3].T + result.T_target_source[:3, 3]
     distance, _ = cKDTree(surface).query(moved, workers=-1)
     return float(np.sqrt(np.mean(distance**2)))

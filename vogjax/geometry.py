@@ -69,10 +69,11 @@ def log_se3(poses: np.ndarray) -> np.ndarray:
     omega = log_so3(poses[..., :3, :3])
     theta = np.linalg.norm(omega, axis=-1)
     t = poses[..., :3, 3]
-    small = theta < 1e-9
+    # below 1e-4 rad the closed form loses every digit to cancellation (1 - cos rounds to 0)
+    small = theta < 1e-4
     safe = np.where(small, 1.0, theta)
     # V^-1 = I - W/2 + (1/theta^2)(1 - theta sin / (2 (1 - cos))) W^2
-    coefficient = np.where(small, 1.0 / 12.0,
+    coefficient = np.where(small, 1.0 / 12.0 + theta**2 / 720.0,
                            (1.0 - safe * np.sin(safe) / (2.0 * (1.0 - np.cos(safe)))) / safe**2)
     w_t = np.cross(omega, t)
     w_w_t = np.cross(omega, w_t)

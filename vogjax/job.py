@@ -79,8 +79,9 @@ def config_from_dict(values: dict) -> JobConfig:
     unknown = sorted(set(values) - set(_TABLES))
     if unknown:
         raise ValueError(f"unknown config table(s) {', '.join(unknown)} (known: {', '.join(_TABLES)})")
-    if values.get("pipeline", {}).get("scans_per_submap") == "covariance":
-        values = {**values, "pipeline": {**values["pipeline"], "scans_per_submap": None}}
+    by_covariance = isinstance(values.get("pipeline"), dict) and values["pipeline"].get("scans_per_submap") == "covariance"
+    if by_covariance:  # TOML has no None: Eq. 2 cutting is spelled out
+        values = {**values, "pipeline": {k: v for k, v in values["pipeline"].items() if k != "scans_per_submap"}}
     for table, (part, *field) in _TABLES.items():
         if table not in values:
             continue
@@ -91,6 +92,8 @@ def config_from_dict(values: dict) -> JobConfig:
         else:
             owner = replace_from_dict(owner, values[table], table)
         config = dataclasses.replace(config, **{part: owner})
+    if by_covariance:
+        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, scans_per_submap=None))
     return config
 
 

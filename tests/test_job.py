@@ -1,0 +1,156 @@
+"""`vogjax map` end to end on a small boxes survey flown twice, and its failure modes."""
+
+import json
+
+import numpy as np
+import pytest
+
+import vogjax as vj
+from vogjax import cli, job, pipeline
+from vogjax.geometry import log_se3
+from vogjax.sim import simulate_run
+
+SETTINGS = """
+[pipeline]
+eps_rot = 0
+eps_trans = 0
+eps_cov = 0
+
+[report]
+rays = 2000
+timing_samples = 3
+surface_points = 20000
+"""
+
+
+@pytest.fixture(scope="module")
+def boxes_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("runs") / "boxes.h5"
+    simulate_run("boxes", path, laps=2, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def mapped(boxes_run, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    (out / "settings.toml").write_text(SETTINGS)
+    assert cli.main(["map", str(boxes_run), "--out", str(out / "maps"), "--config", str(out / "settings.toml"),
+                     "--quiet"]) == 0
+    return out / "maps" / boxes_run.stem
+
+
+def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
+    config = job.config_from_dict({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0}}).pipeline
+    result = pipeline.run(boxes_run, config, progress=False)
+    assert len(result.loop_closures) >= 3
+    # closures agree with the true relative poses, in the directions they constrain, far
+    # better than navigation does
+    truth, nav = result.truth, result.navigation
+    closure_errors, nav_errors = [], []
+    for c in result.loop_closures:
+        true_rel = np.linalg.inv(truth[c.i]) @ truth[c.k]
+        basis = np.eye(6) if c.basis is None else c.basis
+        for T, errors in ((c.T_i_k, closure_errors), (np.linalg.inv(nav[c.i]) @ nav[c.k], nav_errors)):
+            errors.append(np.linalg.norm(basis.T @ log_se3(np.linalg.inv(true_rel) @ T)))
+    assert max(closure_errors) < 0.4
+    assert np.mean(closure_errors) < 0.5 * np.mean(nav_errors)
+    error = lambda poses: np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1)))
+    assert error(result.optimized) < 0.6 * error(nav)
+    # per scan too: scans carried with their submaps follow the truth better than navigation
+    scan_error = lambda which: np.sqrt(np.mean(np.sum(
+        (result.scan_poses(which)[:, :3, 3] - result.scan_truth[:, :3, 3]) ** 2, axis=1)))
+    assert scan_error("optimized") < scan_error("navigation")
+    # with eps = 0 the online map is the full merge, bit for bit
+    fresh = vj.GlobalMap(config.map)
+    fresh.merge(result.vog)
+    assert all(np.array_equal(a, b) for a, b in zip(result.global_map.sums(), fresh.sums()))
+
+
+def test_map_writes_a_complete_report(mapped, boxes_run):
+    report = json.loads((mapped / "report.json").read_text())
+    assert report["run"] == str(boxes_run) and report["scene"] == "boxes"
+    assert set(report["auc"]) == {"online", "virtual", "full_merge", "standard"}
+    assert all(0.5 < v <= 1.0 for v in report["auc"].values())
+    assert report["auc"]["online"] == report["auc"]["full_merge"]  # eps = 0: the same map
+    assert abs(report["auc"]["online"] - report["auc"]["virtual"]) < 0.01
+    assert set(report["rmse_m"]) == {"standard", "without_loop_closures", "with_loop_closures"}
+    assert all(0 < v < 1.0 for v in report["rmse_m"].values())
+    assert report["rmse_m"]["with_loop_closures"] < report["rmse_m"]["standard"]
+    assert report["loop_closures"]["accepted"] >= 3
+    assert report["trajectory_rmse_m"]["optimized"] < report["trajectory_rmse_m"]["navigation"]
+    assert report["agreement"]["misclassified"] == 0
+    timing = report["timing_s"]
+    assert timing["scans_per_s"] > 0 and set(timing["steps"]) >= {"integration", "loop_closure", "isam2", "undo_redo"}
+    curves = timing["curves"]
+    assert len(curves["online_s"]) == report["submaps"] and curves["rays"] == 2000
+    assert curves["sampled_submaps"][-1] == report["submaps"]
+    assert report["config"]["pipeline"]["eps_cov"] == 0 and report["config"]["report"]["rays"] == 2000
+    assert {"vogjax", "warp", "jax", "gtsam", "numpy"} <= set(report["versions"])
+    # the map file holds the online map; the CSV one row per submap
+    gmap = vj.GlobalMap.load(mapped / "global_map.vog")
+    assert gmap.applied_ids == tuple(range(report["submaps"]))
+    table = np.genfromtxt(mapped / "trajectories.csv", delimiter=",", names=True)
+    assert len(table) == report["submaps"]
+    for figure in ("top_view", "trajectory", "roc", "timing"):
+        assert (mapped / f"{figure}.png").stat().st_size > 10_000
+    assert not [p for p in mapped.parent.iterdir() if p.name.startswith(".")]  # no staging left
+
+
+def test_a_failure_while_writing_leaves_the_earlier_results(mapped, boxes_run, monkeypatch):
+    before = (mapped / "report.json").read_text()
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(job.plots, "timing", broken)
+    config = job.config_from_dict({"report": {"rays": 100, "timing_samples": 2, "surface_points": 1000}})
+    with pytest.raises(RuntimeError, match="disk full"):
+        job.map_runs([boxes_run], mapped.parent, config, progress=False)
+    assert (mapped / "report.json").read_text() == before
+    assert sorted(p.name for p in mapped.parent.iterdir()) == [mapped.name]
+
+
+def run_cli(capsys, *args):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["map", *map(str, args), "--quiet"])
+    assert exit_info.value.code == 2
+    return capsys.readouterr().err
+
+
+def test_missing_and_corrupt_runs_are_clear_errors_with_no_output(boxes_run, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert "does not exist" in run_cli(capsys, tmp_path / "nope.h5", "--out", out)
+    corrupt = tmp_path / "corrupt.h5"
+    corrupt.write_bytes(boxes_run.read_bytes()[:5000])
+    assert "corrupt.h5" in run_cli(capsys, corrupt, "--out", out)
+    # one bad run among good ones: nothing is mapped
+    assert "corrupt.h5" in run_cli(capsys, boxes_run, corrupt, "--out", out)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("settings, message", [
+    ("[map]\nvoxel_sise = 0.1\n", "unknown setting map.voxel_sise"),
+    ("[maps]\nvoxel_size = 0.1\n", "unknown config table(s) maps"),
+    ("[map]\nvoxel_size = 'small'\n", "map.voxel_size must be float"),
+    ("[map]\nvoxel_size = -1.0\n", "voxel_size must be a positive number"),
+    ("[pipeline]\neps_cov = 'big'\n", "eps_cov must be 'auto'"),
+    ("[loop_closure.icp]\nmax_iterations = 2.5\n", "loop_closure.icp.max_iterations must be int"),
+    ("[report]\nrays = 0\n", "rays must be a positive integer"),
+    ("[map\nvoxel_size = 0.1\n", "not valid TOML"),
+])
+def test_bad_settings_are_clear_errors_with_no_output(boxes_run, tmp_path, capsys, settings, message):
+    (tmp_path / "bad.toml").write_text(settings)
+    out = tmp_path / "out"
+    assert message in run_cli(capsys, boxes_run, "--out", out, "--config", tmp_path / "bad.toml")
+    assert not out.exists()
+
+
+def test_settings_reach_the_configuration(tmp_path):
+    (tmp_path / "s.toml").write_text("[map]\nvoxel_size = 0.2\n[nav_noise]\nsigma2_x = 0.002\n"
+                                     "[pipeline]\nscans_per_submap = 'covariance'\n"
+                                     "[loop_closure.correlative]\nresolution_m = 0.15\n")
+    config = job.load_config(tmp_path / "s.toml")
+    assert config.pipeline.map.voxel_size == 0.2 and config.pipeline.map.prob_hit == vj.MapConfig().prob_hit
+    assert config.pipeline.nav_noise.sigma2_x == 0.002
+    assert config.pipeline.scans_per_submap is None
+    assert config.pipeline.loop_closure.correlative.resolution_m == 0.15
