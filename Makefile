@@ -25,6 +25,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_globalmap.py --out benchmarks/results
 	$(PY) benchmarks/bench_slam.py --out benchmarks/results
 	$(PY) benchmarks/bench_sim.py --out benchmarks/results
+	$(PY) benchmarks/bench_pipeline.py --out benchmarks/results
 
 clean:
 	rm -rf $(VENV) .cache demo_out

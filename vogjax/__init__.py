@@ -8,7 +8,7 @@ from vogjax.voxelmap import VoxelMap
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("eval", "io", "pipeline", "scenes", "sim", "slam")
+_SUBPACKAGES = ("eval", "io", "job", "pipeline", "scenes", "sim", "slam", "timing")
 
 
 def __getattr__(name):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import ndimage
+from scipy import fft, ndimage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +77,7 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     if config.blur_voxels > 0:
         field = ndimage.gaussian_filter(field, (config.blur_voxels, config.blur_voxels, config.blur_voxels))
         field /= max(float(field.max()), 1e-12)
-    field_spectrum = np.fft.rfft2(field, axes=(0, 1))
+    field_spectrum = fft.rfft2(field, axes=(0, 1), workers=-1)
     steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
     best = (-np.inf, None, None, None)
     for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
@@ -87,8 +87,8 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
         cells = np.floor((points - lo) / res).astype(int)
         np.add.at(counts, (cells[:, 0], cells[:, 1], cells[:, 2]), 1.0)
         # score(d) = sum_x counts(x) field(x + d), for every x-y offset d at once
-        spectrum = (np.conj(np.fft.rfft2(counts, axes=(0, 1))) * field_spectrum).sum(axis=2)
-        scores = np.fft.irfft2(spectrum, s=shape[:2])
+        spectrum = (np.conj(fft.rfft2(counts, axes=(0, 1), workers=-1)) * field_spectrum).sum(axis=2)
+        scores = fft.irfft2(spectrum, s=shape[:2], workers=-1)
         window = _window(scores, shift_cells) / len(points)
         peak = np.unravel_index(np.argmax(window), window.shape)
         if window[peak] > best[0]:

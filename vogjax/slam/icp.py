@@ -85,7 +85,7 @@ def _exp(xi: np.ndarray) -> np.ndarray:
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
     """Unit normals of the target cloud: smallest principal axis of each point's neighbours."""
     k = min(neighbours, len(target))
-    _, index = tree.query(target, k=k, workers=-1)
+    _, index = tree.query(target, k=k)  # clouds of a few thousand points: threads cost more than they save
     patches = target[index.reshape(len(target), k)]
     centred = patches - patches.mean(axis=1, keepdims=True)
     _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
@@ -138,8 +138,7 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         for row, pair in enumerate(ids):
             source = sources[pair]
             m = source @ T[pair, :3, :3].T + T[pair, :3, 3]
-            distance, index = trees[pair].query(m, distance_upper_bound=config.max_correspondence_m,
-                                                  workers=-1)
+            distance, index = trees[pair].query(m, distance_upper_bound=config.max_correspondence_m)
             inlier = np.isfinite(distance)
             size = int(inlier.sum())
             p[row, :size], moved[row, :size] = source[inlier], m[inlier]

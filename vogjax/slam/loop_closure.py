@@ -13,6 +13,7 @@ rest get full Pose3 factors.
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
@@ -65,6 +66,7 @@ class LoopClosureDetector:
     def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None):
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
+        self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # time spent so far, per phase
 
     def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
         """Earlier submaps worth aligning with k (the thesis's precondition)."""
@@ -97,6 +99,7 @@ class LoopClosureDetector:
         if not found:
             return accepted, rejected
         cfg, noise = self.config, self.noise
+        start = time.perf_counter()
         seeds = []
         for i in found:
             elapsed = abs(times_s[k] - times_s[i])
@@ -104,8 +107,11 @@ class LoopClosureDetector:
             yaw_radius = cfg.drift_sigmas * np.sqrt(noise.sigma2_yaw * elapsed)
             seeds.append(correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k], radius,
                                          yaw_radius, cfg.correlative))
+        self.seconds["correlative_search"] += time.perf_counter() - start
+        start = time.perf_counter()
         results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
                             [seed.T_target_source for seed in seeds], cfg.method, cfg.icp)
+        self.seconds["icp"] += time.perf_counter() - start
         for i, seed, result in zip(found, seeds, results):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
