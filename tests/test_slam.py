@@ -252,6 +252,15 @@ def test_correlative_search_reports_ambiguity_along_a_wall():
     (lambda pg: slam.icp(np.zeros((0, 3)), np.ones((10, 3))), "source"),
     (lambda pg: slam.icp(np.ones((10, 3)), np.full((10, 3), np.nan)), "target"),
     (lambda pg: slam.icp(np.ones((10, 3)), np.ones((10, 3)), method="magic"), "method"),
+    (lambda pg: slam.correlative_xyh(np.zeros((0, 3)), np.ones((10, 3)), np.eye(4), 1.0, 0.0), "source"),
+    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 2)), np.eye(4), 1.0, 0.0), "target"),
+    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.ones((4, 4)), 1.0, 0.0), "T_init"),
+    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), -1.0, 0.0), "radius_m"),
+    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), 1.0, np.inf), "yaw_radius_rad"),
+    (lambda pg: slam.CorrelativeConfig(resolution_m=0.0), "resolution_m"),
+    (lambda pg: slam.LoopClosureConfig(max_candidates=-1), "max_candidates"),
+    (lambda pg: slam.LoopClosureConfig(min_overlap_score=float("nan")), "min_overlap_score"),
+    (lambda pg: slam.LoopClosureConfig(method="magic"), "method"),
 ])
 def test_bad_input(call, argument):
     pg = slam.PoseGraph()

@@ -15,6 +15,8 @@ import dataclasses
 import numpy as np
 from scipy import fft, ndimage
 
+from vogjax.geometry import rigid_poses
+
 
 @dataclasses.dataclass(frozen=True)
 class CorrelativeConfig:
@@ -22,6 +24,13 @@ class CorrelativeConfig:
     yaw_step_rad: float = 0.005
     blur_voxels: float = 1.0  # Gaussian blur of the target: tolerance to small distortions
     exclusion_m: float = 0.5  # the runner-up peak is the best one at least this far away
+
+    def __post_init__(self):
+        for name in ("resolution_m", "yaw_step_rad", "exclusion_m"):
+            if not (isinstance(getattr(self, name), (int, float)) and 0 < getattr(self, name) < np.inf):
+                raise ValueError(f"CorrelativeConfig.{name} must be a positive number, got {getattr(self, name)!r}")
+        if not (isinstance(self.blur_voxels, (int, float)) and 0 <= self.blur_voxels < np.inf):
+            raise ValueError(f"CorrelativeConfig.blur_voxels must be a number >= 0, got {self.blur_voxels!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,10 +61,13 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     shifts by whole voxels in x and y.
     """
     source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
-    if len(source) == 0 or len(target) == 0:
-        raise ValueError("source and target must hold points")
-    if not radius_m >= 0 or not yaw_radius_rad >= 0:
-        raise ValueError("radius_m and yaw_radius_rad must be >= 0")
+    for name, cloud in (("source", source), ("target", target)):
+        if cloud.ndim != 2 or cloud.shape[1] != 3 or len(cloud) == 0 or not np.all(np.isfinite(cloud)):
+            raise ValueError(f"{name} must be a non-empty (N, 3) array of finite points")
+    T_init = rigid_poses("T_init", T_init)[0]
+    for name, value in (("radius_m", radius_m), ("yaw_radius_rad", yaw_radius_rad)):
+        if not (isinstance(value, (int, float, np.floating)) and 0 <= value < np.inf):
+            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     res = config.resolution_m
     moved = source @ T_init[:3, :3].T + T_init[:3, 3]
     pivot = moved.mean(axis=0)
