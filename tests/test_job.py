@@ -56,6 +56,10 @@ def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
     assert np.mean(closure_errors) < 0.5 * np.mean(nav_errors)
     error = lambda poses: np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1)))
     assert error(result.optimized) < 0.6 * error(nav)
+    metrics = result.metrics
+    assert metrics["trajectory_rmse_m"]["optimized"] == pytest.approx(error(result.optimized))
+    assert metrics["loop_closures"]["accepted"] == len(result.loop_closures)
+    assert sum(metrics["loop_closures"]["rejected_by_reason"].values()) == len(result.rejected)
     # per scan too: scans carried with their submaps follow the truth better than navigation
     scan_error = lambda which: np.sqrt(np.mean(np.sum(
         (result.scan_poses(which)[:, :3, 3] - result.scan_truth[:, :3, 3]) ** 2, axis=1)))

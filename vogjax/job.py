@@ -17,7 +17,6 @@ import shutil
 import tempfile
 import time
 import tomllib
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -172,11 +171,6 @@ def _report(result, path, metadata, metrics, curves, pipeline_s, rate_hz, config
                              "virtual": float(curves.query_virtual_s[-1]),
                              "submaps": int(curves.sampled_submaps[-1])}
         timing_s["curves"] = curves.to_dict()
-    ate = {}
-    if result.truth is not None and len(result.truth) == len(result.navigation):
-        for name in ("navigation", "optimized"):
-            error = getattr(result, name)[:, :3, 3] - result.truth[:, :3, 3]
-            ate[name] = float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
     empty = dict.fromkeys(("online", "virtual", "full_merge", "standard"))
     return {
         "run": str(path), "scene": metadata.get("scene"), "scans": result.scans, "duration_s": duration_s,
@@ -184,9 +178,7 @@ def _report(result, path, metadata, metrics, curves, pipeline_s, rate_hz, config
         "auc": metrics.get("auc", empty),
         "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),
         "agreement": metrics.get("agreement"),
-        "trajectory_rmse_m": ate,
-        "loop_closures": {"accepted": len(result.loop_closures), "rejected": len(result.rejected),
-                          "rejected_by_reason": dict(Counter(r.reason for r in result.rejected))},
+        **result.metrics,
         "timing_s": timing_s,
         "config": dataclasses.asdict(config),
         "versions": _versions(),

@@ -89,6 +89,22 @@ class Result:
     scan_navigation: np.ndarray
     scan_truth: np.ndarray | None
 
+    @property
+    def metrics(self) -> dict:
+        """What needs no ground-truth map: base-pose RMS error of navigation and optimised poses
+        (m; when the run has true poses), loop closures by verdict, scans per second."""
+        errors = {}
+        if self.truth is not None and len(self.truth) == len(self.navigation):
+            for name in ("navigation", "optimized"):
+                offsets = getattr(self, name)[:, :3, 3] - self.truth[:, :3, 3]
+                errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+        rejected = {}
+        for r in self.rejected:
+            rejected[r.reason] = rejected.get(r.reason, 0) + 1
+        return {"trajectory_rmse_m": errors,
+                "loop_closures": {"accepted": len(self.loop_closures), "rejected": len(self.rejected),
+                                  "rejected_by_reason": rejected}}
+
     def scan_poses(self, which: str) -> np.ndarray:
         """(S,4,4) per-scan poses: "navigation", "truth" or "optimized" (each scan moved rigidly
         with its submap's base pose, as the maps place it)."""

@@ -31,8 +31,7 @@ def top_view(centres: np.ndarray, log_odds: np.ndarray, config, path, title: str
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title or "occupancy, top view (grey: observed free)")
-    fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
 
 
