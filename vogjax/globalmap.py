@@ -9,6 +9,7 @@ p_min = 0, p_max = 1 restriction lifted).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import numbers
@@ -96,7 +97,7 @@ class GlobalMap(BlockMap):
             self._store = BlockStore(self.device, self._store.layer_specs)
             self._applied = {}
             touched = []
-            pulls = sum(self._apply(vog, i, touched, volumes) for i in range(vog.num_submaps))
+            pulls = self._apply(vog, range(vog.num_submaps), touched, volumes)
             self._refresh(touched)
         return pulls
 
@@ -114,7 +115,7 @@ class GlobalMap(BlockMap):
                              "moved submaps are re-applied by update_poses")
         with self._lock.writing():
             touched = []
-            pulls = sum(self._apply(vog, i, touched, volumes) for i in ids)
+            pulls = self._apply(vog, ids, touched, volumes)
             self._refresh(touched)
         return pulls
 
@@ -161,10 +162,10 @@ class GlobalMap(BlockMap):
             raise ValueError(f"vog: submaps {stale} changed since they were added; their old "
                              "contribution cannot be undone (add submaps once they are complete)")
         with self._lock.writing():
-            touched, pulls = [], 0
-            for i in reapply:
-                pulls += self._contribute(vog.submap(i), self._applied[i].pose, -1, touched)
-                pulls += self._apply(vog, i, touched, volumes)
+            touched = []
+            # integer sums commute: every undo first, then every redo, gives the same bits
+            pulls = self._contribute([(vog.submap(i), self._applied[i].pose) for i in reapply], -1, touched)
+            pulls += self._apply(vog, reapply, touched, volumes)
             self._refresh(touched, release=True)
         return UpdateReport(tuple(reapply), moved, None if uncertain is None else tuple(sorted(uncertain)),
                             threshold, pulls, time.perf_counter() - start)
@@ -203,46 +204,60 @@ class GlobalMap(BlockMap):
             raise ValueError("vog has another MapConfig than this global map")
 
     # ---------------------------------------------------------------- contributions
-    def _apply(self, vog: VogMap, i: int, touched: list, volumes: np.ndarray | None) -> int:
-        pose = vog.pose(i)
-        submap = vog.submap(i)
-        pulls = self._contribute(submap, pose, +1, touched)
-        self._applied[i] = Applied(pose, submap.revision, math.inf if volumes is None else float(volumes[i]))
+    def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
+        """Add submaps `ids` at their current poses and record them as applied."""
+        ids = [int(i) for i in ids]
+        pulls = self._contribute([(vog.submap(i), vog.pose(i)) for i in ids], +1, touched)
+        for i in ids:
+            self._applied[i] = Applied(vog.pose(i), vog.submap(i).revision,
+                                       math.inf if volumes is None else float(volumes[i]))
         return pulls
 
-    def _contribute(self, submap: Submap, pose: np.ndarray, sign: int, touched: list) -> int:
-        """Add (sign +1) or remove (-1) a submap's pulled values at `pose`; returns voxels updated."""
-        with submap._lock.reading():
-            local = submap._store
-            count = local.num_blocks
-            if count == 0:
-                return 0
-            cfg, device, store = self.config, self.device, self._store
-            transform = [wp.mat33d(pose[:3, :3]), wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]),
-                         np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
-            span = accumulation.COLUMN_SPAN
-            parts = parallel.num_parts(device, count * span * span)
-
-            def with_first(lo):  # the submap's blocks from slot `lo` on, and the transform
-                return [local.slot_keys, lo, local.layers["log_odds"], *transform]
-
-            # 1. the global blocks this submap's blocks pull into (created when adding)
-            keys = wp.full((count, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
-            parallel.split_launch(lambda part, lo, hi: wp.launch(
-                accumulation.collect_pull_blocks, dim=(hi - lo, span, span), inputs=with_first(lo),
-                outputs=[keys[lo:hi]], device=device), count, parts)
+    def _contribute(self, items: list, sign: int, touched: list) -> int:
+        """Add (sign +1) or remove (-1) the pulled values of (submap, pose) items; returns the
+        voxels updated. Every item's launches are queued before anything is read back, so the
+        host waits on the device once per call, not once per submap (block allocation in
+        between is one batch)."""
+        items = [(submap, pose) for submap, pose in items if submap.num_blocks]
+        if not items:
+            return 0
+        cfg, device, span = self.config, self.device, accumulation.COLUMN_SPAN
+        with contextlib.ExitStack() as stack:
+            for submap, _ in items:
+                stack.enter_context(submap._lock.reading())
+            counts = [submap._store.num_blocks for submap, _ in items]
+            offsets = np.concatenate([[0], np.cumsum(counts)])
+            parts = [parallel.num_parts(device, count * span * span) for count in counts]
+            arguments = []  # per item: the submap's blocks from slot `lo` on, and the transform
+            for submap, pose in items:
+                local = submap._store
+                transform = [wp.mat33d(pose[:3, :3]), wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]),
+                             np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
+                arguments.append(lambda lo, local=local, transform=transform:
+                                 [local.slot_keys, lo, local.layers["log_odds"], *transform])
+            # 1. the global blocks each submap's blocks pull into (created when adding)
+            keys = wp.full((int(offsets[-1]), accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64,
+                           device=device)
+            for j, count in enumerate(counts):
+                rows = keys[int(offsets[j]):int(offsets[j + 1])]
+                parallel.split_launch(lambda part, lo, hi, j=j, rows=rows: wp.launch(
+                    accumulation.collect_pull_blocks, dim=(hi - lo, span, span), inputs=arguments[j](lo),
+                    outputs=[rows[lo:hi]], device=device), count, parts[j])
             keys = keys.flatten()
+            store = self._store
             if sign > 0:
                 store.ensure_blocks(keys)
             slots = store.find(keys)
-            # 2. add or subtract the pulled values (each global voxel has one source block)
-            pulls = wp.zeros(max(parts, 1), dtype=wp.int32, device=device)
-            parallel.split_launch(lambda part, lo, hi: wp.launch(
-                accumulation.accumulate_pulls, dim=(hi - lo, span, span),
-                inputs=[*with_first(lo), sign, store.table_keys, store.table_slots, part],
-                outputs=[store.layers["sum"], store.layers["count"], pulls], device=device),
-                count, parts)
-        slots = slots.numpy()
+            # 2. add or subtract the pulled values (each global voxel has one source block per
+            # submap; submaps follow one another, so CPU parts never write the same voxel)
+            pulls = wp.zeros((len(items), max(parts)), dtype=wp.int32, device=device)
+            for j, count in enumerate(counts):
+                parallel.split_launch(lambda part, lo, hi, j=j: wp.launch(
+                    accumulation.accumulate_pulls, dim=(hi - lo, span, span),
+                    inputs=[*arguments[j](lo), sign, store.table_keys, store.table_slots, part],
+                    outputs=[store.layers["sum"], store.layers["count"], pulls[j]], device=device),
+                    count, parts[j])
+            slots = slots.numpy()
         touched.append(slots[slots >= 0])
         return int(pulls.numpy().sum())
 
