@@ -8,6 +8,7 @@ import pytest
 import vogjax as vj
 from vogjax import cli, job, pipeline
 from vogjax.geometry import log_se3
+from vogjax.io.dataset import DatasetWriter
 from vogjax.sim import simulate_run
 
 SETTINGS = """
@@ -127,6 +128,10 @@ def test_missing_and_corrupt_runs_are_clear_errors_with_no_output(boxes_run, tmp
     corrupt = tmp_path / "corrupt.h5"
     corrupt.write_bytes(boxes_run.read_bytes()[:5000])
     assert "corrupt.h5" in run_cli(capsys, corrupt, "--out", out)
+    empty = tmp_path / "empty.h5"
+    with DatasetWriter(empty, 96, {"scene": "boxes"}):
+        pass
+    assert "holds no scans" in run_cli(capsys, empty, "--out", out)
     # one bad run among good ones: nothing is mapped
     assert "corrupt.h5" in run_cli(capsys, boxes_run, corrupt, "--out", out)
     assert not out.exists()

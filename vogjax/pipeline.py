@@ -142,6 +142,8 @@ def run(dataset, config: PipelineConfig | None = None, progress: bool = True) ->
     own = not isinstance(dataset, Dataset)
     ds = Dataset(dataset) if own else dataset
     try:
+        if len(ds) == 0:
+            raise ValueError(f"dataset {str(ds.path)!r} holds no scans")
         return _Pipeline(config, ds).run(progress)
     finally:
         if own:
