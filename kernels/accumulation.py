@@ -6,9 +6,11 @@ then gets at most one value per submap, whatever the rotation: no holes, no doub
 
 Work is enumerated per submap block: the global voxel centres inside the block's transformed
 box are found column by column (x, y) with a z range from the box's slabs, widened by a voxel
-and then filtered exactly, so each global voxel is visited by the one block it pulls from. Two
-threads never write the same global voxel within one submap, so sums need no ordering and the
-launch may be split across CPU threads.
+and then filtered exactly, so each global voxel is visited by the one block it pulls from. One
+launch covers the blocks of many submaps (`PullSource` each, rows = (submap, block)); sums are
+integer atomics, so their order never matters. On the CPU a launch is split across threads
+only within one submap, where no two threads write the same global voxel (CPU atomics are not
+atomic across threads).
 
 Sums are fixed point: an integer number of 2^-24 log-odds steps, so removing a submap restores
 the exact bits a map without it would hold.
@@ -29,6 +31,18 @@ COLUMN_SPAN = 18
 BLOCKS_PER_BOX = 64
 SPAN = wp.constant(COLUMN_SPAN)
 FAR = wp.constant(wp.float64(1.0e300))
+
+
+@wp.struct
+class PullSource:
+    """A submap placed in the world: its block pool and the pose it is pulled at."""
+
+    slot_keys: wp.uint64  # pointer to int64[capacity]
+    log_odds: wp.uint64  # pointer to float32[capacity * BLOCK_VOXELS]
+    capacity: int
+    rotation: wp.mat33d
+    rotation_t: wp.mat33d
+    translation: wp.vec3d
 
 
 @wp.func
@@ -132,16 +146,20 @@ def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
 
 
 @wp.kernel
-def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
-                        local_log_odds: wp.array(dtype=wp.float32), rotation: wp.mat33d,
-                        rotation_t: wp.mat33d, translation: wp.vec3d, resolution: wp.float64,
+def collect_pull_blocks(sources: wp.array(dtype=PullSource), row_source: wp.array(dtype=wp.int32),
+                        row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
                         inv_resolution: wp.float64, global_keys: wp.array2d(dtype=wp.int64)):
-    """global_keys[b, :] = the global blocks submap block b contributes to (EMPTY elsewhere)."""
+    """global_keys[row, :] = the global blocks a row's submap block contributes to (EMPTY elsewhere)."""
     b, u, v = wp.tid()
-    slot = first_slot + b
+    row = first_row + b
+    source = sources[row_source[row]]
+    slot = row_slot[row]
+    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.capacity,), dtype=wp.int64)
     key = local_slot_keys[slot]
     if key == EMPTY_KEY:
         return
+    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.capacity * BLOCK_VOXELS,), dtype=wp.float32)
+    rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
     block = unpack_block(key)
     start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
@@ -156,23 +174,27 @@ def collect_pull_blocks(local_slot_keys: wp.array(dtype=wp.int64), first_slot: i
                                      inv_resolution, local_log_odds)):
             gb = block_of(g)
             offset = ((gb[0] - first_block[0]) * 4 + (gb[1] - first_block[1])) * 4 + gb[2] - first_block[2]
-            global_keys[b, offset] = pack_block(gb)
+            global_keys[row, offset] = pack_block(gb)
 
 
 @wp.kernel
-def accumulate_pulls(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
-                     local_log_odds: wp.array(dtype=wp.float32), rotation: wp.mat33d,
-                     rotation_t: wp.mat33d, translation: wp.vec3d, resolution: wp.float64,
+def accumulate_pulls(sources: wp.array(dtype=PullSource), row_source: wp.array(dtype=wp.int32),
+                     row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
                      inv_resolution: wp.float64, sign: int, table_keys: wp.array(dtype=wp.int64),
                      table_slots: wp.array(dtype=wp.int32), part: int,
                      sums: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32),
                      pulls: wp.array(dtype=wp.int32)):
-    """Add (sign +1) or remove (sign -1) submap block b's values at every voxel that pulls them."""
+    """Add (sign +1) or remove (sign -1) a row's submap block values at every voxel pulling them."""
     b, u, v = wp.tid()
-    slot = first_slot + b
+    row = first_row + b
+    source = sources[row_source[row]]
+    slot = row_slot[row]
+    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.capacity,), dtype=wp.int64)
     key = local_slot_keys[slot]
     if key == EMPTY_KEY:
         return
+    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.capacity * BLOCK_VOXELS,), dtype=wp.float32)
+    rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
     block = unpack_block(key)
     start, last = block_box(block, rotation, translation, resolution)
     i = start[0] + u
@@ -193,11 +215,20 @@ def accumulate_pulls(local_slot_keys: wp.array(dtype=wp.int64), first_slot: int,
                 global_slot = find_slot(table_keys, table_slots, pack_block(gb))
                 current = gb
             index = global_slot * BLOCK_VOXELS + index_in_block(g)
-            sums[index] = sums[index] + wp.int64(sign) * to_fixed_point(value)
-            counts[index] = counts[index] + sign
+            wp.atomic_add(sums, index, wp.int64(sign) * to_fixed_point(value))
+            wp.atomic_add(counts, index, sign)
             n += 1
     if n > 0:
         wp.atomic_add(pulls, part, n)
+
+
+@wp.kernel
+def flag_slots(slots: wp.array(dtype=wp.int32), flags: wp.array(dtype=wp.int32)):
+    """flags[s] = 1 for every slot s >= 0 in `slots`."""
+    tid = wp.tid()
+    slot = slots[tid]
+    if slot >= 0:
+        flags[slot] = 1
 
 
 @wp.kernel

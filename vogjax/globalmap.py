@@ -215,9 +215,8 @@ class GlobalMap(BlockMap):
 
     def _contribute(self, items: list, sign: int, touched: list) -> int:
         """Add (sign +1) or remove (-1) the pulled values of (submap, pose) items; returns the
-        voxels updated. Every item's launches are queued before anything is read back, so the
-        host waits on the device once per call, not once per submap (block allocation in
-        between is one batch)."""
+        voxels updated. On a GPU each step is one launch over every item's blocks; on the CPU
+        items go one after another, each split across threads."""
         items = [(submap, pose) for submap, pose in items if submap.num_blocks]
         if not items:
             return 0
@@ -225,40 +224,53 @@ class GlobalMap(BlockMap):
         with contextlib.ExitStack() as stack:
             for submap, _ in items:
                 stack.enter_context(submap._lock.reading())
-            counts = [submap._store.num_blocks for submap, _ in items]
+            counts = np.array([submap._store.num_blocks for submap, _ in items])
             offsets = np.concatenate([[0], np.cumsum(counts)])
-            parts = [parallel.num_parts(device, count * span * span) for count in counts]
-            arguments = []  # per item: the submap's blocks from slot `lo` on, and the transform
+            sources = []
             for submap, pose in items:
-                local = submap._store
-                transform = [wp.mat33d(pose[:3, :3]), wp.mat33d(pose[:3, :3].T), wp.vec3d(pose[:3, 3]),
-                             np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
-                arguments.append(lambda lo, local=local, transform=transform:
-                                 [local.slot_keys, lo, local.layers["log_odds"], *transform])
-            # 1. the global blocks each submap's blocks pull into (created when adding)
-            keys = wp.full((int(offsets[-1]), accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64,
-                           device=device)
-            for j, count in enumerate(counts):
-                rows = keys[int(offsets[j]):int(offsets[j + 1])]
-                parallel.split_launch(lambda part, lo, hi, j=j, rows=rows: wp.launch(
-                    accumulation.collect_pull_blocks, dim=(hi - lo, span, span), inputs=arguments[j](lo),
-                    outputs=[rows[lo:hi]], device=device), count, parts[j])
+                source = accumulation.PullSource()
+                source.slot_keys = submap._store.slot_keys.ptr
+                source.log_odds = submap._store.layers["log_odds"].ptr
+                source.capacity = submap._store.block_capacity
+                source.rotation = wp.mat33d(pose[:3, :3])
+                source.rotation_t = wp.mat33d(pose[:3, :3].T)
+                source.translation = wp.vec3d(pose[:3, 3])
+                sources.append(source)
+            rows = int(offsets[-1])
+            common = [wp.array(sources, dtype=accumulation.PullSource, device=device),
+                      wp.array(np.repeat(np.arange(len(items), dtype=np.int32), counts), dtype=wp.int32, device=device),
+                      wp.array(np.concatenate([np.arange(c, dtype=np.int32) for c in counts]), dtype=wp.int32,
+                               device=device)]
+            scales = [np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
+            groups = [(0, rows)] if device.is_cuda else list(zip(offsets[:-1], offsets[1:]))
+            parts = max(parallel.num_parts(device, int(c) * span * span) for c in counts)
+
+            def launch_rows(launch):
+                for first, last in groups:
+                    count = int(last - first)
+                    parallel.split_launch(lambda part, lo, hi: launch(part, int(first) + lo, hi - lo), count,
+                                          parallel.num_parts(device, count * span * span))
+
+            # 1. the global blocks each row's block pulls into (created when adding)
+            keys = wp.full((rows, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
+            launch_rows(lambda part, first, n: wp.launch(
+                accumulation.collect_pull_blocks, dim=(n, span, span), inputs=[*common, first, *scales],
+                outputs=[keys], device=device))
             keys = keys.flatten()
             store = self._store
             if sign > 0:
                 store.ensure_blocks(keys)
             slots = store.find(keys)
-            # 2. add or subtract the pulled values (each global voxel has one source block per
-            # submap; submaps follow one another, so CPU parts never write the same voxel)
-            pulls = wp.zeros((len(items), max(parts)), dtype=wp.int32, device=device)
-            for j, count in enumerate(counts):
-                parallel.split_launch(lambda part, lo, hi, j=j: wp.launch(
-                    accumulation.accumulate_pulls, dim=(hi - lo, span, span),
-                    inputs=[*arguments[j](lo), sign, store.table_keys, store.table_slots, part],
-                    outputs=[store.layers["sum"], store.layers["count"], pulls[j]], device=device),
-                    count, parts[j])
-            slots = slots.numpy()
-        touched.append(slots[slots >= 0])
+            # 2. add or subtract the pulled values
+            pulls = wp.zeros(parts, dtype=wp.int32, device=device)
+            launch_rows(lambda part, first, n: wp.launch(
+                accumulation.accumulate_pulls, dim=(n, span, span),
+                inputs=[*common, first, *scales, sign, store.table_keys, store.table_slots, part],
+                outputs=[store.layers["sum"], store.layers["count"], pulls], device=device))
+            # 3. which global blocks were touched, flagged on the device (not millions of keys read back)
+            flags = wp.zeros(store.block_capacity, dtype=wp.int32, device=device)
+            wp.launch(accumulation.flag_slots, dim=slots.shape[0], inputs=[slots], outputs=[flags], device=device)
+            touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
         return int(pulls.numpy().sum())
 
     def _refresh(self, touched: list, release: bool = False) -> None:
