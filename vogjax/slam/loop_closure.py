@@ -71,7 +71,7 @@ class Rejection:
     i: int
     k: int
     reason: str  # "overlap", "not converged", "fitness", "refinement", "drift"
-    fitness: float
+    fitness: float  # NaN when ICP did not run ("overlap")
     deviation_m: float
 
 
@@ -111,43 +111,46 @@ class LoopClosureDetector:
         found = self.candidates(k, clouds, bounds, poses)
         if not found:
             return accepted, rejected
-        cfg, noise = self.config, self.noise
+        cfg = self.config
         start = time.perf_counter()
-        seeds = []
+        seeds = {}
         for i in found:
             elapsed = abs(times_s[k] - times_s[i])
-            radius = min(cfg.drift_sigmas * np.sqrt((noise.sigma2_x + noise.sigma2_y) * elapsed), cfg.max_search_m)
-            yaw_radius = cfg.drift_sigmas * np.sqrt(noise.sigma2_yaw * elapsed)
-            seeds.append(correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k], radius,
-                                         yaw_radius, cfg.correlative))
+            seeds[i] = correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
+                                       min(self._drift_bound(elapsed), cfg.max_search_m),
+                                       cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed), cfg.correlative)
         self.seconds["correlative_search"] += time.perf_counter() - start
+        # too little overlap at the best offset: nothing for ICP to refine
+        for i in [i for i in found if seeds[i].score < cfg.min_overlap_score]:
+            rejected.append(Rejection(i, k, "overlap", np.nan, np.nan))
+            found.remove(i)
         start = time.perf_counter()
         results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
-                            [seed.T_target_source for seed in seeds], cfg.method, cfg.icp)
+                            [seeds[i].T_target_source for i in found], cfg.method, cfg.icp) if found else []
         self.seconds["icp"] += time.perf_counter() - start
-        for i, seed, result in zip(found, seeds, results):
+        for i, result in zip(found, results):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
-            refinement = float(np.linalg.norm((inverse(seed.T_target_source) @ result.T_target_source)[:2, 3]))
-            reason = self._rejection(seed.score, result, refinement, deviation, abs(times_s[k] - times_s[i]))
+            refinement = float(np.linalg.norm((inverse(seeds[i].T_target_source) @ result.T_target_source)[:2, 3]))
+            reason = self._rejection(result, refinement, deviation, abs(times_s[k] - times_s[i]))
             if reason:
                 rejected.append(Rejection(i, k, reason, result.fitness, deviation))
             else:
                 accepted.append(self._closure(i, k, result))
         return accepted, rejected
 
-    def _rejection(self, score: float, result: IcpResult, refinement_m: float, deviation: float,
-                   elapsed_s: float) -> str | None:
-        if score < self.config.min_overlap_score:
-            return "overlap"
+    def _drift_bound(self, elapsed_s: float) -> float:
+        """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma."""
+        return self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
+
+    def _rejection(self, result: IcpResult, refinement_m: float, deviation: float, elapsed_s: float) -> str | None:
         if not result.converged:
             return "not converged"
         if result.fitness > self.config.max_fitness_m2:
             return "fitness"
         if refinement_m > self.config.max_refinement_m:
             return "refinement"
-        max_drift = self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
-        if deviation > max_drift:
+        if deviation > self._drift_bound(elapsed_s):
             return "drift"
         return None
 
