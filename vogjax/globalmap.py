@@ -26,7 +26,7 @@ from vogjax.geometry import confidence_volume, pose_deltas
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation
 from vogjax.kernels.hashing import EMPTY_KEY
-from vogjax.submaps import Submap, VogMap
+from vogjax.submaps import VogMap
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
 # Marginals whose x, y, yaw block fails these checks are not covariances.

@@ -92,7 +92,7 @@ class Result:
     @property
     def metrics(self) -> dict:
         """What needs no ground-truth map: base-pose RMS error of navigation and optimised poses
-        (m; when the run has true poses), loop closures by verdict, scans per second."""
+        (m; when the run has true poses) and loop closures by verdict."""
         errors = {}
         if self.truth is not None and len(self.truth) == len(self.navigation):
             for name in ("navigation", "optimized"):
