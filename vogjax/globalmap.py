@@ -222,8 +222,10 @@ class GlobalMap(BlockMap):
             return 0
         cfg, device, span = self.config, self.device, accumulation.COLUMN_SPAN
         with contextlib.ExitStack() as stack:
-            for submap, _ in items:
-                stack.enter_context(submap._lock.reading())
+            # each lock once: a view may hold one submap twice, and a second read acquire could
+            # queue behind a waiting writer
+            for lock in {id(submap._lock): submap._lock for submap, _ in items}.values():
+                stack.enter_context(lock.reading())
             counts = np.array([submap._store.num_blocks for submap, _ in items])
             offsets = np.concatenate([[0], np.cumsum(counts)])
             # per-item records built column-wise (a Warp struct per item costs 50 us of Python)
