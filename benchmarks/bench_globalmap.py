@@ -26,6 +26,7 @@ from tqdm import tqdm  # noqa: E402
 
 import vogjax as vj  # noqa: E402
 from vogjax.scenes import analytic  # noqa: E402
+from vogjax.timing import planner_rays  # noqa: E402
 
 SCANS_PER_SUBMAP = 200
 
@@ -89,10 +90,7 @@ def main():
         seconds, pulls = timed(lambda: gmap.merge(sub), repeats=2)
         merge.append({"submaps": n, "seconds": seconds, "voxel_updates": pulls,
                       "blocks": gmap._store.live_blocks, "memory_bytes": gmap.memory_bytes()})
-        centres, values = gmap.voxels()
-        free = centres[values <= vog.config.log_free]
-        origins = free[rng.integers(0, len(free), args.rays)]
-        directions = rng.normal(size=origins.shape)
+        origins, directions = planner_rays(gmap, args.rays, rng)
         t_global, _ = timed(lambda: gmap.raycast(origins, directions, 4.0), repeats=3)
         t_virtual, _ = timed(lambda: sub.raycast(origins, directions, 4.0))
         queries.append({"submaps": n, "global_s": t_global, "virtual_s": t_virtual})

@@ -58,9 +58,7 @@ def main():
     query_s = time.perf_counter() - start
     steps = {name: float(sum(np.sum(result.timings.get(t, 0.0)) for t in names)) for name, names in STEPS.items()}
     survey_s = summary.scans / SonarConfig().rate_hz
-    truth = result.truth[:, :3, 3]
-    ate = {name: float(np.sqrt(np.mean(np.sum((getattr(result, name)[:, :3, 3] - truth) ** 2, axis=1))))
-           for name in ("navigation", "optimized")}
+    ate = result.metrics["trajectory_rmse_m"]
     device = str(result.global_map.device)
     report = {"machine": {"device": device, "cpu": platform.machine(), "python": platform.python_version()},
               "scene": "propeller", "scans": summary.scans, "submaps": result.vog.num_submaps,

@@ -18,6 +18,7 @@ import warp as wp
 
 import vogjax as vj
 from vogjax.scenes import analytic
+from vogjax.timing import planner_rays
 
 
 def best_of(repeats, fn):
@@ -38,15 +39,6 @@ def octomap_tree(cfg):
     tree.setClampingThresMin(cfg.clamp_min)
     tree.setClampingThresMax(cfg.clamp_max)
     return tree
-
-
-def planner_rays(vmap, rng, count, length_m):
-    """Rays from the centres of observed free voxels, random directions."""
-    centres, values = vmap.voxels()
-    free = centres[values <= vmap.config.log_free]
-    origins = free[rng.integers(0, len(free), count)]
-    directions = rng.normal(size=(count, 3))
-    return origins, directions / np.linalg.norm(directions, axis=1, keepdims=True), length_m
 
 
 def main():
@@ -83,8 +75,8 @@ def main():
     tree = holder["tree"]
 
     # Planner workload: rays of at most 4 m from observed free space.
-    rng = np.random.default_rng(0)
-    origins, directions, length = planner_rays(vmap, rng, args.rays, 4.0)
+    origins, directions = planner_rays(vmap, args.rays, np.random.default_rng(0))
+    length = 4.0
     t_vog_rays = best_of(5, lambda: vmap.raycast(origins, directions, length))
     end = np.zeros(3)
 

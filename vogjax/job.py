@@ -10,6 +10,7 @@ file in it is written; inputs and settings are checked before anything is writte
 from __future__ import annotations
 
 import dataclasses
+from importlib import metadata
 import json
 import os
 import platform
@@ -187,12 +188,10 @@ def _report(result, path, metadata, metrics, curves, pipeline_s, rate_hz, config
 
 
 def _versions() -> dict:
-    import gtsam
-    import jax
-    import warp
-
-    return {"vogjax": vogjax.__version__, "python": platform.python_version(), "numpy": np.__version__,
-            "warp": warp.config.version, "jax": jax.__version__, "gtsam": getattr(gtsam, "__version__", "?"),
+    """Installed versions, read from package metadata (importing JAX just to ask costs a second)."""
+    installed = {name: metadata.version(package) for name, package in
+                 (("numpy", "numpy"), ("warp", "warp-lang"), ("jax", "jax"), ("gtsam", "gtsam"))}
+    return {"vogjax": vogjax.__version__, "python": platform.python_version(), **installed,
             "platform": platform.platform()}
 
 

@@ -42,11 +42,12 @@ def cumulative_average(values: np.ndarray) -> np.ndarray:
     return np.cumsum(values) / np.arange(1, len(values) + 1)
 
 
-def planner_rays(global_map: GlobalMap, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """`count` rays from observed free voxels of the map in random directions (unit vectors)."""
-    rng = np.random.default_rng(seed)
-    centres, log_odds = global_map.voxels()
-    free = centres[log_odds <= global_map.config.log_free]
+def planner_rays(block_map, count: int, rng=0) -> tuple[np.ndarray, np.ndarray]:
+    """`count` planner rays in a VoxelMap or GlobalMap: origins at observed free voxel centres,
+    random unit directions. rng: a seed or a numpy Generator."""
+    rng = np.random.default_rng(rng)
+    centres, log_odds = block_map.voxels()
+    free = centres[log_odds <= block_map.config.log_free]
     if len(free) == 0:
         free = centres
     origins = free[rng.integers(0, len(free), count)].astype(np.float64)

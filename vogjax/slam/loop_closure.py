@@ -79,7 +79,7 @@ class LoopClosureDetector:
     def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None):
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
-        self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # time spent so far, per phase
+        self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # per phase, in the last detect call
 
     def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
         """Earlier submaps worth aligning with k (the thesis's precondition)."""
@@ -108,6 +108,7 @@ class LoopClosureDetector:
         the base poses, for the drift allowed between two submaps.
         """
         accepted, rejected = [], []
+        self.seconds = dict.fromkeys(self.seconds, 0.0)
         found = self.candidates(k, clouds, bounds, poses)
         if not found:
             return accepted, rejected
@@ -119,7 +120,7 @@ class LoopClosureDetector:
             seeds[i] = correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
                                        min(self._drift_bound(elapsed), cfg.max_search_m),
                                        cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed), cfg.correlative)
-        self.seconds["correlative_search"] += time.perf_counter() - start
+        self.seconds["correlative_search"] = time.perf_counter() - start
         # too little overlap at the best offset: nothing for ICP to refine
         for i in [i for i in found if seeds[i].score < cfg.min_overlap_score]:
             rejected.append(Rejection(i, k, "overlap", np.nan, np.nan))
@@ -127,7 +128,7 @@ class LoopClosureDetector:
         start = time.perf_counter()
         results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
                             [seeds[i].T_target_source for i in found], cfg.method, cfg.icp) if found else []
-        self.seconds["icp"] += time.perf_counter() - start
+        self.seconds["icp"] = time.perf_counter() - start
         for i, result in zip(found, results):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
