@@ -26,7 +26,7 @@ from tqdm import tqdm  # noqa: E402
 
 import vogjax as vj  # noqa: E402
 from vogjax.scenes import analytic  # noqa: E402
-from vogjax.timing import planner_rays  # noqa: E402
+from vogjax.report.timing import planner_rays  # noqa: E402
 
 SCANS_PER_SUBMAP = 200
 

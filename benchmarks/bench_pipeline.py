@@ -18,7 +18,7 @@ import numpy as np
 from vogjax import pipeline
 from vogjax.config import SonarConfig
 from vogjax.sim import simulate_run
-from vogjax.timing import planner_rays
+from vogjax.report.timing import planner_rays
 
 STEPS = {  # report name -> pipeline timing names (seconds summed over the run)
     "integration": ["integration"],
@@ -45,7 +45,7 @@ def main():
         run_path = Path(folder) / "propeller.h5"
         # the lawn-mower survey flown until it has enough scans (about 2000 per lap)
         summary = simulate_run("propeller", run_path, laps=scans // 1500 + 1, num_scans=scans,
-                               sonar_config=SonarConfig(range_noise_m=0.02), progress=False)
+                               sensor=SonarConfig(range_noise_m=0.02), progress=False)
         # warm-up on a short prefix: kernels compiled and loaded before timing
         pipeline.run(_prefix(run_path, Path(folder) / "warm.h5", 3 * args.scans_per_submap), config, progress=False)
         start = time.perf_counter()

@@ -33,7 +33,7 @@ def main():
         simulate_run(args.scene, Path(folder) / "warm.h5", laps=20, num_scans=args.scans, progress=False)
         start = time.perf_counter()
         summary = simulate_run(args.scene, Path(folder) / "run.h5", laps=20, num_scans=args.scans,
-                               sonar_config=SonarConfig(range_noise_m=0.02), progress=False)
+                               sensor=SonarConfig(range_noise_m=0.02), progress=False)
         seconds = time.perf_counter() - start
         size = (Path(folder) / "run.h5").stat().st_size
         # the vehicle alone, many at once

@@ -18,7 +18,7 @@ import warp as wp
 
 import vogjax as vj
 from vogjax.scenes import analytic
-from vogjax.timing import planner_rays
+from vogjax.report.timing import planner_rays
 
 
 def best_of(repeats, fn):

@@ -8,15 +8,24 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from .scene import Scene, box, cylinder_between, placed, pose
+from vogjax.geometry import pose_from_xyz_yaw as pose
+
+from .scene import Scene, box, cylinder_between, placed
+from .surveys import lawnmower, orbit
 
 # Faces at round coordinates would lie exactly on voxel boundaries, where "the voxel the surface
 # passes through" is the water on one side; an odd offset puts every face inside a voxel.
 OFF_GRID = trimesh.transformations.translation_matrix([0.0137, 0.0291, 0.0443])
 
 
-def _scene(name: str, parts: list, bounds: np.ndarray, start_pose: np.ndarray) -> Scene:
-    return Scene(name, placed(trimesh.util.concatenate(parts), OFF_GRID), bounds, start_pose)
+def _scene(name: str, parts: list, bounds: np.ndarray, start_pose: np.ndarray, survey: np.ndarray) -> Scene:
+    return Scene(name, placed(trimesh.util.concatenate(parts), OFF_GRID), bounds, start_pose, survey)
+
+
+def _survey_depths(bounds: np.ndarray) -> np.ndarray:
+    """Two depths through the exploration box: 40% and 80% of the way up."""
+    lo, hi = bounds
+    return np.linspace(lo[2] + 0.4 * (hi[2] - lo[2]), hi[2] - 0.2 * (hi[2] - lo[2]), 2)
 
 
 def propeller() -> Scene:
@@ -36,7 +45,8 @@ def propeller() -> Scene:
         rotation = trimesh.transformations.rotation_matrix(angle, [1, 0, 0])
         parts.append(placed(trimesh.Trimesh(vertices, faces), rotation))
     bounds = np.array([[-6.0, -10.5, -1.75], [6.0, -3.5, 1.75]])  # starboard of the propeller
-    return _scene("propeller", parts, bounds, pose(0.0, -7.0, 0.0, np.pi / 2))
+    survey = lawnmower(bounds, np.pi / 2, _survey_depths(bounds))  # looking at the propeller
+    return _scene("propeller", parts, bounds, pose(0.0, -7.0, 0.0, np.pi / 2), survey)
 
 
 def pilings() -> Scene:
@@ -50,7 +60,11 @@ def pilings() -> Scene:
             parts.append(cylinder_between([x, row_y, -0.2], [x + lean[0], row_y + lean[1], 6.2],
                                           rng.uniform(0.25, 0.4)))
     bounds = np.array([[-9.0, -6.5, 1.0], [9.0, 6.5, 5.0]])
-    return _scene("pilings", parts, bounds, pose(-8.0, -5.5, 3.0, 0.0))
+    (x0, y0, _), (x1, y1, _) = bounds[0] + 0.5, bounds[1] - 0.5
+    corners = [[x0, y0, np.pi / 4], [x1, y0, 3 * np.pi / 4], [x1, y1, -3 * np.pi / 4],
+               [x0, y1, -np.pi / 4], [x0, y0, np.pi / 4]]
+    survey = np.asarray([[x, y, z, h] for z in _survey_depths(bounds) for x, y, h in corners])  # around the pier
+    return _scene("pilings", parts, bounds, pose(-8.0, -5.5, 3.0, 0.0), survey)
 
 
 def tank() -> Scene:
@@ -65,7 +79,8 @@ def tank() -> Scene:
     for z in np.arange(0.3, 3.0, 0.3):
         parts.append(cylinder_between([-3.35, -0.25, z], [-3.35, 0.25, z], 0.02, sections=8))
     bounds = np.array([[-6.0, -6.0, 0.25], [6.0, 6.0, 2.75]])
-    return _scene("tank", parts, bounds, pose(-1.5, 1.5, 1.5, 0.0))
+    survey = orbit((0.0, 0.0), 2.4, _survey_depths(bounds))  # circle the middle
+    return _scene("tank", parts, bounds, pose(-1.5, 1.5, 1.5, 0.0), survey)
 
 
 def boxes() -> Scene:
@@ -73,7 +88,8 @@ def boxes() -> Scene:
     parts = [box([-4, -4, -0.2], [4, 4, 0.0]), box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),
              box([0.6, 0.5, 0.0], [1.8, 1.4, 0.7]), box([0.4, -1.8, 0.0], [1.0, -1.2, 1.6])]
     bounds = np.array([[-3.0, -3.0, 0.5], [3.0, 3.0, 2.0]])
-    return _scene("boxes", parts, bounds, pose(-2.5, -2.5, 1.2, np.pi / 4))
+    survey = orbit((0.0, 0.0), 2.5, _survey_depths(bounds))
+    return _scene("boxes", parts, bounds, pose(-2.5, -2.5, 1.2, np.pi / 4), survey)
 
 
 BUILDERS = {"propeller": propeller, "pilings": pilings, "tank": tank, "boxes": boxes}

@@ -9,6 +9,8 @@ import numpy as np
 import trimesh
 import warp as wp
 
+from vogjax.kernels import ground_truth
+
 FREE = 1
 OCCUPIED = 2
 INSIDE = 3  # inside a solid: never observable, left out of evaluations
@@ -33,12 +35,18 @@ class GroundTruth:
 @dataclasses.dataclass(frozen=True, eq=False)
 class Scene:
     """name; mesh (trimesh.Trimesh, z up, metres); bounds (2,3) the exploration box the vehicle
-    stays in; start_pose (4,4) T_world_vehicle at the start."""
+    stays in; start_pose (4,4) T_world_vehicle at the start; default_survey (W,4) the waypoints
+    (x, y, z, yaw) of the scene's survey, flown once."""
 
     name: str
     mesh: trimesh.Trimesh
     bounds: np.ndarray
     start_pose: np.ndarray
+    default_survey: np.ndarray
+
+    def survey(self, laps: int = 2) -> np.ndarray:
+        """(W*laps, 4) the default survey flown `laps` times."""
+        return np.concatenate([self.default_survey] * laps)
 
     @functools.cached_property
     def warp_mesh(self) -> wp.Mesh:
@@ -87,34 +95,19 @@ def triangle_points(mesh: trimesh.Trimesh, spacing: float):
         yield (a + (b - a) * u[None, :, None] + (c - a) * v[None, :, None]).reshape(-1, 3)
 
 
-@wp.kernel
-def _winding_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), inside: wp.array(dtype=wp.int32)):
-    tid = wp.tid()
-    # Built-in solids are at most a couple of metres thick: farther from a surface is water.
-    query = wp.mesh_query_point_sign_winding_number(mesh, points[tid], 1.5, 2.0, 0.5)
-    inside[tid] = wp.where(query.result and query.sign < 0.0, 1, 0)
-
-
 def _warp_mesh(mesh: trimesh.Trimesh) -> wp.Mesh:
-    from vogjax import _warp
+    from vogjax import devices
 
-    _warp.init()
+    devices.init()
     return wp.Mesh(points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
                    indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
 
 
 def _inside(mesh: wp.Mesh, points: np.ndarray) -> np.ndarray:
     out = wp.zeros(len(points), dtype=wp.int32, device="cpu")
-    wp.launch(_winding_inside, dim=len(points), inputs=[mesh.id, wp.array(points, dtype=wp.vec3, device="cpu")],
+    wp.launch(ground_truth.flag_points_inside, dim=len(points), inputs=[mesh.id, wp.array(points, dtype=wp.vec3, device="cpu")],
               outputs=[out], device="cpu")
     return out.numpy().astype(bool)
-
-
-def pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-    T[:3, 3] = [x, y, z]
-    return T
 
 
 def placed(mesh: trimesh.Trimesh, T: np.ndarray) -> trimesh.Trimesh:

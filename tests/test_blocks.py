@@ -4,8 +4,8 @@ import numpy as np
 import warp as wp
 
 import vogjax as vj
-from vogjax import _warp
-from vogjax.blocks import BlockStore, pack_blocks, unpack_blocks
+from vogjax import devices
+from vogjax.maps.blocks import BlockStore, pack_blocks, unpack_blocks
 
 
 def test_pack_round_trip_at_the_limits():
@@ -16,7 +16,7 @@ def test_pack_round_trip_at_the_limits():
 
 
 def test_table_grows_past_millions_of_blocks():
-    _warp.init()
+    devices.init()
     device = wp.get_device("cpu")
     store = BlockStore(device, layers={})  # keys only: the pool is not what is tested here
     rng = np.random.default_rng(0)

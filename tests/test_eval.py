@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 import vogjax as vj
-from vogjax import eval as vj_eval
+from vogjax import report as vj_eval
 
 
 def pairwise_auc(scores, occupied):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import vogjax as vj
-from vogjax.io import mapfile
+from vogjax.io import atomic, mapfile
 
 from . import reference as ref
 
@@ -47,7 +47,7 @@ def test_write_is_atomic(saved, monkeypatch):
     def crash(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(mapfile.os, "fsync", crash)
+    monkeypatch.setattr(atomic.os, "fsync", crash)
     with pytest.raises(OSError):
         vmap.save(path)
     assert path.read_bytes() == original  # the old file is untouched

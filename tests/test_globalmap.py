@@ -48,7 +48,7 @@ def test_virtual_map_matches_brute_force_sum():
     observed = ~np.isnan(expected)
     assert observed.sum() > 300
     np.testing.assert_array_equal(vog.log_odds(points), np.nan_to_num(expected, nan=0.0))
-    np.testing.assert_array_equal(vog.state(points), vj.blockmap.classify(expected, vog.config))
+    np.testing.assert_array_equal(vog.state(points), vj.maps.blockmap.classify(expected, vog.config))
 
 
 def test_global_and_virtual_agree_at_voxel_centres_and_along_rays():

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vogjax as vj
-from vogjax import voxelmap
+from vogjax.maps import voxelmap
 
 from . import reference as ref
 

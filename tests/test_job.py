@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 import vogjax as vj
-from vogjax import cli, job, pipeline
+from vogjax import cli, pipeline, report
+from vogjax.config import JobConfig
+from vogjax.report import job
 from vogjax.geometry import log_se3
 from vogjax.io.dataset import DatasetWriter
 from vogjax.sim import simulate_run
@@ -41,7 +43,7 @@ def mapped(boxes_run, tmp_path_factory):
 
 
 def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
-    config = job.config_from_dict({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0}}).pipeline
+    config = JobConfig.from_document({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0}}).pipeline
     result = pipeline.run(boxes_run, config, progress=False)
     assert len(result.loop_closures) >= 3
     # closures agree with the true relative poses, in the directions they constrain, far
@@ -108,7 +110,7 @@ def test_a_failure_while_writing_leaves_the_earlier_results(mapped, boxes_run, m
         raise RuntimeError("disk full")
 
     monkeypatch.setattr(job.plots, "timing", broken)
-    config = job.config_from_dict({"report": {"rays": 100, "timing_samples": 2, "surface_points": 1000}})
+    config = JobConfig.from_document({"report": {"rays": 100, "timing_samples": 2, "surface_points": 1000}})
     with pytest.raises(RuntimeError, match="disk full"):
         job.map_runs([boxes_run], mapped.parent, config, progress=False)
     assert (mapped / "report.json").read_text() == before
@@ -158,7 +160,7 @@ def test_settings_reach_the_configuration(tmp_path):
     (tmp_path / "s.toml").write_text("[map]\nvoxel_size = 0.2\n[nav_noise]\nsigma2_x = 0.002\n"
                                      "[pipeline]\nscans_per_submap = 'covariance'\n"
                                      "[loop_closure.correlative]\nresolution_m = 0.15\n")
-    config = job.load_config(tmp_path / "s.toml")
+    config = JobConfig.from_toml(tmp_path / "s.toml")
     assert config.pipeline.map.voxel_size == 0.2 and config.pipeline.map.prob_hit == vj.MapConfig().prob_hit
     assert config.pipeline.nav_noise.sigma2_x == 0.002
     assert config.pipeline.scans_per_submap is None

@@ -5,6 +5,7 @@ import pytest
 
 import vogjax as vj
 from vogjax import pipeline
+from vogjax.report.files import save_trajectories
 from vogjax.sim import simulate_run
 
 
@@ -32,14 +33,14 @@ def test_pipeline_keeps_the_online_map_equal_to_a_full_merge(boxes_run, tmp_path
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
     # the standard map holds every scan at its navigation pose
     assert result.standard_map.voxels()[0].shape[0] > 10_000
-    pipeline.save_trajectories(result, tmp_path / "trajectories.csv")
+    save_trajectories(result, tmp_path / "trajectories.csv")
     table = np.genfromtxt(tmp_path / "trajectories.csv", delimiter=",", names=True)
     assert len(table) == 7
     np.testing.assert_allclose(table["truth_x"], result.truth[:, 0, 3], atol=1e-6)
 
 
 def test_run_evaluation_against_ground_truth(boxes_run):
-    from vogjax import eval as vj_eval
+    from vogjax import report as vj_eval
     from vogjax import scenes
 
     config = pipeline.PipelineConfig(scans_per_submap=80, eps_rot=0.0, eps_trans=0.0, eps_cov=0.0)

@@ -51,7 +51,7 @@ def test_raycast_threaded_split_equals_single_launch(monkeypatch):
     origins = rng.uniform(-1, 1, (9000, 3))
     directions = rng.normal(size=(9000, 3))
     split = vmap.raycast(origins, directions, 4.0)
-    monkeypatch.setattr(vj.parallel, "MIN_ITEMS_PER_PART", 10**9)
+    monkeypatch.setattr(vj.maps.parallel, "MIN_ITEMS_PER_PART", 10**9)
     single = vmap.raycast(origins, directions, 4.0)
     for name in ("hit", "distance", "num_unknown", "num_free"):
         np.testing.assert_array_equal(getattr(split, name), getattr(single, name))

@@ -10,13 +10,13 @@ import vogjax as vj
 from vogjax import cli, scenes
 from vogjax.io.dataset import Dataset
 from vogjax.scenes import analytic
-from vogjax.scenes.scene import pose
+from vogjax.geometry import pose_from_xyz_yaw as pose
 from vogjax.sim import drifting_navigation, scan, simulate, simulate_batch, simulate_run
-from vogjax.slam.factors import yaw_pitch_roll
+from vogjax.geometry import yaw_pitch_roll
 
 
 def warp_mesh(mesh):
-    vj._warp.init()
+    vj.devices.init()
     return wp.Mesh(points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
                    indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
 

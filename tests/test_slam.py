@@ -8,7 +8,7 @@ import vogjax as vj
 from vogjax import slam
 from vogjax.geometry import inverse, log_se3
 from vogjax.slam import factors
-from vogjax.slam.icp import _exp
+from vogjax.geometry import exp_se3 as _exp
 
 from .submap_helpers import random_pose
 

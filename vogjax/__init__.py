@@ -1,14 +1,11 @@
 """vogjax: GPU/JAX-accelerated batch occupancy mapping for SLAM-corrected robots."""
 
-from vogjax.blockmap import FREE, OCCUPIED, UNKNOWN, RaycastResult
-from vogjax.config import MapConfig, NavNoise, SonarConfig
-from vogjax.globalmap import GlobalMap, UpdateReport
-from vogjax.submaps import Submap, VogMap
-from vogjax.voxelmap import VoxelMap
+from vogjax.config import MapConfig, NavNoise, PipelineConfig, SonarConfig
+from vogjax.maps import FREE, OCCUPIED, UNKNOWN, GlobalMap, RaycastResult, Submap, UpdateReport, VogMap, VoxelMap
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("eval", "io", "job", "pipeline", "scenes", "sim", "slam", "timing")
+_SUBPACKAGES = ("config", "devices", "geometry", "io", "maps", "pipeline", "report", "scenes", "sensors", "sim", "slam")
 
 
 def __getattr__(name):
@@ -19,6 +16,7 @@ def __getattr__(name):
         return importlib.import_module(f"vogjax.{name}")
     raise AttributeError(f"module 'vogjax' has no attribute {name!r}")
 
+
 __all__ = [
     "FREE",
     "OCCUPIED",
@@ -26,6 +24,7 @@ __all__ = [
     "GlobalMap",
     "MapConfig",
     "NavNoise",
+    "PipelineConfig",
     "RaycastResult",
     "SonarConfig",
     "Submap",

@@ -7,16 +7,19 @@ import sys
 from pathlib import Path
 
 
+SCENES = "a built-in scene: propeller, pilings, tank or boxes"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="vogjax", description="GPU/JAX occupancy mapping")
     commands = parser.add_subparsers(dest="command", required=True)
     demo = commands.add_parser("demo", help="simulate a survey of a built-in scene and map it with loop closures")
     demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
-    demo.add_argument("--scene", default="propeller", help="propeller, pilings, tank or boxes")
+    demo.add_argument("--scene", default="propeller", help=SCENES)
     demo.add_argument("--laps", type=int, default=2, help="times the survey is flown")
     demo.add_argument("--quiet", action="store_true", help="no progress bars")
     sim = commands.add_parser("simulate", help="simulate a sonar survey of a built-in scene")
-    sim.add_argument("--scene", required=True, help="propeller, pilings, tank or boxes")
+    sim.add_argument("--scene", required=True, help=SCENES)
     sim.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
     sim.add_argument("--laps", type=int, default=2, help="times the survey is flown")
     sim.add_argument("--scans", type=int, default=None, help="number of scans (default: enough)")
@@ -29,14 +32,15 @@ def main(argv=None) -> int:
     mapping.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     if args.command == "map":
-        from vogjax import job
+        from vogjax import report
+        from vogjax.config import JobConfig
 
         try:
-            config = job.load_config(args.config) if args.config else job.JobConfig()
-            reports = job.map_runs(args.runs, args.out, config, progress=not args.quiet)
+            config = JobConfig.from_toml(args.config) if args.config else JobConfig()
+            reports = report.map_runs(args.runs, args.out, config, progress=not args.quiet)
         except ValueError as error:
             parser.error(str(error))
-        print(job.summary_table(reports))
+        print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
     if args.command == "simulate":
         from vogjax.config import SonarConfig
@@ -44,7 +48,7 @@ def main(argv=None) -> int:
 
         try:
             summary = simulate_run(args.scene, args.out, laps=args.laps, seed=args.seed,
-                                   num_scans=args.scans, sonar_config=SonarConfig(range_noise_m=args.range_noise))
+                                   num_scans=args.scans, sensor=SonarConfig(range_noise_m=args.range_noise))
         except ValueError as error:
             parser.error(str(error))
         print(f"wrote {summary.path}: {summary.scans} scans, {summary.duration_s:.0f} s of survey, "

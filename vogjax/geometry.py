@@ -1,8 +1,13 @@
-"""SE(3) helpers on 4x4 homogeneous matrices (NumPy, float64)."""
+"""All rotation and pose arithmetic of vogjax: SE(3) on 4x4 homogeneous matrices, SO(3),
+z-y-x Euler angles (R = Rz(yaw) Ry(pitch) Rx(roll)) and quaternions (w, x, y, z). NumPy,
+float64, batched over leading axes; SciPy's Rotation where it is the plain conversion.
+
+Pose names follow the frames: T_world_submap maps submap coordinates to world coordinates."""
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 RIGID_TOLERANCE = 1e-6
 
@@ -64,6 +69,34 @@ def log_so3(rotations: np.ndarray) -> np.ndarray:
     return vector
 
 
+def skew(vectors: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices of vectors (..., 3)."""
+    v = np.asarray(vectors, dtype=np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], axis=-2)
+
+
+def exp_se3(twists: np.ndarray) -> np.ndarray:
+    """SE(3) exponential of twists (..., 6) = (rotation vector omega, v) -> (..., 4, 4)."""
+    xi = np.asarray(twists, dtype=np.float64)
+    omega, v = xi[..., :3], xi[..., 3:]
+    theta = np.linalg.norm(omega, axis=-1)[..., None, None]
+    W = skew(omega)
+    WW = W @ W
+    small = theta < 1e-10
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1 - np.cos(t)) / t**2)
+    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    eye = np.eye(3)
+    T = np.zeros((*xi.shape[:-1], 4, 4))
+    T[..., :3, :3] = eye + a * W + b * WW
+    T[..., :3, 3] = np.einsum("...ij,...j->...i", eye + b * W + c * WW, v)
+    T[..., 3, 3] = 1.0
+    return T
+
+
 def log_se3(poses: np.ndarray) -> np.ndarray:
     """Twists (..., 6) = (rotation vector, translation part rho) with exp(twist) = pose."""
     omega = log_so3(poses[..., :3, :3])
@@ -101,3 +134,69 @@ def confidence_volume(marginals: np.ndarray) -> np.ndarray:
     """Volume of the 95% confidence ellipsoid of x, y, yaw for each (6,6) marginal covariance."""
     det = np.clip(np.linalg.det(xyh_covariance(marginals)), 0.0, None)
     return 4.0 / 3.0 * np.pi * CHI2_3DOF_95**1.5 * np.sqrt(det)
+
+
+def wrap_angle(angle):
+    """Angles wrapped to [-pi, pi) (NumPy or JAX arrays, or floats)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def yaw_pitch_roll(rotations: np.ndarray) -> np.ndarray:
+    """(..., 3) z-y-x Euler angles of rotation matrices (..., 3, 3)."""
+    r = np.asarray(rotations, dtype=np.float64)
+    yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
+    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    roll = np.arctan2(r[..., 2, 1], r[..., 2, 2])
+    return np.stack([yaw, pitch, roll], axis=-1)
+
+
+def rotation_from_ypr(yaw, pitch=0.0, roll=0.0) -> np.ndarray:
+    """(..., 3, 3) rotation matrices Rz(yaw) Ry(pitch) Rx(roll)."""
+    angles = np.stack(np.broadcast_arrays(yaw, pitch, roll), axis=-1).astype(np.float64)
+    return Rotation.from_euler("ZYX", angles.reshape(-1, 3)).as_matrix().reshape(*angles.shape[:-1], 3, 3)
+
+
+def euler_rates(rotation: np.ndarray) -> np.ndarray:
+    """(3,3) d(yaw, pitch, roll) / d(omega) for a body-frame rotation perturbation R Exp(omega)."""
+    _, pitch, roll = yaw_pitch_roll(rotation)
+    sr, cr = np.sin(roll), np.cos(roll)
+    cp, tp = np.cos(pitch), np.tan(pitch)
+    return np.array([[0.0, sr / cp, cr / cp],
+                     [0.0, cr, -sr],
+                     [1.0, sr * tp, cr * tp]])
+
+
+def pose_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> np.ndarray:
+    """(4,4) T_world_body of a level body at (x, y, z) heading `yaw`."""
+    T = np.eye(4)
+    T[:3, :3] = rotation_from_ypr(yaw)
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def rotation_from_quaternion(q, xp=np):
+    """(3,3) rotation of a unit quaternion (w, x, y, z); `xp`: the array module (NumPy or
+    jax.numpy, so the simulator's jitted controller shares it)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return xp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def yaw_of_quaternion(q, xp=np):
+    """Yaw (z-y-x Euler) of a unit quaternion (w, x, y, z); `xp` as in rotation_from_quaternion."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return xp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def quaternions_from_rotations(rotations: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3)."""
+    r = np.asarray(rotations, dtype=np.float64)
+    q = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat(scalar_first=True)
+    return q.reshape(*r.shape[:-2], 4)
+
+
+def rotations_from_quaternions(quaternions: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of quaternions (..., 4) (w, x, y, z), normalised first."""
+    q = np.asarray(quaternions, dtype=np.float64)
+    return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*q.shape[:-1], 3, 3)

@@ -3,19 +3,20 @@
 Per scan: time_s, pose_truth and pose_nav (4,4, T_world_vehicle), sonar_origin (3,) and
 sonar_directions (B,3) in the vehicle frame, ranges (B,) metres (NaN: no return) and no_return
 (B,). File attributes: format, format_version, scene, seed, sensor model, navigation noise,
-vogjax version. Written to a temporary file that is renamed on close, so a run is either whole
-or absent.
+vogjax version. Published atomically on close (`vogjax.io.atomic`): a run is whole or absent.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import h5py
 import numpy as np
+
+from vogjax.io.atomic import AtomicPath
+from vogjax.sensors.base import world_rays
 
 FORMAT = "vogjax-run"
 FORMAT_VERSION = 1
@@ -54,11 +55,8 @@ class ScanBatch:
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Sonar origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
         Beams without a return end past max_range_m (free space up to it, no hit)."""
-        R, t = poses[:, :3, :3], poses[:, :3, 3]
-        origins = np.einsum("sij,sj->si", R, self.sonar_origin) + t
-        directions = np.einsum("sij,sbj->sbi", R, self.sonar_directions)
-        ranges = np.where(self.no_return, max_range_m * 1.05 + 0.1, self.ranges)
-        return origins, origins[:, None] + directions * ranges[..., None]
+        return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return,
+                          max_range_m)
 
 
 class DatasetWriter:
@@ -66,8 +64,8 @@ class DatasetWriter:
 
     def __init__(self, path, beams: int, metadata: dict):
         self.path = Path(path)
-        self._temporary = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-        self._file = h5py.File(self._temporary, "w")
+        self._publication = AtomicPath(self.path)
+        self._file = h5py.File(self._publication.temporary, "w")
         self._file.attrs["format"] = FORMAT
         self._file.attrs["format_version"] = FORMAT_VERSION
         self._file.attrs["metadata"] = json.dumps(metadata)
@@ -90,13 +88,13 @@ class DatasetWriter:
         if self._file:
             self._file.close()
             self._file = None
-            os.replace(self._temporary, self.path)
+            self._publication.commit()
 
     def abort(self) -> None:
         if self._file:
             self._file.close()
             self._file = None
-        self._temporary.unlink(missing_ok=True)
+        self._publication.abort()
 
     def __enter__(self):
         return self

@@ -6,8 +6,7 @@
     H bytes      UTF-8 JSON: kind, metadata (config, ...), payload size and SHA-256
     rest         numpy .npz archive of the arrays (no pickles)
 
-Files are written to a temporary file beside the target and renamed over it, so a reader never
-sees half a file and a crash never leaves one.
+Files are published atomically (`vogjax.io.atomic`): a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -15,13 +14,13 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import struct
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
+
+from vogjax.io.atomic import AtomicPath
 
 MAGIC = b"VOGJAXMP"
 FORMAT_VERSION = 1
@@ -35,19 +34,10 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
     payload = buffer.getvalue()
     header = json.dumps({"kind": kind, "metadata": metadata, "payload_bytes": len(payload),
                          "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(_PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)))
-            f.write(header)
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    with AtomicPath(path) as temporary, open(temporary, "wb") as f:
+        f.write(_PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)))
+        f.write(header)
+        f.write(payload)
 
 
 def read_map_file(path, kind: str) -> tuple[dict, dict]:

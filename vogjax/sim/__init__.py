@@ -1,10 +1,9 @@
-"""Simulation: the MJX vehicle, the profiling sonar, drifting navigation, survey patterns, runs."""
+"""Simulation: the MJX vehicle, range scans of the scene, drifting navigation, runs."""
 
 from vogjax.sim.mission import RunSummary, simulate_run
 from vogjax.sim.navigation import drifting_navigation
-from vogjax.sim.sonar import SonarScans, beam_directions, scan
-from vogjax.sim.trajectories import lawnmower, mission, orbit
-from vogjax.sim.vehicle import ControllerConfig, simulate, simulate_batch
+from vogjax.sim.ranging import SimulatedScans, scan
+from vogjax.sim.vehicle import simulate, simulate_batch
 
-__all__ = ["ControllerConfig", "RunSummary", "SonarScans", "beam_directions", "drifting_navigation",
-           "lawnmower", "mission", "orbit", "scan", "simulate", "simulate_batch", "simulate_run"]
+__all__ = ["RunSummary", "SimulatedScans", "drifting_navigation", "scan", "simulate",
+           "simulate_batch", "simulate_run"]

@@ -10,13 +10,12 @@ from tqdm import tqdm
 
 import vogjax
 from vogjax import scenes
-from vogjax.config import NavNoise, SonarConfig
+from vogjax.config import ControllerConfig, NavNoise
+from vogjax.sensors import RangeSensor, as_sensor, ProfilingSonar
+from vogjax.geometry import wrap_angle, yaw_pitch_roll
 from vogjax.io.dataset import DatasetWriter
-from vogjax.sim import navigation, sonar, trajectories, vehicle
+from vogjax.sim import navigation, ranging, vehicle
 
-# The sonar sits at the bow, its vertical fan looking ahead.
-T_VEHICLE_SONAR = np.eye(4)
-T_VEHICLE_SONAR[0, 3] = 0.9
 CHUNK_SCANS = 500
 
 
@@ -29,56 +28,52 @@ class RunSummary:
 
 
 def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
-                  config: vehicle.ControllerConfig = vehicle.ControllerConfig()) -> int:
+                  config: ControllerConfig = ControllerConfig()) -> int:
     """Scans long enough to fly the waypoints at the speed limits, with a margin."""
     points = np.vstack([start_pose[:3, 3], waypoints[:, :3]])
-    headings = np.concatenate([[np.arctan2(start_pose[1, 0], start_pose[0, 0])], waypoints[:, 3]])
-    turns = np.abs((np.diff(headings) + np.pi) % (2 * np.pi) - np.pi)
+    headings = np.concatenate([[yaw_pitch_roll(start_pose[:3, :3])[0]], waypoints[:, 3]])
+    turns = np.abs(wrap_angle(np.diff(headings)))
     seconds = (np.linalg.norm(np.diff(points, axis=0), axis=1).sum() / config.max_speed_mps
                + turns.sum() / config.max_yaw_rate_rps)
     return int(np.ceil(1.4 * seconds * rate_hz)) + 10
 
 
 def simulate_run(scene_name: str, out, laps: int = 2, seed: int = 0, num_scans: int | None = None,
-                 sonar_config: SonarConfig | None = None, noise: NavNoise | None = None,
+                 sensor: RangeSensor | None = None, noise: NavNoise | None = None,
                  progress: bool = True) -> RunSummary:
-    """Simulate the default survey of a built-in scene and write it to `out` (HDF5)."""
-    sonar_config = sonar_config or SonarConfig()
+    """Simulate the default survey of a built-in scene and write it to `out` (HDF5).
+    sensor: a RangeSensor (or a SonarConfig); default: the papers' profiling sonar."""
+    sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
     noise = noise or NavNoise()
     if not (isinstance(laps, int) and laps >= 1):
         raise ValueError(f"laps must be a positive integer, got {laps!r}")
     scene = scenes.load(scene_name)
-    waypoints = trajectories.mission(scene, laps)
+    waypoints = scene.survey(laps)
     if num_scans is None:
-        num_scans = mission_scans(waypoints, scene.start_pose, sonar_config.rate_hz)
+        num_scans = mission_scans(waypoints, scene.start_pose, sensor.rate_hz)
     if not (isinstance(num_scans, int) and num_scans >= 1):
         raise ValueError(f"num_scans must be a positive integer, got {num_scans!r}")
     # 1. fly the survey (MJX), and stop recording once the last waypoint is reached
-    truth, index = vehicle.simulate(scene.start_pose, waypoints, num_scans, sonar_config.rate_hz)
+    truth, index = vehicle.simulate(scene.start_pose, waypoints, num_scans, sensor.rate_hz)
     arrived = np.flatnonzero((index == len(waypoints) - 1)
                              & (np.linalg.norm(truth[:, :3, 3] - waypoints[-1, :3], axis=1) < 0.2))
     if len(arrived):
-        num_scans = min(num_scans, int(arrived[0]) + int(sonar_config.rate_hz * 5))
+        num_scans = min(num_scans, int(arrived[0]) + int(sensor.rate_hz * 5))
         truth = truth[:num_scans]
-    times = np.arange(num_scans) / sonar_config.rate_hz
+    times = np.arange(num_scans) / sensor.rate_hz
     # 2. drift the navigation
     nav = navigation.drifting_navigation(truth, times, noise, seed)
     # 3. scan and record, a chunk at a time
     rng = np.random.default_rng(seed + 1)
-    directions = sonar.beam_directions(sonar_config)[:, sonar_config.subrays // 2] @ T_VEHICLE_SONAR[:3, :3].T
-    metadata = {"scene": scene_name, "seed": seed, "laps": laps, "sonar": sonar_config.to_dict(),
-                "nav_noise": noise.to_dict(), "T_vehicle_sonar": T_VEHICLE_SONAR.tolist(),
-                "waypoints": waypoints.tolist(), "vogjax_version": vogjax.__version__}
+    metadata = {"scene": scene_name, "seed": seed, "laps": laps, **sensor.metadata(),
+                "nav_noise": noise.to_dict(), "waypoints": waypoints.tolist(), "vogjax_version": vogjax.__version__}
     returned = 0
-    with DatasetWriter(out, sonar_config.beams, metadata) as writer:
+    with DatasetWriter(out, sensor.beams, metadata) as writer:
         for first in tqdm(range(0, num_scans, CHUNK_SCANS), desc=f"simulating {scene_name}",
                           unit="chunk", disable=not progress):
             last = min(first + CHUNK_SCANS, num_scans)
-            scans = sonar.scan(scene.warp_mesh, truth[first:last] @ T_VEHICLE_SONAR, sonar_config, rng)
+            scans = ranging.scan(scene.warp_mesh, truth[first:last] @ sensor.T_vehicle_sensor, sensor, rng)
             returned += int((~scans.no_return).sum())
-            count = last - first
             writer.append(time_s=times[first:last], pose_truth=truth[first:last], pose_nav=nav[first:last],
-                          sonar_origin=np.tile(T_VEHICLE_SONAR[:3, 3], (count, 1)),
-                          sonar_directions=np.tile(directions, (count, 1, 1)),
-                          ranges=scans.ranges, no_return=scans.no_return)
-    return RunSummary(Path(out), num_scans, float(times[-1]), returned / (num_scans * sonar_config.beams))
+                          **sensor.dataset_fields(scans.ranges, scans.no_return))
+    return RunSummary(Path(out), num_scans, float(times[-1]), returned / (num_scans * sensor.beams))

@@ -6,15 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.config import NavNoise
-from vogjax.geometry import inverse
-from vogjax.slam.factors import yaw_pitch_roll
-
-
-def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+from vogjax.geometry import inverse, rotation_from_ypr, yaw_pitch_roll
 
 
 def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None,
@@ -39,7 +31,7 @@ def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise 
         pose = nav[t - 1] @ step @ wobble
         yaw = yaw_pitch_roll(pose[:3, :3])[0]
         _, pitch, roll = yaw_pitch_roll(truth[t, :3, :3])
-        pose[:3, :3] = _rotation(yaw, pitch + dpitch, roll + droll)
+        pose[:3, :3] = rotation_from_ypr(yaw, pitch + dpitch, roll + droll)
         pose[2, 3] = truth[t, 2, 3] + dz
         nav[t] = pose
     return nav

@@ -1,10 +1,11 @@
 """SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection."""
 
+from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import PoseGraph
-from vogjax.slam.correlative import CorrelativeConfig, CorrelativeMatch, correlative_xyh
-from vogjax.slam.icp import IcpConfig, IcpResult, icp, icp_batch
-from vogjax.slam.loop_closure import LoopClosure, LoopClosureConfig, LoopClosureDetector, Rejection
+from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh
+from vogjax.slam.icp import IcpResult, icp, icp_batch
+from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 
 __all__ = [
     "CorrelativeConfig",

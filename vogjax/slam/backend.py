@@ -15,7 +15,7 @@ import gtsam
 import numpy as np
 
 from vogjax.config import NavNoise
-from vogjax.geometry import rigid_poses
+from vogjax.geometry import rigid_poses, wrap_angle
 from vogjax.slam import factors
 
 PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
@@ -29,7 +29,7 @@ def _xyh_error(measured: np.ndarray, this: gtsam.CustomFactor, values: gtsam.Val
     T_a = values.atPose3(this.keys()[0]).matrix()
     T_b = values.atPose3(this.keys()[1]).matrix()
     error = factors.xyh(T_a, T_b) - measured
-    error[2] = factors.wrap_angle(error[2])
+    error[2] = wrap_angle(error[2])
     if jacobians is not None:
         jacobians[0], jacobians[1] = factors.xyh_jacobians(T_a, T_b)
     return error

@@ -15,22 +15,8 @@ import dataclasses
 import numpy as np
 from scipy import fft, ndimage
 
-from vogjax.geometry import rigid_poses
-
-
-@dataclasses.dataclass(frozen=True)
-class CorrelativeConfig:
-    resolution_m: float = 0.1
-    yaw_step_rad: float = 0.005
-    blur_voxels: float = 1.0  # Gaussian blur of the target: tolerance to small distortions
-    exclusion_m: float = 0.5  # the runner-up peak is the best one at least this far away
-
-    def __post_init__(self):
-        for name in ("resolution_m", "yaw_step_rad", "exclusion_m"):
-            if not (isinstance(getattr(self, name), (int, float)) and 0 < getattr(self, name) < np.inf):
-                raise ValueError(f"CorrelativeConfig.{name} must be a positive number, got {getattr(self, name)!r}")
-        if not (isinstance(self.blur_voxels, (int, float)) and 0 <= self.blur_voxels < np.inf):
-            raise ValueError(f"CorrelativeConfig.blur_voxels must be a number >= 0, got {self.blur_voxels!r}")
+from vogjax.config import CorrelativeConfig
+from vogjax.geometry import rigid_poses, rotation_from_ypr
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,11 +32,6 @@ class CorrelativeMatch:
     @property
     def ratio(self) -> float:
         return self.runner_up / self.score if self.score > 0 else 1.0
-
-
-def _rotation_z(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, radius_m: float,
@@ -93,7 +74,7 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
     best = (-np.inf, None, None, None)
     for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
-        rotation = _rotation_z(yaw)
+        rotation = rotation_from_ypr(yaw)
         points = (moved - pivot) @ rotation.T + pivot
         counts = np.zeros(shape, np.float32)
         cells = np.floor((points - lo) / res).astype(int)
@@ -111,7 +92,7 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     far = np.hypot(ii - peak[0], jj - peak[1]) * res >= config.exclusion_m
     runner_up = float(window[far].max()) if far.any() else 0.0
     correction = np.eye(4)
-    correction[:3, :3] = _rotation_z(yaw)
+    correction[:3, :3] = rotation_from_ypr(yaw)
     correction[:3, 3] = pivot - correction[:3, :3] @ pivot + np.array([offsets[0], offsets[1], 0.0])
     return CorrelativeMatch(correction @ T_init, score, runner_up)
 

@@ -13,26 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def wrap_angle(angle):
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def yaw_pitch_roll(rotation: np.ndarray) -> np.ndarray:
-    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
-    pitch = np.arcsin(np.clip(-rotation[2, 0], -1.0, 1.0))
-    roll = np.arctan2(rotation[2, 1], rotation[2, 2])
-    return np.array([yaw, pitch, roll])
-
-
-def euler_rates(rotation: np.ndarray) -> np.ndarray:
-    """(3,3) d(yaw, pitch, roll) / d(omega) for a body-frame rotation perturbation."""
-    _, pitch, roll = yaw_pitch_roll(rotation)
-    sr, cr = np.sin(roll), np.cos(roll)
-    cp, tp = np.cos(pitch), np.tan(pitch)
-    return np.array([[0.0, sr / cp, cr / cp],
-                     [0.0, cr, -sr],
-                     [1.0, sr * tp, cr * tp]])
+from vogjax.geometry import euler_rates, wrap_angle, yaw_pitch_roll
 
 
 def _heading_frame(yaw: float) -> np.ndarray:

@@ -15,20 +15,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vogjax.geometry import rigid_poses
-
-
-@dataclasses.dataclass(frozen=True)
-class IcpConfig:
-    max_iterations: int = 50
-    max_correspondence_m: float = 1.0  # pairs farther apart are outliers
-    tolerance: float = 1e-6  # stop when an update moves less than this (rad and m)
-    normal_neighbours: int = 10  # target points used to fit each normal
-    # Directions whose eigenvalue of J^T J is below lambda_min times the number of inliers are
-    # degenerate (per inlier, so the threshold does not depend on the cloud's size; a unit
-    # normal contributes at most 1 to a translation direction).
-    lambda_min: float = 0.01
-    min_inliers: int = 10
+from vogjax.config import IcpConfig
+from vogjax.geometry import exp_se3, rigid_poses
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,35 +39,6 @@ class IcpResult:
     @property
     def degenerate(self) -> bool:
         return self.basis.shape[1] < 6
-
-
-def _skew(p: np.ndarray) -> np.ndarray:
-    """(N,3,3) cross-product matrices."""
-    z = np.zeros(len(p))
-    return np.stack([np.stack([z, -p[:, 2], p[:, 1]], -1), np.stack([p[:, 2], z, -p[:, 0]], -1),
-                     np.stack([-p[:, 1], p[:, 0], z], -1)], axis=1)
-
-
-def _exp(xi: np.ndarray) -> np.ndarray:
-    """SE(3) exponential of (omega, v) rows (..., 6) -> (..., 4, 4)."""
-    xi = np.asarray(xi, dtype=np.float64)
-    flat = xi.reshape(-1, 6)
-    omega, v = flat[:, :3], flat[:, 3:]
-    theta = np.linalg.norm(omega, axis=1)
-    W = _skew(omega)
-    WW = W @ W
-    small = theta < 1e-10
-    t = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(t) / t)
-    b = np.where(small, 0.5, (1 - np.cos(t)) / t**2)
-    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
-    eye = np.eye(3)
-    R = eye + a[:, None, None] * W + b[:, None, None] * WW
-    V = eye + b[:, None, None] * W + c[:, None, None] * WW
-    T = np.tile(np.eye(4), (len(flat), 1, 1))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = np.einsum("nij,nj->ni", V, v)
-    return T.reshape(*xi.shape[:-1], 4, 4)
 
 
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
@@ -159,7 +118,7 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
             # Solve only in the well-conditioned eigen-directions; leave the others as they are.
             along = np.where(good, np.einsum("pji,pj->pi", vectors, g) / np.where(good, values, 1.0), 0.0)
             xi = -np.einsum("pij,pj->pi", vectors, along)
-            steps = T[ids] @ _exp(xi) @ np.linalg.inv(T[ids])
+            steps = T[ids] @ exp_se3(xi) @ np.linalg.inv(T[ids])
         T[ids] = steps @ T[ids]
         angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
         done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance

@@ -17,40 +17,10 @@ import time
 
 import numpy as np
 
-from vogjax.config import NavNoise
+from vogjax.config import LoopClosureConfig, NavNoise
 from vogjax.geometry import inverse
-from vogjax.slam.correlative import CorrelativeConfig, correlative_xyh
-from vogjax.slam.icp import IcpConfig, IcpResult, icp_batch
-
-
-@dataclasses.dataclass(frozen=True)
-class LoopClosureConfig:
-    method: str = "point_to_plane"
-    icp: IcpConfig = IcpConfig(max_correspondence_m=0.3)  # ICP starts at the correlative peak
-    correlative: CorrelativeConfig = CorrelativeConfig()
-    max_search_m: float = 4.0  # the correlative search radius: the drift bound, capped here
-    min_overlap_score: float = 0.3  # the correlative peak's mean blurred occupancy
-    max_refinement_m: float = 0.2  # ICP may move the peak's result this far in x-y
-    min_points: int = 50  # both clouds need this many occupied voxels
-    min_separation: int = 2  # |i - k| at least this: neighbours are tied by odometry already
-    max_candidates: int = 4  # the earlier submaps nearest to k are aligned, at most this many
-    max_fitness_m2: float = 0.02  # mean squared inlier distance
-    drift_sigmas: float = 3.0  # accept results within this many drift sigmas of odometry
-    # Floors on the factor's sigmas. ICP's own covariance is overconfident: each submap is bent
-    # by the drift within it (0.17 m sigma over 20 s at the default rates), which ICP cannot see.
-    min_sigma_rotation_rad: float = 0.005
-    min_sigma_translation_m: float = 0.2
-
-    def __post_init__(self):
-        if self.method not in ("point_to_plane", "point_to_point_xyh"):
-            raise ValueError(f"LoopClosureConfig.method must be 'point_to_plane' or 'point_to_point_xyh', got {self.method!r}")
-        for name in ("min_points", "min_separation", "max_candidates"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 0):
-                raise ValueError(f"LoopClosureConfig.{name} must be an integer >= 0, got {getattr(self, name)!r}")
-        for name in ("max_search_m", "min_overlap_score", "max_refinement_m", "max_fitness_m2", "drift_sigmas",
-                     "min_sigma_rotation_rad", "min_sigma_translation_m"):
-            if not (isinstance(getattr(self, name), (int, float)) and 0 <= getattr(self, name) < np.inf):
-                raise ValueError(f"LoopClosureConfig.{name} must be a finite number >= 0, got {getattr(self, name)!r}")
+from vogjax.slam.correlative import correlative_xyh
+from vogjax.slam.icp import IcpResult, icp_batch
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,21 +12,21 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
-import numbers
 import time
 
 import numpy as np
 import warp as wp
 
-from vogjax import parallel
-from vogjax.blockmap import BlockMap
-from vogjax.blocks import BLOCK_VOXELS, BlockStore, voxel_keys
-from vogjax.config import MapConfig
+from vogjax.maps import parallel
+from vogjax.maps.blockmap import BlockMap
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, voxel_keys
+from vogjax.config import MapConfig, PipelineConfig
+from vogjax.config.schema import check_setting
 from vogjax.geometry import confidence_volume, pose_deltas
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation
 from vogjax.kernels.hashing import EMPTY_KEY
-from vogjax.submaps import VogMap
+from vogjax.maps.submaps import VogMap
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
 # Marginals whose x, y, yaw block fails these checks are not covariances.
@@ -119,8 +119,8 @@ class GlobalMap(BlockMap):
             self._refresh(touched)
         return pulls
 
-    def update_poses(self, vog: VogMap, marginals=None, eps_rot: float = 1e-2,
-                     eps_trans: float = 2e-3, eps_cov="auto") -> UpdateReport:
+    def update_poses(self, vog: VogMap, marginals=None, eps_rot: float = PipelineConfig.eps_rot,
+                     eps_trans: float = PipelineConfig.eps_trans, eps_cov=PipelineConfig.eps_cov) -> UpdateReport:
         """Sodhi et al. Algorithm 1: re-apply the submaps that moved and are uncertain.
 
         S1: applied submaps whose current pose differs from the applied one by a rotation angle
@@ -137,9 +137,8 @@ class GlobalMap(BlockMap):
         """
         start = time.perf_counter()
         self._check_vog(vog)
-        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans)):
-            if not isinstance(value, numbers.Real) or not value >= 0 or not np.isfinite(value):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_cov", eps_cov)):
+            check_setting(PipelineConfig, name, value)
         volumes = self._volumes(vog, marginals)
         threshold = self._threshold(volumes, eps_cov)
         uncertain = None if volumes is None else set()
@@ -191,11 +190,9 @@ class GlobalMap(BlockMap):
 
     @staticmethod
     def _threshold(volumes: np.ndarray | None, eps_cov) -> float | None:
-        if isinstance(eps_cov, str) and eps_cov == "auto":
+        if eps_cov == "auto":
             return float(volumes[:10].max()) if volumes is not None and len(volumes) else None
-        if isinstance(eps_cov, numbers.Real) and eps_cov >= 0 and np.isfinite(eps_cov):
-            return None if volumes is None else float(eps_cov)
-        raise ValueError(f"eps_cov must be 'auto' or a finite number >= 0, got {eps_cov!r}")
+        return None if volumes is None else float(eps_cov)
 
     def _check_vog(self, vog) -> None:
         if not isinstance(vog, VogMap):

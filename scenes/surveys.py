@@ -1,10 +1,8 @@
-"""Waypoint patterns around the built-in scenes that revisit places, so loop closures happen."""
+"""Survey patterns (waypoints x, y, z, yaw) that revisit places, so loop closures happen."""
 
 from __future__ import annotations
 
 import numpy as np
-
-from vogjax.scenes import Scene
 
 
 def orbit(centre, radius_m: float, depths_m, points_per_lap: int = 16) -> np.ndarray:
@@ -29,20 +27,3 @@ def lawnmower(bounds: np.ndarray, heading: float, depths_m, lanes: int = 3) -> n
             for x in (xs if lane % 2 == 0 else xs[::-1]):
                 rows.append([x, y, z, heading])
     return np.asarray(rows)
-
-
-def mission(scene: Scene, laps: int = 2) -> np.ndarray:
-    """The default survey of a built-in scene, flown `laps` times."""
-    lo, hi = scene.bounds
-    depths = np.linspace(lo[2] + 0.4 * (hi[2] - lo[2]), hi[2] - 0.2 * (hi[2] - lo[2]), 2)
-    if scene.name == "propeller":  # starboard of the propeller, looking at it
-        once = lawnmower(scene.bounds, np.pi / 2, depths)
-    elif scene.name == "pilings":  # a loop around the pier
-        x0, x1, y0, y1 = lo[0] + 0.5, hi[0] - 0.5, lo[1] + 0.5, hi[1] - 0.5
-        corners = [[x0, y0, np.pi / 4], [x1, y0, 3 * np.pi / 4], [x1, y1, -3 * np.pi / 4],
-                   [x0, y1, -np.pi / 4], [x0, y0, np.pi / 4]]
-        once = np.asarray([[x, y, z, h] for z in depths for x, y, h in corners])
-    else:  # tank and boxes: circle the middle
-        radius = {"tank": 2.4}.get(scene.name, 2.5)
-        once = orbit((0.0, 0.0), radius, depths)
-    return np.concatenate([once] * laps)

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import warp as wp
 
-from vogjax import parallel
-from vogjax.blockmap import BlockMap
-from vogjax.blocks import BLOCK_VOXELS, BlockStore
+from vogjax.maps import parallel
+from vogjax.maps.blockmap import BlockMap
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore
 from vogjax.config import MapConfig
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import hashing, integration

@@ -8,11 +8,12 @@ import math
 import numpy as np
 import warp as wp
 
-from vogjax import _warp, parallel
-from vogjax.blocks import BlockStore, voxel_keys
+from vogjax import devices
+from vogjax.maps import parallel
+from vogjax.maps.blocks import BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
-from vogjax.locking import ReadWriteLock
+from vogjax.maps.locking import ReadWriteLock
 from vogjax.validation import float_array, positive_range, within_key_range
 
 UNKNOWN = 0
@@ -43,7 +44,7 @@ class BlockMap:
         if config is not None and not isinstance(config, MapConfig):
             raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
         self.config = config or MapConfig()
-        self.device = _warp.resolve_device(device)
+        self.device = devices.resolve(device)
         self._store = BlockStore(self.device, {"log_odds": (wp.float32, math.nan), **layers})
         self._lock = ReadWriteLock()
 

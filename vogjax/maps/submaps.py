@@ -8,14 +8,15 @@ import math
 import numpy as np
 import warp as wp
 
-from vogjax import _warp, parallel
-from vogjax.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds, ray_arguments
+from vogjax import devices
+from vogjax.maps import parallel
+from vogjax.maps.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds, ray_arguments
 from vogjax.config import MapConfig
 from vogjax.geometry import rigid_poses
 from vogjax.kernels import accumulation, virtual
-from vogjax.locking import ReadWriteLock
+from vogjax.maps.locking import ReadWriteLock
 from vogjax.validation import float_array
-from vogjax.voxelmap import VoxelMap
+from vogjax.maps.voxelmap import VoxelMap
 
 
 class Submap(VoxelMap):
@@ -60,7 +61,7 @@ class VogMap:
         if config is not None and not isinstance(config, MapConfig):
             raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
         self.config = config or MapConfig()
-        self.device = _warp.resolve_device(device)
+        self.device = devices.resolve(device)
         self._submaps: list[Submap] = []
         self._poses = np.zeros((0, 4, 4))
         self._lock = ReadWriteLock()

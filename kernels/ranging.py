@@ -1,4 +1,4 @@
-"""Profiling-sonar ranges by ray casting against a scene mesh."""
+"""Simulated range-sensor returns by ray casting against a scene mesh."""
 
 import warp as wp
 
@@ -6,7 +6,7 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def cast_sonar_beams(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3), rotations: wp.array(dtype=wp.mat33),
+def cast_sensor_beams(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3), rotations: wp.array(dtype=wp.mat33),
                      beam_directions: wp.array2d(dtype=wp.vec3), min_range: float, max_range: float,
                      ranges: wp.array2d(dtype=float)):
     """ranges[scan, beam]: nearest return over the beam's sub-rays (its elevation aperture);

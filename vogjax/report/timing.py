@@ -15,7 +15,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from vogjax.globalmap import GlobalMap
+from vogjax.maps.globalmap import GlobalMap
 
 
 @dataclasses.dataclass(frozen=True)

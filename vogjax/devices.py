@@ -11,7 +11,7 @@ def init() -> None:
     wp.init()
 
 
-def resolve_device(device=None) -> "wp.Device":
+def resolve(device=None) -> "wp.Device":
     """`None` picks the first CUDA device when there is one, else the CPU."""
     init()
     if device is None:

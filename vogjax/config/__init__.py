@@ -1,0 +1,15 @@
+"""Every setting of vogjax, declared and checked one way (`schema`), loadable from TOML.
+
+    vj.MapConfig(voxel_size=0.05)
+    vj.config.JobConfig.from_toml("settings.toml")
+"""
+
+from vogjax.config.maps import MapConfig, logodds
+from vogjax.config.pipeline import JobConfig, PipelineConfig, ReportConfig
+from vogjax.config.schema import Config, Rule
+from vogjax.config.sensing import NavNoise, SonarConfig
+from vogjax.config.sim import ControllerConfig
+from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig
+
+__all__ = ["Config", "ControllerConfig", "CorrelativeConfig", "IcpConfig", "JobConfig", "LoopClosureConfig",
+           "MapConfig", "NavNoise", "PipelineConfig", "ReportConfig", "Rule", "SonarConfig", "logodds"]

@@ -1,0 +1,70 @@
+"""Settings of the occupancy maps."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from vogjax.config.schema import Config, number, positive, probability
+
+
+def logodds(probability: float) -> np.float32:
+    """Log-odds of a probability, rounded to float32 the way OctoMap stores it."""
+    return np.float32(math.log(probability / (1.0 - probability)))
+
+
+@dataclasses.dataclass(frozen=True)
+class MapConfig(Config):
+    """Occupancy map parameters. Defaults are those of Sodhi et al. (IV-C) with OctoMap's clamping.
+
+    voxel_size:          edge of a voxel, metres; voxel k covers [k*s, (k+1)*s) on each axis
+    prob_hit, prob_miss: inverse sensor model for the endpoint and the cells a beam crosses
+    occupied_threshold:  probability at or above which a voxel is OCCUPIED
+    free_threshold:      probability at or below which a voxel is FREE (between: UNKNOWN)
+    clamp_min, clamp_max: probabilities the log-odds are clamped to after every update
+    max_range:           beams longer than this give free space up to it and no hit, metres
+    """
+
+    voxel_size: float = number(0.1, low=1e-4)
+    prob_hit: float = probability(0.75)
+    prob_miss: float = probability(0.2)
+    occupied_threshold: float = probability(0.7)
+    free_threshold: float = probability(0.3)
+    clamp_min: float = probability(0.1192)
+    clamp_max: float = probability(0.971)
+    max_range: float = positive(11.0)
+
+    def check(self) -> None:
+        if not self.prob_miss < 0.5 < self.prob_hit:
+            raise ValueError("MapConfig.prob_hit must exceed 0.5 and MapConfig.prob_miss lie below it")
+        if not self.free_threshold <= self.occupied_threshold:
+            raise ValueError("MapConfig.free_threshold must not exceed MapConfig.occupied_threshold")
+        if not self.clamp_min < self.clamp_max:
+            raise ValueError("MapConfig.clamp_min must lie below MapConfig.clamp_max")
+
+    # Log-odds forms, float32 like the stored values.
+    @property
+    def log_hit(self) -> np.float32:
+        return logodds(self.prob_hit)
+
+    @property
+    def log_miss(self) -> np.float32:
+        return logodds(self.prob_miss)
+
+    @property
+    def log_occupied(self) -> np.float32:
+        return logodds(self.occupied_threshold)
+
+    @property
+    def log_free(self) -> np.float32:
+        return logodds(self.free_threshold)
+
+    @property
+    def log_clamp_min(self) -> np.float32:
+        return logodds(self.clamp_min)
+
+    @property
+    def log_clamp_max(self) -> np.float32:
+        return logodds(self.clamp_max)

@@ -1,0 +1,53 @@
+"""Settings of batch reprocessing (`vogjax.pipeline`) and of `vogjax map` (the job)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from vogjax.config.maps import MapConfig
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section
+from vogjax.config.sensing import NavNoise
+from vogjax.config.slam import LoopClosureConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig(Config):
+    """scans_per_submap: cut a submap every this many scans (100 in Ho, 200 in Sodhi), or
+    None ("covariance" in a settings file) to cut by Eq. 2: when the x, y or yaw variance
+    accumulated since its base pose would exceed max_xy_variance_m2 / max_yaw_variance_rad2.
+    eps_*: Algorithm 1's thresholds (GlobalMap.update_poses).
+    batch_scans: scans read and integrated per step. standard_map: also build the
+    navigation-only map (the no-SLAM baseline)."""
+
+    map: MapConfig = section(MapConfig())
+    nav_noise: NavNoise = section(NavNoise())
+    loop_closure: LoopClosureConfig = section(LoopClosureConfig())
+    scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
+    max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
+    max_yaw_variance_rad2: float = positive(2e-6)
+    eps_rot: float = non_negative(1e-2)
+    eps_trans: float = non_negative(2e-3)
+    eps_cov: float | str = number("auto", low=0, options=("auto",))
+    batch_scans: int = integer(200, low=1)
+    standard_map: bool = flag(True)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportConfig(Config):
+    """rays: planner rays per timed query; timing_samples: submap counts at which full merges
+    and queries are timed (0: no timing curves); surface_points: samples of the true surface
+    for the reconstruction RMSE."""
+
+    rays: int = integer(100_000, low=1, high=10_000_000)
+    timing_samples: int = integer(6, low=0, high=1000)
+    surface_points: int = integer(50_000, low=1, high=10_000_000)
+
+
+@dataclasses.dataclass(frozen=True)
+class JobConfig(Config):
+    """Everything `vogjax map` reads from its settings file: tables [map], [nav_noise],
+    [loop_closure] (with [loop_closure.icp], [loop_closure.correlative]) and [pipeline] set
+    `pipeline`; [report] sets `report`."""
+
+    pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
+    report: ReportConfig = section(ReportConfig())

@@ -1,0 +1,65 @@
+"""Settings of the SLAM front end: ICP, the correlative search, loop-closure detection."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from vogjax.config.schema import Config, integer, non_negative, positive, section, text
+
+ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
+
+
+@dataclasses.dataclass(frozen=True)
+class IcpConfig(Config):
+    """max_iterations; max_correspondence_m: pairs farther apart are outliers; tolerance: stop
+    when an update moves less than this (rad and m); normal_neighbours: target points used to
+    fit each normal; lambda_min: directions whose eigenvalue of J^T J is below lambda_min times
+    the number of inliers are degenerate (per inlier, so the threshold does not depend on the
+    cloud's size; a unit normal contributes at most 1 to a translation direction); min_inliers."""
+
+    max_iterations: int = integer(50, low=1, high=10_000)
+    max_correspondence_m: float = positive(1.0)
+    tolerance: float = positive(1e-6)
+    normal_neighbours: int = integer(10, low=3, high=1000)
+    lambda_min: float = non_negative(0.01)
+    min_inliers: int = integer(10, low=3)
+
+
+@dataclasses.dataclass(frozen=True)
+class CorrelativeConfig(Config):
+    """resolution_m of the search grid; yaw_step_rad; blur_voxels: Gaussian blur of the target,
+    tolerance to small distortions; exclusion_m: the runner-up peak is the best one at least
+    this far away."""
+
+    resolution_m: float = positive(0.1)
+    yaw_step_rad: float = positive(0.005)
+    blur_voxels: float = non_negative(1.0)
+    exclusion_m: float = positive(0.5)
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopClosureConfig(Config):
+    """method: ICP variant; icp: ICP settings (it starts at the correlative peak); correlative;
+    max_search_m: the correlative search radius, the drift bound capped here;
+    min_overlap_score: the correlative peak's mean blurred occupancy; max_refinement_m: ICP may
+    move the peak's result this far in x-y; min_points: both clouds need this many occupied
+    voxels; min_separation: |i - k| at least this (neighbours are tied by odometry already);
+    max_candidates: the earlier submaps nearest to k are aligned, at most this many;
+    max_fitness_m2: mean squared inlier distance; drift_sigmas: accept results within this many
+    drift sigmas of odometry; min_sigma_*: floors on the factor's sigmas. ICP's own covariance
+    is overconfident: each submap is bent by the drift within it (0.17 m sigma over 20 s at the
+    default rates), which ICP cannot see."""
+
+    method: str = text("point_to_plane", ICP_METHODS)
+    icp: IcpConfig = section(IcpConfig(max_correspondence_m=0.3))
+    correlative: CorrelativeConfig = section(CorrelativeConfig())
+    max_search_m: float = non_negative(4.0)
+    min_overlap_score: float = non_negative(0.3)
+    max_refinement_m: float = non_negative(0.2)
+    min_points: int = integer(50, low=0)
+    min_separation: int = integer(2, low=0)
+    max_candidates: int = integer(4, low=0)
+    max_fitness_m2: float = non_negative(0.02)
+    drift_sigmas: float = non_negative(3.0)
+    min_sigma_rotation_rad: float = non_negative(0.005)
+    min_sigma_translation_m: float = non_negative(0.2)

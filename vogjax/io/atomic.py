@@ -1,0 +1,146 @@
+"""Atomic publication of files and folders: every writer in vogjax goes through here.
+
+Work happens under a hidden temporary name beside the target (`.NAME.PID.tmp`); `commit`
+flushes it to disk (fsync), renames it over the target and syncs the folder, so a reader sees
+the old target or the whole new one, never a part. A crash (even kill -9) leaves only the
+temporary, and the next write to the same target removes temporaries whose process is gone.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+from pathlib import Path
+
+
+class AtomicPath:
+    """A temporary file or folder (`folder=True`) that becomes `target` on `commit()`.
+
+    As a context manager it commits when the block succeeds and aborts when it raises.
+    """
+
+    def __init__(self, target, folder: bool = False):
+        self.target = Path(target)
+        self.folder = folder
+        check_writable(self.target, folder)
+        if not self.target.parent.is_dir():
+            raise ValueError(f"{str(self.target)!r}: folder {str(self.target.parent)!r} does not exist")
+        remove_stale(self.target)
+        self.temporary = self.target.parent / f".{self.target.name}.{os.getpid()}.tmp"
+        _remove(self.temporary)
+        if folder:
+            self.temporary.mkdir(mode=0o777)  # the umask applies, as to any new folder
+
+    def commit(self) -> Path:
+        """Publish the temporary as the target; on failure the temporary is removed."""
+        try:
+            return self._publish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _publish(self) -> Path:
+        if self.folder:
+            for item in self.temporary.rglob("*"):
+                if item.is_file():
+                    _fsync(item)
+        else:
+            _fsync(self.temporary)
+        if self.folder and self.target.exists():
+            # a folder cannot be renamed over a full one: move the old one aside first
+            old = self.target.with_name(f".{self.target.name}.{os.getpid()}.old.tmp")
+            os.replace(self.target, old)
+            os.replace(self.temporary, self.target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(self.temporary, self.target)
+        _fsync_folder(self.target.parent)
+        return self.target
+
+    def abort(self) -> None:
+        """Remove the temporary (nothing, once committed)."""
+        _remove(self.temporary)
+
+    def __enter__(self) -> Path:
+        return self.temporary
+
+    def __exit__(self, kind, error, trace) -> None:
+        if kind is None:
+            self.commit()
+        else:
+            self.abort()
+
+
+def check_writable(target, folder: bool = False) -> None:
+    """ValueError unless `target` can be published: it is not the wrong kind of thing (a
+    file where a folder goes, or the other way round) and its nearest existing ancestor is a
+    writable folder (missing folders on the way would be created)."""
+    target = Path(target)
+    if target.exists() and target.is_dir() != folder:
+        kind = "a folder" if target.is_dir() else "a file"
+        raise ValueError(f"{str(target)!r} is {kind}; cannot replace it")
+    ancestor = target.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ValueError(f"{str(target)!r}: {str(ancestor)!r} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable")
+
+
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(\.old)?\.tmp$")
+
+
+def remove_stale(target) -> list[Path]:
+    """Remove temporaries of `target` left by processes that no longer run; returns them."""
+    target = Path(target)
+    removed = []
+    try:
+        entries = list(target.parent.iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _LEFTOVER.match(entry.name)
+        if match and match["name"] == target.name and not _alive(int(match["pid"])):
+            _remove(entry)
+            removed.append(entry)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_folder(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some file systems cannot sync a folder
+    finally:
+        os.close(fd)

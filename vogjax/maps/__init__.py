@@ -1,0 +1,14 @@
+"""The occupancy maps, all on hashed 8x8x8 voxel blocks (`blocks`) read through `BlockMap`:
+
+- `VoxelMap`: OctoMap's update rule, batched integration, queries, files;
+- `Submap` and `VogMap`: submaps hung off pose-graph nodes, queried as their sum (virtual map);
+- `GlobalMap`: the one map planners query, kept equal to a full merge by undo/redo.
+"""
+
+from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN, BlockMap, RaycastResult
+from vogjax.maps.globalmap import GlobalMap, UpdateReport
+from vogjax.maps.submaps import Submap, VogMap
+from vogjax.maps.voxelmap import VoxelMap
+
+__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "BlockMap", "GlobalMap", "RaycastResult", "Submap", "UpdateReport",
+           "VogMap", "VoxelMap"]

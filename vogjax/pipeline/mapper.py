@@ -1,0 +1,174 @@
+"""The mapper: scans in, submaps, SLAM and the loop-closure-consistent global map out.
+
+Feed it scans batch by batch (`add`), from a recorded run or live from a vehicle, and ask for
+the `result()` at any time. Per batch it:
+1. integrates the batch into the standard map at the navigation poses (the no-SLAM baseline),
+2. cuts the stream into submaps and integrates each run of scans in its submap's base frame.
+Per finished submap it:
+a. adds the pose-graph node with its xyh and zpr factors and updates iSAM2,
+b. looks for loop closures with earlier submaps (correlative search, then ICP),
+c. adds the accepted closures, updates iSAM2 and computes the marginals it needs,
+d. moves the virtual map's submaps (setting poses is its whole update),
+e. re-applies the moved and uncertain submaps in the global map (Algorithm 1), adds the new one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from vogjax.config import PipelineConfig
+from vogjax.geometry import inverse, pose_deltas
+from vogjax.io.dataset import ScanBatch
+from vogjax.maps import GlobalMap, VogMap, VoxelMap
+from vogjax.pipeline.cutter import SubmapCutter
+from vogjax.pipeline.result import Result, SubmapRecord
+from vogjax.slam import LoopClosureDetector, PoseGraph
+
+
+class Mapper:
+    def __init__(self, config: PipelineConfig | None = None, metadata: dict | None = None):
+        self.config = config = config or PipelineConfig()
+        if not isinstance(config, PipelineConfig):
+            raise ValueError(f"config must be a PipelineConfig, got {type(config).__name__}")
+        self.metadata = dict(metadata or {})
+        self.vog = VogMap(config.map)
+        self.global_map = GlobalMap(config.map)
+        self.standard_map = VoxelMap(config.map) if config.standard_map else None
+        self.graph: PoseGraph | None = None
+        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure)
+        self.cutter = SubmapCutter(config)
+        self.timings = defaultdict(list)
+        self.submaps: list[SubmapRecord] = []
+        self.accepted, self.rejected = [], []
+        self.scans = 0
+        self._open = False  # the last submap still takes scans
+        self._scan_time, self._scan_nav, self._scan_truth = [], [], []
+
+    @property
+    def num_submaps(self) -> int:
+        """Finished submaps: those in the pose graph and the global map."""
+        return len(self.submaps) - int(self._open)
+
+    def add(self, batch: ScanBatch) -> None:
+        """Integrate a batch of consecutive scans; finish every submap it completes."""
+        cfg = self.config
+        self._scan_time.append(batch.time_s)
+        self._scan_nav.append(batch.pose_nav)
+        self._scan_truth.append(batch.pose_truth)
+        # 1. the standard map: every scan at its navigation pose, in one batch
+        if self.standard_map is not None:
+            start = time.perf_counter()
+            origins, endpoints = batch.world(batch.pose_nav, cfg.map.max_range)
+            self.standard_map.integrate_scans(origins, endpoints.reshape(-1, 3),
+                                              np.repeat(np.arange(len(batch)), endpoints.shape[1]))
+            self.timings["standard_map"].append(time.perf_counter() - start)
+        # 2. cut into submaps; integrate each run of scans in its submap's frame
+        first = 0
+        while first < len(batch):
+            if not self._open:
+                self._start_submap(batch, first)
+            record = self.submaps[-1]
+            room = self.cutter.room(record.scans, batch.time_s[first:] - record.time_s)
+            if room:
+                self._integrate(batch, first, first + room)
+                first += room
+            if first < len(batch):  # the submap is full
+                self.finish_submap()
+        self.scans += len(batch)
+
+    def finish_submap(self) -> None:
+        """Close the submap being filled (if any): SLAM and the global map take it in."""
+        if not self._open:
+            return
+        self._open = False
+        cfg = self.config
+        k = len(self.submaps) - 1
+        nav_bases = np.array([s.T_world_base_nav for s in self.submaps])
+        # a. pose-graph node with its xyh and zpr factors
+        start = time.perf_counter()
+        if self.graph is None:
+            self.graph = PoseGraph(cfg.nav_noise, prior_pose=nav_bases[0])
+            self.graph.add_submap(nav_bases[0])
+        else:
+            self.graph.add_submap(nav_bases[k], self.submaps[k].time_s - self.submaps[k - 1].time_s)
+        poses = self.graph.update()
+        self.timings["isam2"].append(time.perf_counter() - start)
+        # b. loop closures against earlier submaps
+        start = time.perf_counter()
+        submaps = [self.vog.submap(i) for i in range(k + 1)]
+        accepted, rejected = self.detector.detect(
+            k, [s.occupied_points() for s in submaps], [s.bounds() for s in submaps], poses,
+            nav_bases, np.array([s.time_s for s in self.submaps]))
+        self.accepted += accepted
+        self.rejected += rejected
+        self.timings["loop_closure"].append(time.perf_counter() - start)
+        for phase, seconds in self.detector.seconds.items():  # its parts
+            self.timings[phase].append(seconds)
+        # c. iSAM2 with the new constraints
+        start = time.perf_counter()
+        for closure in accepted:
+            self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+        before = self.vog.poses()
+        poses = self.graph.update()
+        # marginals of the submaps that moved, of the first ten (they set eps_cov) and the new one
+        angle, shift = pose_deltas(before, poses)
+        wanted = sorted(set(np.flatnonzero((angle > cfg.eps_rot) | (shift > cfg.eps_trans)).tolist())
+                        | set(range(min(10, k + 1))) | {k})
+        marginals = np.zeros((k + 1, 6, 6))
+        marginals[wanted] = self.graph.marginals(wanted)
+        self.timings["isam2"][-1] += time.perf_counter() - start
+        # d. move the submaps (the virtual map's whole update)
+        start = time.perf_counter()
+        self.vog.set_poses(np.arange(k + 1), poses)
+        self.timings["virtual_update"].append(time.perf_counter() - start)
+        # e. undo/redo what moved in the global map, then add the new submap
+        start = time.perf_counter()
+        report = self.global_map.update_poses(self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov)
+        self.timings["undo_redo"].append(time.perf_counter() - start)
+        self.timings["reapplied"].append(len(report.reapplied))
+        start = time.perf_counter()
+        self.global_map.add(self.vog, [k], marginals)
+        self.timings["add"].append(time.perf_counter() - start)
+
+    def result(self) -> Result:
+        """The maps and poses so far (every submap finished)."""
+        self.finish_submap()
+        has_truth = all(t is not None for t in self._scan_truth)
+        return Result(config=self.config, global_map=self.global_map, vog=self.vog,
+                      standard_map=self.standard_map, submaps=tuple(self.submaps),
+                      optimized=self.vog.poses(), loop_closures=tuple(self.accepted),
+                      rejected=tuple(self.rejected), timings=dict(self.timings), metadata=self.metadata,
+                      scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
+                      scan_navigation=_stack(self._scan_nav),
+                      scan_truth=_stack(self._scan_truth) if has_truth else None)
+
+    def _start_submap(self, batch: ScanBatch, row: int) -> None:
+        base = batch.pose_nav[row]
+        initial = base if self.graph is None else self._predicted_pose(base)
+        self.vog.add_submap(initial)
+        truth = None if batch.pose_truth is None else batch.pose_truth[row]
+        self.submaps.append(SubmapRecord(batch.first + row, 0, float(batch.time_s[row]), base, truth))
+        self._open = True
+
+    def _predicted_pose(self, base_nav: np.ndarray) -> np.ndarray:
+        """Where the optimised previous submap puts a new base pose (navigation's relative motion)."""
+        previous = self.graph.num_submaps - 1
+        return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ base_nav
+
+    def _integrate(self, batch: ScanBatch, lo: int, hi: int) -> None:
+        start = time.perf_counter()
+        part = batch.rows(lo, hi)
+        record = self.submaps[-1]
+        origins, endpoints = part.world(inverse(record.T_world_base_nav) @ part.pose_nav, self.config.map.max_range)
+        self.vog.submap(len(self.submaps) - 1).integrate_scans(
+            origins, endpoints.reshape(-1, 3), np.repeat(np.arange(hi - lo), endpoints.shape[1]))
+        self.submaps[-1] = SubmapRecord(record.first_scan, record.scans + hi - lo, record.time_s,
+                                        record.T_world_base_nav, record.T_world_base_truth)
+        self.timings["integration"].append(time.perf_counter() - start)
+
+
+def _stack(parts: list) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros((0, 4, 4))

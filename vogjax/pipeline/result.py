@@ -1,0 +1,117 @@
+"""What a pipeline run produced: the maps, the graph's poses, loop closures and timings."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+
+from vogjax.config import PipelineConfig
+from vogjax.maps import GlobalMap, VogMap, VoxelMap
+from vogjax.slam import LoopClosure, Rejection
+
+
+@dataclasses.dataclass(frozen=True)
+class SubmapRecord:
+    """One submap as the pipeline cut it: its first scan, how many scans it holds, the time of
+    its base pose, and the base pose by navigation and (when the run has it) by ground truth."""
+
+    first_scan: int
+    scans: int
+    time_s: float
+    T_world_base_nav: np.ndarray
+    T_world_base_truth: np.ndarray | None
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Result:
+    """The maps (`global_map` kept online, `vog` the virtual map at the optimised poses,
+    `standard_map` from navigation poses or None), one `SubmapRecord` per submap, the optimised
+    base poses (N,4,4), loop closures by verdict, per-step `timings` (step -> seconds per
+    submap or per batch), and every scan's time (S,), navigation and true pose (S,4,4)."""
+
+    config: PipelineConfig
+    global_map: GlobalMap
+    vog: VogMap
+    standard_map: VoxelMap | None
+    submaps: tuple[SubmapRecord, ...]
+    optimized: np.ndarray
+    loop_closures: tuple[LoopClosure, ...]
+    rejected: tuple[Rejection, ...]
+    timings: dict
+    metadata: dict
+    scan_time_s: np.ndarray
+    scan_navigation: np.ndarray
+    scan_truth: np.ndarray | None
+
+    @property
+    def scans(self) -> int:
+        return len(self.scan_navigation)
+
+    @property
+    def duration_s(self) -> float:
+        """Time the run covers: its scans times their mean period."""
+        t = self.scan_time_s
+        return float((t[-1] - t[0]) * len(t) / (len(t) - 1)) if len(t) > 1 else 0.0
+
+    @property
+    def navigation(self) -> np.ndarray:
+        """(N,4,4) submap base poses by navigation."""
+        return np.array([s.T_world_base_nav for s in self.submaps]).reshape(-1, 4, 4)
+
+    @property
+    def truth(self) -> np.ndarray | None:
+        """(N,4,4) true submap base poses; None when the run has no ground truth."""
+        if self.scan_truth is None:
+            return None
+        return np.array([s.T_world_base_truth for s in self.submaps]).reshape(-1, 4, 4)
+
+    @property
+    def submap_first_scan(self) -> np.ndarray:
+        return np.array([s.first_scan for s in self.submaps], dtype=np.int64)
+
+    @property
+    def metrics(self) -> dict:
+        """What needs no ground-truth map: base-pose RMS error of navigation and optimised poses
+        (m; when the run has true poses) and loop closures by verdict."""
+        errors = {}
+        truth = self.truth
+        if truth is not None:
+            for name in ("navigation", "optimized"):
+                offsets = getattr(self, name)[:, :3, 3] - truth[:, :3, 3]
+                errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+        rejected = {}
+        for r in self.rejected:
+            rejected[r.reason] = rejected.get(r.reason, 0) + 1
+        return {"trajectory_rmse_m": errors,
+                "loop_closures": {"accepted": len(self.loop_closures), "rejected": len(self.rejected),
+                                  "rejected_by_reason": rejected}}
+
+    @functools.cached_property
+    def full_merge(self) -> GlobalMap:
+        """Every submap merged from scratch at its optimised pose (what `global_map` must equal
+        when Algorithm 1's thresholds are zero)."""
+        merged = GlobalMap(self.config.map, self.global_map.device)
+        merged.merge(self.vog)
+        return merged
+
+    @functools.cached_property
+    def navigation_merge(self) -> GlobalMap:
+        """The submaps merged at their navigation poses: the map without loop closures."""
+        merged = GlobalMap(self.config.map, self.global_map.device)
+        merged.merge(self.vog.view(poses=self.navigation))
+        return merged
+
+    def scan_poses(self, which: str) -> np.ndarray | None:
+        """(S,4,4) per-scan poses: "navigation", "truth" (None without ground truth) or
+        "optimized" (each scan moved rigidly with its submap's base pose, as the maps place it)."""
+        if which == "navigation":
+            return self.scan_navigation
+        if which == "truth":
+            return self.scan_truth
+        if which != "optimized":
+            raise ValueError(f"which must be 'navigation', 'truth' or 'optimized', got {which!r}")
+        submap = np.searchsorted(self.submap_first_scan, np.arange(self.scans), side="right") - 1
+        correction = self.optimized @ np.linalg.inv(self.navigation)
+        return correction[submap] @ self.scan_navigation

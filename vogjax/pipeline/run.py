@@ -1,0 +1,29 @@
+"""Batch reprocessing of a recorded run: every batch of scans into the mapper, in order."""
+
+from __future__ import annotations
+
+from tqdm import tqdm
+
+from vogjax.config import PipelineConfig
+from vogjax.io.dataset import Dataset
+from vogjax.pipeline.mapper import Mapper
+from vogjax.pipeline.result import Result
+
+
+def run(dataset, config: PipelineConfig | None = None, progress: bool = True) -> Result:
+    """Reprocess a run (a path or an open vogjax.io.dataset.Dataset) into maps."""
+    config = config or PipelineConfig()
+    own = not isinstance(dataset, Dataset)
+    ds = Dataset(dataset) if own else dataset
+    try:
+        if len(ds) == 0:
+            raise ValueError(f"dataset {str(ds.path)!r} holds no scans")
+        mapper = Mapper(config, ds.metadata)
+        with tqdm(total=len(ds), unit="scan", desc="mapping", disable=not progress) as bar:
+            for batch in ds.batches(config.batch_scans):
+                mapper.add(batch)
+                bar.update(len(batch))
+        return mapper.result()
+    finally:
+        if own:
+            ds.close()

@@ -1,0 +1,59 @@
+"""report.json: what a run produced and how well, in one document."""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+from importlib import metadata as package_metadata
+
+import numpy as np
+
+import vogjax
+
+
+def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) -> dict:
+    """The report of a pipeline `result` of the run at `run_path`, with its ground-truth
+    `metrics` ({} when the run has no scene), timing `curves` (or None), the pipeline's wall
+    time and the JobConfig used."""
+    steps = {name: float(np.sum(values)) for name, values in result.timings.items() if name != "reapplied"}
+    duration_s = result.duration_s
+    timing_s = {"pipeline": pipeline_s, "scans_per_s": result.scans / pipeline_s,
+                "real_time_factor": duration_s / pipeline_s, "steps": steps}
+    if curves is not None:
+        n = len(curves.online_s)
+        timing_s["update_per_submap"] = {"online": float(curves.online_s[-1]), "virtual": float(curves.virtual_s[-1]),
+                                         "full_merge": float(curves.full_merge_s[-1]), "submaps": n}
+        timing_s["query"] = {"rays": curves.rays, "global": float(curves.query_global_s[-1]),
+                             "virtual": float(curves.query_virtual_s[-1]),
+                             "submaps": int(curves.sampled_submaps[-1])}
+        timing_s["curves"] = curves.to_dict()
+    empty = dict.fromkeys(("online", "virtual", "full_merge", "standard"))
+    return {
+        "run": str(run_path), "scene": result.metadata.get("scene"), "scans": result.scans,
+        "duration_s": duration_s, "submaps": result.vog.num_submaps,
+        "auc": metrics.get("auc", empty),
+        "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),
+        "agreement": metrics.get("agreement"),
+        **result.metrics,
+        "timing_s": timing_s,
+        "config": dataclasses.asdict(config),
+        "versions": versions(),
+        "device": str(result.global_map.device),
+    }
+
+
+def versions() -> dict:
+    """Installed versions, read from package metadata (importing JAX just to ask costs a second)."""
+    installed = {name: package_metadata.version(package) for name, package in
+                 (("numpy", "numpy"), ("warp", "warp-lang"), ("jax", "jax"), ("gtsam", "gtsam"))}
+    return {"vogjax": vogjax.__version__, "python": platform.python_version(), **installed,
+            "platform": platform.platform()}
+
+
+def json_default(value):
+    """For json.dumps: NumPy scalars and arrays as plain numbers and lists."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")

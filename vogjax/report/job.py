@@ -1,0 +1,83 @@
+"""`vogjax map`: reprocess recorded runs into maps, evaluate them, and write a report per run.
+
+    reports = vj.report.map_runs(["run.h5"], "out", vj.config.JobConfig.from_toml("settings.toml"))
+
+Per run, in DIR/<run name>/: global_map.vog, trajectories.csv, report.json and figures
+(top_view.png, trajectory.png, roc.png, timing.png). Inputs, settings and the output folder are
+checked before any work starts; a run's folder appears only once every file in it is written.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from vogjax import pipeline, scenes
+from vogjax.config import JobConfig
+from vogjax.io.atomic import AtomicPath, check_writable
+from vogjax.io.dataset import Dataset
+from vogjax.report import document, files, plots, timing
+from vogjax.report.evaluate import evaluate_run
+
+
+def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True) -> list[dict]:
+    """Map each run in `paths` into out/<run name>/; returns the reports."""
+    config = config or JobConfig()
+    if not isinstance(config, JobConfig):
+        raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("paths must name at least one run file")
+    names = [p.stem for p in paths]
+    if len(set(names)) != len(names):
+        raise ValueError(f"paths: two runs would share an output folder: {names}")
+    for path in paths:  # every input readable before any output is written
+        with Dataset(path) as ds:
+            if len(ds) == 0:
+                raise ValueError(f"dataset {str(path)!r} holds no scans")
+    out = Path(out)
+    for path in paths:
+        check_writable(out / path.stem, folder=True)
+    return [_map_into(path, out / path.stem, config, progress) for path in paths]
+
+
+def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:
+    """Map one run into `out_dir` (replaced only when everything is written); its report."""
+    check_writable(out_dir, folder=True)
+    return _map_into(Path(path), Path(out_dir), config or JobConfig(), progress)
+
+
+def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> dict:
+    with Dataset(path) as ds:
+        start = time.perf_counter()
+        result = pipeline.run(ds, config.pipeline, progress)
+        pipeline_s = time.perf_counter() - start
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with AtomicPath(out_dir, folder=True) as folder:
+        return _evaluate_and_write(result, path, pipeline_s, config, folder, progress)
+
+
+def _evaluate_and_write(result, path: Path, pipeline_s: float, config: JobConfig, folder: Path,
+                        progress: bool) -> dict:
+    name = result.metadata.get("scene")
+    scene = scenes.load(name) if name in scenes.NAMES else None
+    metrics, roc = evaluate_run(result, scene, config.report.surface_points) if scene else ({}, {})
+    curves = (timing.measure(result, config.report.rays, config.report.timing_samples, progress=progress)
+              if config.report.timing_samples else None)
+    report = document.build(result, path, metrics, curves, pipeline_s, config)
+    # 1. the map and the trajectories
+    result.global_map.save(folder / "global_map.vog")
+    files.save_trajectories(result, folder / "trajectories.csv")
+    # 2. figures
+    centres, log_odds = result.global_map.voxels()
+    label = f"{path.stem}: {result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"
+    plots.top_view(centres, log_odds, result.config.map, folder / "top_view.png", title=f"{label}, top view")
+    plots.trajectories(result, folder / "trajectory.png", title=label)
+    if roc:
+        plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth")
+    if curves is not None:
+        plots.timing(curves, folder / "timing.png", title=f"{path.stem}, {result.global_map.device}")
+    # 3. the report last: its presence says the rest is there
+    (folder / "report.json").write_text(json.dumps(report, indent=2, default=document.json_default))
+    return report

@@ -1,0 +1,65 @@
+"""Measures of maps: ROC/AUC of occupancy against ground truth (Sodhi et al., Fig. 10),
+reconstruction RMSE after registration (Ho, Table 4.3), and agreement between two maps."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vogjax.config import IcpConfig
+from vogjax.maps import OCCUPIED
+from vogjax.slam import correlative_xyh, icp
+
+
+@dataclasses.dataclass(frozen=True)
+class Roc:
+    """false_positive_rate, true_positive_rate (T,) from the highest threshold down; auc."""
+
+    false_positive_rate: np.ndarray
+    true_positive_rate: np.ndarray
+    thresholds: np.ndarray
+    auc: float
+
+
+def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
+    """ROC of `scores` (occupancy probability per voxel) against truth `occupied` (bool).
+
+    Ties share a threshold, so an uninformative map (all 0.5) gets AUC 0.5 exactly."""
+    scores = np.asarray(scores, dtype=np.float64)
+    occupied = np.asarray(occupied, dtype=bool)
+    if scores.shape != occupied.shape or scores.ndim != 1:
+        raise ValueError("scores and occupied must be 1-D arrays of the same length")
+    positives, negatives = occupied.sum(), (~occupied).sum()
+    if positives == 0 or negatives == 0:
+        raise ValueError("occupied must hold both occupied and free voxels")
+    order = np.argsort(-scores, kind="stable")
+    s, o = scores[order], occupied[order]
+    last_of_tie = np.r_[np.flatnonzero(np.diff(s)), len(s) - 1]
+    tp = np.cumsum(o)[last_of_tie]
+    fp = np.cumsum(~o)[last_of_tie]
+    tpr = np.r_[0.0, tp / positives]
+    fpr = np.r_[0.0, fp / negatives]
+    return Roc(fpr, tpr, np.r_[np.inf, s[last_of_tie]], float(np.trapezoid(tpr, fpr)))
+
+
+def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
+                        search_radius_m: float = 3.0) -> float:
+    """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
+    registering them to it: a correlative x-y-yaw search within `search_radius_m` (a drifted
+    map can sit farther off than ICP reaches), then point-to-plane ICP."""
+    config = config or IcpConfig(max_correspondence_m=0.5)
+    seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
+    result = icp(points, surface, seed.T_target_source, config=config)
+    moved = points @ result.T_target_source[:3, :3].T + result.T_target_source[:3, 3]
+    distance, _ = cKDTree(surface).query(moved, workers=-1)
+    return float(np.sqrt(np.mean(distance**2)))
+
+
+def misclassified(states_a: np.ndarray, states_b: np.ndarray) -> dict:
+    """How many voxels two maps classify differently, and how many of those are occupied in one."""
+    states_a, states_b = np.asarray(states_a), np.asarray(states_b)
+    differ = states_a != states_b
+    return {"voxels": int(len(states_a)), "misclassified": int(differ.sum()),
+            "occupied_disagreements": int((differ & ((states_a == OCCUPIED) | (states_b == OCCUPIED))).sum())}
