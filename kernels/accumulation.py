@@ -7,7 +7,7 @@ then gets at most one value per submap, whatever the rotation: no holes, no doub
 Work is enumerated per submap block: the global voxel centres inside the block's transformed
 box are found column by column (x, y) with a z range from the box's slabs, widened by a voxel
 and then filtered exactly, so each global voxel is visited by the one block it pulls from. One
-launch covers the blocks of many submaps (`PullSource` each, rows = (submap, block)); sums are
+launch covers the blocks of many submaps (a `SubmapView` each, rows = (submap, block)); sums are
 integer atomics, so their order never matters. On the CPU a launch is split across threads
 only within one submap, where no two threads write the same global voxel (CPU atomics are not
 atomic across threads).
@@ -18,63 +18,19 @@ the exact bits a map without it would hold.
 
 import warp as wp
 
+from .fixed_point import from_fixed_point, to_fixed_point
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_slot, index_in_block, pack_block, unpack_block
+from .submap_view import SubmapView, pull_voxel, voxel_centre
 from .traversal import same_voxel
 
 wp.set_module_options({"enable_backward": False})
 
-FIXED_POINT_SCALE = 16777216.0  # 2^24 steps per unit of log-odds
-SCALE = wp.constant(wp.float64(FIXED_POINT_SCALE))
 # Global voxel centres near a rotated 8-voxel block: at most 14 indices per axis, plus margins.
 COLUMN_SPAN = 18
 # ... which meet at most 4 global blocks per axis.
 BLOCKS_PER_BOX = 64
 SPAN = wp.constant(COLUMN_SPAN)
 FAR = wp.constant(wp.float64(1.0e300))
-
-
-@wp.struct
-class PullSource:
-    """A submap placed in the world: its block pool and the pose it is pulled at."""
-
-    slot_keys: wp.uint64  # pointer to int64[capacity]
-    log_odds: wp.uint64  # pointer to float32[capacity * BLOCK_VOXELS]
-    capacity: int
-    rotation: wp.mat33d
-    rotation_t: wp.mat33d
-    translation: wp.vec3d
-
-
-@wp.func
-def to_fixed_point(value: wp.float32) -> wp.int64:
-    return wp.int64(wp.round(wp.float64(value) * SCALE))
-
-
-@wp.func
-def from_fixed_point(total: wp.int64, count: wp.int32, clamp_min: wp.float32,
-                     clamp_max: wp.float32) -> wp.float32:
-    """Clamped log-odds of a fixed-point sum; NaN where no submap contributes."""
-    if count == 0:
-        return wp.nan
-    return wp.clamp(wp.float32(wp.float64(total) / SCALE), clamp_min, clamp_max)
-
-
-@wp.func
-def pull_voxel(centre: wp.vec3d, rotation_t: wp.mat33d, translation: wp.vec3d,
-               inv_resolution: wp.float64) -> wp.vec3i:
-    """The submap voxel containing a world point: floor(R^T (x - t) / s)."""
-    local = rotation_t * (centre - translation)
-    return wp.vec3i(int(wp.floor(local[0] * inv_resolution)),
-                    int(wp.floor(local[1] * inv_resolution)),
-                    int(wp.floor(local[2] * inv_resolution)))
-
-
-@wp.func
-def voxel_centre(voxel: wp.vec3i, resolution: wp.float64) -> wp.vec3d:
-    half = wp.float64(0.5)
-    return wp.vec3d((wp.float64(voxel[0]) + half) * resolution,
-                    (wp.float64(voxel[1]) + half) * resolution,
-                    (wp.float64(voxel[2]) + half) * resolution)
 
 
 @wp.func
@@ -146,7 +102,7 @@ def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
 
 
 @wp.kernel
-def collect_pull_blocks(sources: wp.array(dtype=PullSource), row_source: wp.array(dtype=wp.int32),
+def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
                         row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
                         inv_resolution: wp.float64, global_keys: wp.array2d(dtype=wp.int64)):
     """global_keys[row, :] = the global blocks a row's submap block contributes to (EMPTY elsewhere)."""
@@ -154,11 +110,11 @@ def collect_pull_blocks(sources: wp.array(dtype=PullSource), row_source: wp.arra
     row = first_row + b
     source = sources[row_source[row]]
     slot = row_slot[row]
-    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.capacity,), dtype=wp.int64)
+    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.block_capacity,), dtype=wp.int64)
     key = local_slot_keys[slot]
     if key == EMPTY_KEY:
         return
-    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.capacity * BLOCK_VOXELS,), dtype=wp.float32)
+    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.block_capacity * BLOCK_VOXELS,), dtype=wp.float32)
     rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
     block = unpack_block(key)
     start, last = block_box(block, rotation, translation, resolution)
@@ -178,7 +134,7 @@ def collect_pull_blocks(sources: wp.array(dtype=PullSource), row_source: wp.arra
 
 
 @wp.kernel
-def accumulate_pulls(sources: wp.array(dtype=PullSource), row_source: wp.array(dtype=wp.int32),
+def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
                      row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
                      inv_resolution: wp.float64, sign: int, table_keys: wp.array(dtype=wp.int64),
                      table_slots: wp.array(dtype=wp.int32), part: int,
@@ -189,11 +145,11 @@ def accumulate_pulls(sources: wp.array(dtype=PullSource), row_source: wp.array(d
     row = first_row + b
     source = sources[row_source[row]]
     slot = row_slot[row]
-    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.capacity,), dtype=wp.int64)
+    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.block_capacity,), dtype=wp.int64)
     key = local_slot_keys[slot]
     if key == EMPTY_KEY:
         return
-    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.capacity * BLOCK_VOXELS,), dtype=wp.float32)
+    local_log_odds = wp.array(ptr=source.log_odds, shape=(source.block_capacity * BLOCK_VOXELS,), dtype=wp.float32)
     rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
     block = unpack_block(key)
     start, last = block_box(block, rotation, translation, resolution)

@@ -1,50 +1,18 @@
 """Virtual-map queries: the sum over submaps, evaluated on the fly (Ho et al.'s VOG-map).
 
-Each submap is described by a `SubmapView` (pointers to its table and voxel pool, its pose and
-its box); kernels run over (query, submap) pairs and skip pairs whose box the query misses.
+Each submap is described by a `SubmapView` (`submap_view.py`); kernels run over (query, submap)
+pairs and skip pairs whose box the query misses.
 Values pull exactly like the global map (kernels/accumulation.py), so at voxel centres the
 virtual map and the global map agree bit for bit.
 """
 
 import warp as wp
 
-from .accumulation import from_fixed_point, pull_voxel, to_fixed_point, voxel_centre
-from .hashing import BLOCK_VOXELS, find_slot, index_in_block, pack_block, block_of, voxel_key_in_range
+from .fixed_point import from_fixed_point, to_fixed_point
+from .submap_view import SubmapView, submap_value, voxel_centre
 from .traversal import ray_walk_begin, walk_step
 
 wp.set_module_options({"enable_backward": False})
-
-
-@wp.struct
-class SubmapView:
-    table_keys: wp.uint64  # pointer to int64[table_capacity]
-    table_slots: wp.uint64  # pointer to int32[table_capacity]
-    table_capacity: int
-    log_odds: wp.uint64  # pointer to float32[pool_size]
-    pool_size: int
-    rotation_t: wp.mat33d  # R^T of T_world_submap
-    translation: wp.vec3d  # t of T_world_submap
-    box_lo: wp.vec3d  # submap-frame box of the observed voxels, widened by one voxel
-    box_hi: wp.vec3d
-
-
-@wp.func
-def submap_value(view: SubmapView, world: wp.vec3d, inv_resolution: wp.float64) -> wp.float32:
-    """Log-odds of the submap voxel holding a world point; NaN if outside its box or unobserved."""
-    local = view.rotation_t * (world - view.translation)
-    for axis in range(3):
-        if local[axis] < view.box_lo[axis] or local[axis] > view.box_hi[axis]:
-            return wp.nan
-    voxel = pull_voxel(world, view.rotation_t, view.translation, inv_resolution)
-    if not voxel_key_in_range(voxel):
-        return wp.nan
-    keys = wp.array(ptr=view.table_keys, shape=(view.table_capacity,), dtype=wp.int64)
-    slots = wp.array(ptr=view.table_slots, shape=(view.table_capacity,), dtype=wp.int32)
-    slot = find_slot(keys, slots, pack_block(block_of(voxel)))
-    if slot < 0:
-        return wp.nan
-    pool = wp.array(ptr=view.log_odds, shape=(view.pool_size,), dtype=wp.float32)
-    return pool[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
 
 @wp.kernel

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import vogjax as vj
-from vogjax.io import atomic, mapfile
+from vogjax.io import atomic
 
 from . import reference as ref
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import vogjax as vj
-from vogjax import cli, pipeline, report
+from vogjax import cli, pipeline
 from vogjax.config import JobConfig
 from vogjax.report import job
 from vogjax.geometry import log_se3

@@ -48,6 +48,15 @@ class BlockMap:
         self._store = BlockStore(self.device, {"log_odds": (wp.float32, math.nan), **layers})
         self._lock = ReadWriteLock()
 
+    @property
+    def store(self) -> BlockStore:
+        """The block storage, for kernel launchers in vogjax.maps (read it under `reading()`)."""
+        return self._store
+
+    def reading(self):
+        """Context manager holding the map's read lock: no update runs while it is held."""
+        return self._lock.reading()
+
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
         check_extent(self.config, origins=origins, points=points)
 

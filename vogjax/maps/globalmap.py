@@ -27,6 +27,7 @@ from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation
 from vogjax.kernels.hashing import EMPTY_KEY
 from vogjax.maps.submaps import VogMap
+from vogjax.maps.views import submap_views
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
 # Marginals whose x, y, yaw block fails these checks are not covariances.
@@ -108,7 +109,7 @@ class GlobalMap(BlockMap):
         update_poses; None: not known, so these submaps count as uncertain until re-applied."""
         self._check_vog(vog)
         volumes = self._volumes(vog, marginals)
-        ids = [int(i) for i in vog._ids("ids", ids)]
+        ids = [int(i) for i in vog.check_ids("ids", ids)]
         already = [i for i in ids if i in self._applied]
         if already or len(set(ids)) != len(ids):
             raise ValueError(f"ids: submaps {already or ids} are already in the global map (or repeated); "
@@ -221,21 +222,12 @@ class GlobalMap(BlockMap):
         with contextlib.ExitStack() as stack:
             # each lock once: a view may hold one submap twice, and a second read acquire could
             # queue behind a waiting writer
-            for lock in {id(submap._lock): submap._lock for submap, _ in items}.values():
-                stack.enter_context(lock.reading())
-            counts = np.array([submap._store.num_blocks for submap, _ in items])
+            for submap in {id(submap): submap for submap, _ in items}.values():
+                stack.enter_context(submap.reading())
+            counts = np.array([submap.store.num_blocks for submap, _ in items])
             offsets = np.concatenate([[0], np.cumsum(counts)])
-            # per-item records built column-wise (a Warp struct per item costs 50 us of Python)
-            poses = np.stack([pose for _, pose in items])
-            sources = np.zeros(len(items), dtype=accumulation.PullSource.numpy_dtype())
-            sources["slot_keys"] = [submap._store.slot_keys.ptr for submap, _ in items]
-            sources["log_odds"] = [submap._store.layers["log_odds"].ptr for submap, _ in items]
-            sources["capacity"] = [submap._store.block_capacity for submap, _ in items]
-            sources["rotation"] = poses[:, :3, :3]
-            sources["rotation_t"] = poses[:, :3, :3].transpose(0, 2, 1)
-            sources["translation"] = poses[:, :3, 3]
             rows = int(offsets[-1])
-            common = [wp.array(sources, dtype=accumulation.PullSource, device=device),
+            common = [submap_views([submap for submap, _ in items], np.stack([pose for _, pose in items]), device),
                       wp.array(np.repeat(np.arange(len(items), dtype=np.int32), counts), dtype=wp.int32, device=device),
                       wp.array((np.arange(rows) - np.repeat(offsets[:-1], counts)).astype(np.int32), dtype=wp.int32,
                                device=device)]

@@ -13,8 +13,9 @@ from vogjax.maps import parallel
 from vogjax.maps.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds, ray_arguments
 from vogjax.config import MapConfig
 from vogjax.geometry import rigid_poses
-from vogjax.kernels import accumulation, virtual
+from vogjax.kernels import fixed_point, virtual
 from vogjax.maps.locking import ReadWriteLock
+from vogjax.maps.views import submap_views
 from vogjax.validation import float_array
 from vogjax.maps.voxelmap import VoxelMap
 
@@ -80,20 +81,20 @@ class VogMap:
             return len(self._submaps) - 1
 
     def submap(self, i) -> Submap:
-        return self._submaps[self._ids("i", [i])[0]]
+        return self._submaps[self.check_ids("i", [i])[0]]
 
     def pose(self, i) -> np.ndarray:
-        return self._poses[self._ids("i", [i])[0]].copy()
+        return self._poses[self.check_ids("i", [i])[0]].copy()
 
     def poses(self, ids=None) -> np.ndarray:
         """(n,4,4) poses of `ids` (all submaps when None)."""
         if ids is None:
             return self._poses.copy()
-        return self._poses[self._ids("ids", ids)].copy()
+        return self._poses[self.check_ids("ids", ids)].copy()
 
     def set_poses(self, ids, poses) -> None:
         """Move submaps `ids` to `poses` (n,4,4); their contents stay as they are."""
-        ids = self._ids("ids", ids)
+        ids = self.check_ids("ids", ids)
         poses = rigid_poses("poses", poses, count=len(ids))
         with self._lock.writing():
             self._poses[ids] = poses
@@ -101,14 +102,15 @@ class VogMap:
     def view(self, ids=None, poses=None) -> "VogMap":
         """A VogMap over the same submap objects (no copies): `ids` of them (all when None), at
         `poses` (their own when None). Handy for "the map without loop closures"."""
-        ids = np.arange(self.num_submaps) if ids is None else self._ids("ids", ids)
+        ids = np.arange(self.num_submaps) if ids is None else self.check_ids("ids", ids)
         poses = self._poses[ids] if poses is None else rigid_poses("poses", poses, count=len(ids))
         other = VogMap(self.config, self.device)
         other._submaps = [self._submaps[i] for i in ids]
         other._poses = poses.copy()
         return other
 
-    def _ids(self, name: str, ids) -> np.ndarray:
+    def check_ids(self, name: str, ids) -> np.ndarray:
+        """`ids` as an int64 array of this map's submap ids; ValueError naming `name` otherwise."""
         array = np.atleast_1d(np.asarray(ids))
         if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
             raise ValueError(f"{name} must be submap ids (integers), got {ids!r}")
@@ -119,30 +121,14 @@ class VogMap:
     # ---------------------------------------------------------------- virtual queries
     @contextlib.contextmanager
     def _views(self):
-        """Device array of SubmapViews at the current poses, with every submap read-locked."""
+        """Device array of SubmapViews of the observed submaps at their current poses, with
+        every submap read-locked."""
         with contextlib.ExitStack() as stack:
             stack.enter_context(self._lock.reading())
             for submap in self._submaps:
-                stack.enter_context(submap._lock.reading())
-            views = []
-            margin = self.config.voxel_size
-            for submap, pose in zip(self._submaps, self._poses):
-                box = submap.bounds()
-                if box is None:
-                    continue
-                store = submap._store
-                view = virtual.SubmapView()
-                view.table_keys = store.table_keys.ptr
-                view.table_slots = store.table_slots.ptr
-                view.table_capacity = store.table_capacity
-                view.log_odds = store.layers["log_odds"].ptr
-                view.pool_size = store.layers["log_odds"].shape[0]
-                view.rotation_t = wp.mat33d(pose[:3, :3].T)
-                view.translation = wp.vec3d(pose[:3, 3])
-                view.box_lo = wp.vec3d(box[0] - margin)
-                view.box_hi = wp.vec3d(box[1] + margin)
-                views.append(view)
-            yield wp.array(views, dtype=virtual.SubmapView, device=self.device)
+                stack.enter_context(submap.reading())
+            observed = [i for i, submap in enumerate(self._submaps) if submap.bounds() is not None]
+            yield submap_views([self._submaps[i] for i in observed], self._poses[observed], self.device)
 
     def _values_at(self, points: np.ndarray) -> np.ndarray:
         """Clamped summed log-odds at world points (M,3) float64; NaN where no submap observed."""
@@ -220,8 +206,8 @@ class VogMap:
 
 
 def fixed_point_values(sums: np.ndarray, counts: np.ndarray, config: MapConfig) -> np.ndarray:
-    """Host twin of accumulation.from_fixed_point: clamped log-odds, NaN where count is 0."""
-    values = (sums.astype(np.float64) / accumulation.FIXED_POINT_SCALE).astype(np.float32)
+    """Host twin of fixed_point.from_fixed_point: clamped log-odds, NaN where count is 0."""
+    values = (sums.astype(np.float64) / fixed_point.FIXED_POINT_SCALE).astype(np.float32)
     values = np.clip(values, config.log_clamp_min, config.log_clamp_max)
     values[counts == 0] = math.nan
     return values
