@@ -1,9 +1,17 @@
-"""Simulated (or recorded) runs: one HDF5 file per run, chunked and appendable.
+"""Recorded runs: one HDF5 file per run, chunked and appendable.
 
-Per scan: time_s, pose_truth and pose_nav (4,4, T_world_vehicle), sonar_origin (3,) and
-sonar_directions (B,3) in the vehicle frame, ranges (B,) metres (NaN: no return) and no_return
-(B,). File attributes: format, format_version, scene, seed, sensor model, navigation noise,
-vogjax version. Published atomically on close (`vogjax.io.atomic`): a run is whole or absent.
+Per scan: time_s, pose_nav and (when the run has ground truth) pose_truth (4,4,
+T_world_vehicle), sonar_origin (3,) and sonar_directions (B,3) in the vehicle frame (any range
+sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return) and
+no_return (B,). File attributes: format, format_version, has_truth, metadata (JSON: scene,
+seed, sensor, navigation noise, vogjax version, ...).
+
+Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2; a damaged chunk cannot be
+read back), and every batch is checked for physical sense as it is written and as it is read
+(finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km] with NaN
+exactly where no_return is set). Runs of format 1 (no checksums, always with ground truth)
+still load and are checked the same way. A file is published atomically on close
+(`vogjax.io.atomic`): a run is whole or absent.
 """
 
 from __future__ import annotations
@@ -15,11 +23,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from vogjax.geometry import RIGID_TOLERANCE
 from vogjax.io.atomic import AtomicPath
 from vogjax.sensors.base import world_rays
 
 FORMAT = "vogjax-run"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+MAX_RANGE_M = 10_000.0  # no range sensor reaches farther; larger values are damage
+MAX_BEAMS = 1 << 20
 _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "time_s": (lambda b: (), np.float64),
     "pose_truth": (lambda b: (4, 4), np.float64),
@@ -33,11 +44,12 @@ _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
 
 @dataclasses.dataclass(frozen=True)
 class ScanBatch:
-    """Consecutive scans: each field as in the file, with a leading scan axis."""
+    """Consecutive scans: each field as in the file, with a leading scan axis (pose_truth None
+    when the run has no ground truth)."""
 
     first: int
     time_s: np.ndarray
-    pose_truth: np.ndarray
+    pose_truth: np.ndarray | None
     pose_nav: np.ndarray
     sonar_origin: np.ndarray
     sonar_directions: np.ndarray
@@ -49,40 +61,108 @@ class ScanBatch:
 
     def rows(self, lo: int, hi: int) -> "ScanBatch":
         """Scans lo to hi of this batch."""
-        fields = {f.name: getattr(self, f.name)[lo:hi] for f in dataclasses.fields(self) if f.name != "first"}
-        return ScanBatch(self.first + lo, **fields)
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "first"}
+        return ScanBatch(self.first + lo, **{k: None if v is None else v[lo:hi] for k, v in fields.items()})
 
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """Sonar origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
+        """Sensor origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
         Beams without a return end past max_range_m (free space up to it, no hit)."""
         return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return,
                           max_range_m)
 
 
-class DatasetWriter:
-    """Append scans to a new run file; `close()` (or the `with` block) publishes it."""
+def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf) -> None:
+    """ValueError naming `where` and the field unless the scans in `fields` make physical
+    sense (see the module docstring); `after_time_s`: the time of the scan before them."""
+    count = len(fields["time_s"])
+    for name, (shape, _) in _FIELDS.items():
+        if fields.get(name) is None:
+            continue
+        value = fields[name]
+        if np.shape(value) != (count, *shape(beams)):
+            raise ValueError(f"{where}: {name} has shape {np.shape(value)}, expected {(count, *shape(beams))}")
+    time_s = np.asarray(fields["time_s"], dtype=np.float64)
+    if not np.all(np.isfinite(time_s)) or np.any(np.diff(np.r_[after_time_s, time_s]) <= 0):
+        raise ValueError(f"{where}: time_s must be finite and strictly increasing")
+    for name in ("pose_nav", "pose_truth"):
+        if fields.get(name) is None:
+            continue
+        poses = np.asarray(fields[name], dtype=np.float64)
+        if not np.all(np.isfinite(poses)):
+            raise ValueError(f"{where}: {name} holds NaN or infinite values")
+        rotations = poses[:, :3, :3]
+        error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
+        if error > 1e3 * RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0) or \
+                np.any(poses[:, 3] != [0.0, 0.0, 0.0, 1.0]):
+            raise ValueError(f"{where}: {name} holds transforms that are not rigid")
+    origin = np.asarray(fields["sonar_origin"], dtype=np.float64)
+    if not np.all(np.isfinite(origin)) or np.abs(origin).max(initial=0.0) > MAX_RANGE_M:
+        raise ValueError(f"{where}: sonar_origin must be finite and within {MAX_RANGE_M:g} m of the vehicle")
+    norms = np.linalg.norm(np.asarray(fields["sonar_directions"], dtype=np.float64), axis=-1)
+    if not np.all(np.abs(norms - 1.0) < 1e-3):
+        raise ValueError(f"{where}: sonar_directions must be unit vectors")
+    ranges = np.asarray(fields["ranges"], dtype=np.float64)
+    no_return = np.asarray(fields["no_return"])
+    if no_return.dtype != np.bool_:
+        raise ValueError(f"{where}: no_return must be boolean")
+    returned = ranges[~no_return]
+    if not np.all(np.isnan(ranges[no_return])) or not np.all(np.isfinite(returned)):
+        raise ValueError(f"{where}: ranges must be NaN exactly where no_return is set")
+    if returned.size and (returned.min() < 0 or returned.max() > MAX_RANGE_M):
+        raise ValueError(f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found "
+                         f"[{returned.min():.3g}, {returned.max():.3g}]")
 
-    def __init__(self, path, beams: int, metadata: dict):
+
+class DatasetWriter:
+    """Append scans to a new run file; `close()` (or the `with` block) publishes it.
+
+    beams: B, beams per scan; metadata: JSON-able dict; truth: whether scans carry pose_truth.
+    """
+
+    def __init__(self, path, beams: int, metadata: dict, truth: bool = True):
+        if not (isinstance(beams, (int, np.integer)) and 1 <= beams <= MAX_BEAMS):
+            raise ValueError(f"beams must be an integer in [1, {MAX_BEAMS}], got {beams!r}")
+        try:
+            encoded = json.dumps(metadata, allow_nan=False)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"metadata must be JSON-able: {error}") from None
+        if not isinstance(metadata, dict):
+            raise ValueError("metadata must be a dict")
         self.path = Path(path)
+        self.beams = int(beams)
+        self.truth = bool(truth)
+        self._last_time_s = -np.inf
         self._publication = AtomicPath(self.path)
         self._file = h5py.File(self._publication.temporary, "w")
         self._file.attrs["format"] = FORMAT
         self._file.attrs["format_version"] = FORMAT_VERSION
-        self._file.attrs["metadata"] = json.dumps(metadata)
-        for name, (shape, dtype) in _FIELDS.items():
+        self._file.attrs["has_truth"] = self.truth
+        self._file.attrs["metadata"] = encoded
+        for name, (shape, dtype) in self._fields().items():
             tail = shape(beams)
             self._file.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail), dtype=dtype,
-                                      chunks=(256, *tail), compression="lzf")
+                                      chunks=(256, *tail), compression="lzf", fletcher32=True)
+
+    def _fields(self) -> dict:
+        return {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
 
     def append(self, **fields) -> None:
-        missing = set(_FIELDS) - set(fields)
-        if missing:
-            raise ValueError(f"fields missing: {', '.join(sorted(missing))}")
+        """Append scans: every field of the format (pose_truth only when `truth`), each with a
+        leading scan axis. Checked first: a ValueError leaves the file as it was."""
+        expected = set(self._fields())
+        if set(fields) != expected:
+            missing, extra = expected - set(fields), set(fields) - expected
+            raise ValueError(f"fields missing: {', '.join(sorted(missing)) or '-'}; unexpected: "
+                             f"{', '.join(sorted(extra)) or '-'}")
+        check_scans(fields, self.beams, f"scans for {str(self.path)!r}", self._last_time_s)
         count = len(fields["time_s"])
-        for name in _FIELDS:
+        if count == 0:
+            return
+        for name in expected:
             data = self._file[name]
             data.resize(data.shape[0] + count, axis=0)
             data[-count:] = fields[name]
+        self._last_time_s = float(fields["time_s"][-1])
 
     def close(self) -> None:
         if self._file:
@@ -104,7 +184,8 @@ class DatasetWriter:
 
 
 class Dataset:
-    """A run file opened for reading: `len(ds)` scans, `ds.metadata`, `ds.batches(size)`."""
+    """A run file opened for reading: `len(ds)` scans, `ds.metadata`, `ds.has_truth`,
+    `ds.batches(size)` (each batch checked as it is read), `ds.validate()` (the whole file)."""
 
     def __init__(self, path):
         self.path = Path(path)
@@ -123,9 +204,19 @@ class Dataset:
             if version > FORMAT_VERSION:
                 raise ValueError(f"{where} has run format version {version}; this vogjax reads up to "
                                  f"{FORMAT_VERSION}: upgrade vogjax")
+            self.has_truth = bool(attrs.get("has_truth", True))
             self.metadata = json.loads(attrs["metadata"])
-            lengths = {name: self._file[name].shape[0] for name in _FIELDS}
-        except (KeyError, TypeError, json.JSONDecodeError) as error:
+            if not isinstance(self.metadata, dict):
+                raise ValueError(f"{where} is damaged: its metadata is not a JSON object")
+            names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"]
+            lengths = {name: self._file[name].shape[0] for name in names}
+            self.beams = int(self._file["ranges"].shape[1])
+            for name in names:
+                shape, dtype = _FIELDS[name]
+                if self._file[name].shape[1:] != shape(self.beams) or self._file[name].dtype != dtype:
+                    raise ValueError(f"{where} is damaged: field {name} has shape {self._file[name].shape} "
+                                     f"and type {self._file[name].dtype}")
+        except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError) as error:
             self._file.close()
             raise ValueError(f"{where} is damaged: {error}") from None
         except ValueError:
@@ -135,22 +226,36 @@ class Dataset:
             self._file.close()
             raise ValueError(f"{where} is damaged: fields hold different numbers of scans {lengths}")
         self._length = lengths["time_s"]
+        self._last_time_s = {}  # first scan of a batch -> time of the scan before it, once read
 
     def __len__(self) -> int:
         return self._length
 
     def read(self, first: int, last: int) -> ScanBatch:
+        """Scans first to last, checked (ValueError naming the file when damaged)."""
+        where = f"path {str(self.path)!r}"
         try:
-            return ScanBatch(first, **{name: self._file[name][first:last] for name in _FIELDS})
-        except OSError as error:  # a chunk that cannot be read or decompressed
-            raise ValueError(f"path {str(self.path)!r} is damaged: {error}") from None
+            fields = {name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
+                      for name in _FIELDS}
+        except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
+            raise ValueError(f"{where} is damaged: {error}") from None
+        before = self._last_time_s.get(first, -np.inf)
+        check_scans(fields, self.beams, f"{where} is damaged (scans {first}-{last - 1})", before)
+        if last > first:
+            self._last_time_s[last] = float(fields["time_s"][-1])
+        return ScanBatch(first, **fields)
 
     def batches(self, size: int = 200):
         """ScanBatch after ScanBatch of `size` scans (streamed, not loaded whole)."""
-        if size < 1:
-            raise ValueError(f"size must be positive, got {size!r}")
+        if not (isinstance(size, (int, np.integer)) and size >= 1):
+            raise ValueError(f"size must be a positive integer, got {size!r}")
         for first in range(0, len(self), size):
             yield self.read(first, min(first + size, len(self)))
+
+    def validate(self, size: int = 2000) -> None:
+        """Read and check every scan (a ValueError names the file and the damage)."""
+        for _ in self.batches(size):
+            pass
 
     def close(self) -> None:
         self._file.close()

@@ -36,6 +36,7 @@ def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True)
         with Dataset(path) as ds:
             if len(ds) == 0:
                 raise ValueError(f"dataset {str(path)!r} holds no scans")
+            ds.validate()
     out = Path(out)
     for path in paths:
         check_writable(out / path.stem, folder=True)
