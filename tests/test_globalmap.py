@@ -186,6 +186,32 @@ def test_a_submap_applied_while_uncertain_is_reapplied_when_a_closure_moves_it()
     assert unknown.update_poses(vog, marginals).reapplied == (11,)
 
 
+def test_a_creeping_submap_with_an_unknown_marginal_counts_as_uncertain():
+    rng = np.random.default_rng(8)
+    vog = random_vog(rng, 12, scans=1, beams=20)
+    certain = np.tile(np.eye(6) * 1e-4, (12, 1, 1))
+    applied_uncertain = certain.copy()
+    applied_uncertain[7] = np.nan  # its marginal was not computed when it was added
+    gmap = vj.GlobalMap(vog.config)
+    gmap.add(vog, range(12), applied_uncertain)
+    # submap 7 creeps 1.5 mm per update: below eps_trans each time, past it after two
+    poses = vog.poses()
+    for step in range(2):
+        poses[7, :3, 3] += [0.0015, 0, 0]
+        vog.set_poses(np.arange(12), poses)
+        marginals = certain.copy()
+        marginals[7] = np.nan  # not computed now either: unknown, so uncertain (zero would read certain)
+        report = gmap.update_poses(vog, marginals, eps_trans=2e-3)
+    assert report.moved == (7,) and report.reapplied == (7,)
+    fresh = vj.GlobalMap(vog.config)
+    fresh.merge(vog)
+    assert as_dict(fresh) == as_dict(gmap)
+    # rows partly NaN are not "unknown": they are damage
+    marginals[7, 0, 0] = 1e-4
+    with pytest.raises(ValueError, match="marginals"):
+        gmap.update_poses(vog, marginals)
+
+
 def test_queries_during_updates_see_before_or_after_never_half():
     rng = np.random.default_rng(5)
     vog = random_vog(rng, 3, scans=3, beams=80)
@@ -244,7 +270,7 @@ def test_save_load_round_trip_keeps_applied_poses(tmp_path):
 @pytest.mark.parametrize("call, argument", [
     (lambda g, v: g.update_poses(v, marginals=np.zeros((2, 6, 6))), "marginals"),
     (lambda g, v: g.update_poses(v, marginals=np.zeros((3, 6))), "marginals"),
-    (lambda g, v: g.update_poses(v, marginals=np.full((3, 6, 6), np.nan)), "marginals"),
+    (lambda g, v: g.update_poses(v, marginals=np.where(np.eye(6) > 0, np.nan, np.zeros((3, 6, 6)))), "marginals"),
     (lambda g, v: g.update_poses(v, marginals=np.tile(np.triu(np.ones((6, 6))), (3, 1, 1))), "marginals"),
     (lambda g, v: g.update_poses(v, marginals=-np.tile(np.eye(6), (3, 1, 1))), "marginals"),
     (lambda g, v: g.update_poses(v, eps_rot=-1.0), "eps_rot"),

@@ -129,8 +129,9 @@ class GlobalMap(BlockMap):
         the relative pose. S2: submaps whose marginal covariance (`marginals`, (N,6,6) for all
         N submaps, GTSAM tangent order: rotation then translation) has a 95% x-y-yaw confidence
         ellipsoid larger than `eps_cov` now, or had when the submap was last applied; "auto"
-        takes the largest current volume among submaps 0-9, as the paper does.
-        `marginals=None` puts every submap in S2.
+        takes the largest current volume among submaps 0-9, as the paper does. A row of NaN
+        means "not computed" and counts as uncertain (never pass zeros for unknown: zero
+        reads as perfectly certain). `marginals=None` puts every submap in S2.
 
         Why "or when last applied": a loop closure that moves an uncertain submap usually also
         makes it certain. Judged by the new marginal alone, it would be left in the map at its
@@ -180,19 +181,27 @@ class GlobalMap(BlockMap):
             raise ValueError("marginals must be an array of shape (N, 6, 6)") from None
         if marginals.shape != (vog.num_submaps, 6, 6):
             raise ValueError(f"marginals must have shape ({vog.num_submaps}, 6, 6), got {marginals.shape}")
-        if not np.all(np.isfinite(marginals)):
-            raise ValueError("marginals contains NaN or infinite values")
-        scale = np.abs(marginals).max(initial=1.0)
-        if np.abs(marginals - marginals.transpose(0, 2, 1)).max(initial=0.0) > _SYMMETRY_TOLERANCE * scale:
+        unknown = np.all(np.isnan(marginals), axis=(1, 2))  # "not computed": counts as uncertain
+        known = marginals[~unknown]
+        if not np.all(np.isfinite(known)):
+            raise ValueError("marginals contains infinite values, or NaN in rows that are not all NaN "
+                             "(a row of NaN means: not computed)")
+        scale = np.abs(known).max(initial=1.0)
+        if np.abs(known - known.transpose(0, 2, 1)).max(initial=0.0) > _SYMMETRY_TOLERANCE * scale:
             raise ValueError("marginals must be symmetric")
-        if len(marginals) and np.linalg.eigvalsh(marginals).min() < -1e-9 * scale:
+        if len(known) and np.linalg.eigvalsh(known).min() < -1e-9 * scale:
             raise ValueError("marginals must be positive semi-definite")
-        return confidence_volume(marginals)
+        volumes = np.full(len(marginals), np.inf)
+        volumes[~unknown] = confidence_volume(known)
+        return volumes
 
     @staticmethod
     def _threshold(volumes: np.ndarray | None, eps_cov) -> float | None:
         if eps_cov == "auto":
-            return float(volumes[:10].max()) if volumes is not None and len(volumes) else None
+            if volumes is None or len(volumes) == 0:
+                return None
+            known = volumes[:10][np.isfinite(volumes[:10])]
+            return float(known.max()) if len(known) else 0.0
         return None if volumes is None else float(eps_cov)
 
     def _check_vog(self, vog) -> None:

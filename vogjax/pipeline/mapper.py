@@ -111,13 +111,15 @@ class Mapper:
         start = time.perf_counter()
         for closure in accepted:
             self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
-        before = self.vog.poses()
         poses = self.graph.update()
-        # marginals of the submaps that moved, of the first ten (they set eps_cov) and the new one
-        angle, shift = pose_deltas(before, poses)
+        # marginals of the submaps now off the pose the global map holds them at (Algorithm 1's
+        # S1, however small each step was), of the first ten (they set eps_cov) and the new one;
+        # the rest are not computed (NaN), never zero
+        applied = np.stack([self.global_map.applied_pose(i) for i in range(k)]) if k else np.zeros((0, 4, 4))
+        angle, shift = pose_deltas(applied, poses[:k])
         wanted = sorted(set(np.flatnonzero((angle > cfg.eps_rot) | (shift > cfg.eps_trans)).tolist())
                         | set(range(min(10, k + 1))) | {k})
-        marginals = np.zeros((k + 1, 6, 6))
+        marginals = np.full((k + 1, 6, 6), np.nan)
         marginals[wanted] = self.graph.marginals(wanted)
         self.timings["isam2"][-1] += time.perf_counter() - start
         # d. move the submaps (the virtual map's whole update)
