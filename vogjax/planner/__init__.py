@@ -1,0 +1,1 @@
+"""Next-best-view exploration (placeholder package: being built)."""
