@@ -7,7 +7,7 @@ import importlib
 import sys
 
 # command name -> module in vogjax.commands
-COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo"}
+COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo", "export": "export"}
 
 
 def main(argv=None) -> int:

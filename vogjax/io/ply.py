@@ -1,0 +1,62 @@
+"""PLY point clouds of a map's occupied voxels, coloured by height (MeshLab, CloudCompare,
+Blender, Open3D, trimesh read them).
+
+    vogjax.io.ply.save(global_map, "occupied.ply")    # or a VoxelSet
+
+One vertex per occupied voxel: its centre (float32 x, y, z, metres), an RGB colour from the
+viridis colour map over the occupied voxels' height range (low: purple, high: yellow) and its
+occupancy probability (float32 `probability`). Binary little-endian; comments record the voxel
+size and the height range of the colours.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vogjax.io.atomic import AtomicPath
+from vogjax.io.voxels import VoxelSet
+
+VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                   ("probability", "<f4")])
+
+
+def height_colours(z: np.ndarray, low: float | None = None, high: float | None = None) -> np.ndarray:
+    """(K,3) uint8 viridis colours of heights z (K,), spread over [low, high] (default: their range)."""
+    from matplotlib import colormaps
+
+    z = np.asarray(z, dtype=np.float64)
+    if len(z) == 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    low = float(z.min()) if low is None else low
+    high = float(z.max()) if high is None else high
+    scaled = (z - low) / (high - low) if high > low else np.full(len(z), 0.5)
+    return np.round(colormaps["viridis"](np.clip(scaled, 0.0, 1.0))[:, :3] * 255).astype(np.uint8)
+
+
+def save(source, path) -> int:
+    """Write the occupied voxels of `source` (a VoxelMap, GlobalMap or VoxelSet) to `path`;
+    returns how many."""
+    voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
+    occupied = voxels.state() == 2
+    centres = voxels.centres[occupied]
+    vertices = np.zeros(len(centres), dtype=VERTEX)
+    for axis, name in enumerate("xyz"):
+        vertices[name] = centres[:, axis]
+    colours = height_colours(centres[:, 2])
+    for channel, name in enumerate(("red", "green", "blue")):
+        vertices[name] = colours[:, channel]
+    vertices["probability"] = voxels.probability()[occupied]
+    z_range = f"{centres[:, 2].min():.6g} {centres[:, 2].max():.6g}" if len(centres) else "none"
+    properties = "".join(f"property {_PLY_TYPES[VERTEX[n].str]} {n}\n" for n in VERTEX.names)
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment occupied voxels written by vogjax\n"
+              f"comment voxel_size {voxels.voxel_size!r}\ncomment colour viridis over z {z_range}\n"
+              f"element vertex {len(vertices)}\n{properties}end_header\n")
+    with AtomicPath(Path(path)) as temporary, open(temporary, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vertices.tobytes())
+    return len(vertices)
+
+
+_PLY_TYPES = {"<f4": "float", "|u1": "uchar"}

@@ -1,0 +1,43 @@
+"""Trajectories in the TUM RGB-D format, which evo (`evo_traj tum`, `evo_ape tum`) and most SLAM
+tools read: one line per pose, `timestamp tx ty tz qx qy qz qw` (seconds, metres, a unit
+quaternion with its scalar last), space-separated, `#` comments.
+
+    vogjax.io.tum.save_tum("optimized.tum", result.scan_time_s, result.scan_poses("optimized"))
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vogjax.geometry import quaternions_from_rotations, rigid_poses, rotations_from_quaternions
+from vogjax.io.atomic import AtomicPath
+
+
+def save_tum(path, times_s, poses, comment: str = "") -> None:
+    """Write poses (N,4,4) T_world_body at times_s (N,) (finite, increasing) to `path`."""
+    times = np.asarray(times_s, dtype=np.float64)
+    if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise ValueError("times_s must be a finite, strictly increasing 1-D array")
+    poses = rigid_poses("poses", poses, len(times))
+    q = quaternions_from_rotations(poses[:, :3, :3])  # w, x, y, z
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)  # one sign per rotation: w >= 0
+    table = np.column_stack([times, poses[:, :3, 3], q[:, 1:], q[:, :1]])
+    header = "timestamp tx ty tz qx qy qz qw" + (f"\n{comment}" if comment else "")
+    with AtomicPath(Path(path)) as temporary:
+        np.savetxt(temporary, table, fmt=["%.9f"] + ["%.9g"] * 7, header=header, comments="# ")
+
+
+def load_tum(path) -> tuple[np.ndarray, np.ndarray]:
+    """(times_s (N,), poses (N,4,4)) of a TUM trajectory file; ValueError if it is not one."""
+    try:
+        table = np.loadtxt(path, comments="#", ndmin=2)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"path {str(path)!r} is not a readable TUM trajectory: {error}") from None
+    if table.shape[1:] != (8,) or not np.all(np.isfinite(table)):
+        raise ValueError(f"path {str(path)!r} is not a TUM trajectory (8 finite numbers per line)")
+    poses = np.tile(np.eye(4), (len(table), 1, 1))
+    poses[:, :3, :3] = rotations_from_quaternions(table[:, [7, 4, 5, 6]])
+    poses[:, :3, 3] = table[:, 1:4]
+    return table[:, 0], poses

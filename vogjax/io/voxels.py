@@ -1,0 +1,156 @@
+"""What the exporters read of a map: observed voxels, their log-odds and the state thresholds.
+
+Any map kind can be exported once it is a `VoxelSet`: a VoxelMap or GlobalMap
+(`VoxelSet.from_map`), or anything else that has voxel centres with log-odds or occupancy
+probabilities (`VoxelSet.from_log_odds`, `VoxelSet.from_probabilities`; e.g. a confidence-rich
+map's mean occupancy). `load_map` opens a .vog file of whichever kind its header names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from vogjax.config import MapConfig, logodds
+from vogjax.io import mapfile
+
+# how far a centre may sit off its voxel's centre, in voxels (float rounding, not a wrong size)
+_CENTRE_TOLERANCE = 0.01
+
+
+@dataclasses.dataclass(frozen=True)
+class VoxelSet:
+    """Observed voxels of one map.
+
+    centres:      (K,3) float64, voxel centres in metres (voxel k covers [k*s, (k+1)*s))
+    log_odds:     (K,) float32, finite
+    voxel_size:   s, metres
+    log_occupied: float32 log-odds at or above which a voxel is occupied
+    log_free:     float32 log-odds at or below which a voxel is free (between: unknown)
+    """
+
+    centres: np.ndarray
+    log_odds: np.ndarray
+    voxel_size: float
+    log_occupied: np.float32
+    log_free: np.float32
+
+    def __post_init__(self):
+        centres = np.asarray(self.centres)
+        if centres.ndim != 2 or centres.shape[1] != 3 or centres.dtype.kind not in "fi":
+            raise ValueError(f"centres must be real numbers of shape (K, 3), got {centres.dtype} {centres.shape}")
+        values = np.asarray(self.log_odds)
+        if values.shape != (len(centres),) or values.dtype.kind not in "fi":
+            raise ValueError(f"log_odds must be real numbers of shape ({len(centres)},), got {values.dtype} "
+                             f"{values.shape}")
+        if not (np.all(np.isfinite(centres)) and np.all(np.isfinite(values))):
+            raise ValueError("centres and log_odds must be finite (unobserved voxels do not belong in a VoxelSet)")
+        size = self.voxel_size
+        if isinstance(size, bool) or not isinstance(size, (int, float, np.integer, np.floating)) or \
+                not (math.isfinite(size) and size > 0):
+            raise ValueError(f"voxel_size must be a positive number, got {size!r}")
+        if not (np.isfinite(self.log_free) and np.isfinite(self.log_occupied) and self.log_free <= self.log_occupied):
+            raise ValueError("log_free must not exceed log_occupied")
+        object.__setattr__(self, "centres", np.ascontiguousarray(centres, dtype=np.float64))
+        object.__setattr__(self, "log_odds", np.ascontiguousarray(values, dtype=np.float32))
+        object.__setattr__(self, "voxel_size", float(size))
+        object.__setattr__(self, "log_occupied", np.float32(self.log_occupied))
+        object.__setattr__(self, "log_free", np.float32(self.log_free))
+        keys = self.keys()
+        if len(keys) and len(np.unique(keys, axis=0)) != len(keys):
+            raise ValueError("centres must name each voxel once")
+
+    @classmethod
+    def from_map(cls, voxel_map) -> "VoxelSet":
+        """The observed voxels of a VoxelMap or GlobalMap (anything with `voxels()` and a MapConfig)."""
+        config = getattr(voxel_map, "config", None)
+        if not isinstance(config, MapConfig) or not callable(getattr(voxel_map, "voxels", None)):
+            raise ValueError(f"map must be a vj.VoxelMap or vj.GlobalMap, got {type(voxel_map).__name__}")
+        centres, values = voxel_map.voxels()
+        return cls(centres, values, config.voxel_size, config.log_occupied, config.log_free)
+
+    @classmethod
+    def from_log_odds(cls, centres, log_odds, voxel_size: float, occupied_threshold: float = 0.7,
+                      free_threshold: float = 0.3) -> "VoxelSet":
+        """Voxels with log-odds; thresholds are probabilities, as in MapConfig."""
+        return cls(centres, log_odds, voxel_size, *_thresholds(occupied_threshold, free_threshold))
+
+    @classmethod
+    def from_probabilities(cls, centres, probabilities, voxel_size: float, occupied_threshold: float = 0.7,
+                           free_threshold: float = 0.3) -> "VoxelSet":
+        """Voxels with occupancy probabilities in (0, 1) (e.g. a confidence-rich map's mean)."""
+        p = np.asarray(probabilities, dtype=np.float64)
+        if p.dtype.kind != "f" or not np.all((p > 0) & (p < 1)):
+            raise ValueError("probabilities must lie strictly between 0 and 1")
+        return cls(centres, np.log(p / (1.0 - p)).astype(np.float32), voxel_size,
+                   *_thresholds(occupied_threshold, free_threshold))
+
+    def __len__(self) -> int:
+        return len(self.centres)
+
+    def keys(self) -> np.ndarray:
+        """(K,3) int64 voxel indices k = floor(centre / voxel_size); ValueError if a centre is
+        not a voxel centre of this size."""
+        scaled = self.centres / self.voxel_size
+        keys = np.floor(scaled).astype(np.int64)
+        if len(keys) and np.abs(scaled - keys - 0.5).max() > _CENTRE_TOLERANCE:
+            raise ValueError(f"centres are not centres of voxels of {self.voxel_size} m")
+        return keys
+
+    def state(self) -> np.ndarray:
+        """(K,) int8: vj.UNKNOWN (0), vj.FREE (1), vj.OCCUPIED (2), as the maps classify."""
+        state = np.zeros(len(self), dtype=np.int8)
+        state[self.log_odds <= self.log_free] = 1
+        state[self.log_odds >= self.log_occupied] = 2
+        return state
+
+    def probability(self) -> np.ndarray:
+        return (1.0 - 1.0 / (1.0 + np.exp(self.log_odds.astype(np.float64)))).astype(np.float32)
+
+
+def _thresholds(occupied: float, free: float) -> tuple[np.float32, np.float32]:
+    for name, value in (("occupied_threshold", occupied), ("free_threshold", free)):
+        if not (isinstance(value, (int, float, np.floating)) and 0 < value < 1):
+            raise ValueError(f"{name} must lie strictly between 0 and 1, got {value!r}")
+    return logodds(occupied), logodds(free)
+
+
+_PREFIX = struct.Struct("<8sIQ")  # the map file's documented prefix: magic, version, header length
+
+
+def map_kind(path) -> str:
+    """The kind a .vog file's header names ("VoxelMap", "GlobalMap", ...); ValueError if the
+    file is no vogjax map file (the whole file is checked when it is loaded)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            prefix = f.read(_PREFIX.size)
+            if len(prefix) < _PREFIX.size:
+                raise ValueError(f"path {str(path)!r} is truncated or not a vogjax map file")
+            magic, _, header_bytes = _PREFIX.unpack(prefix)
+            if magic != mapfile.MAGIC:
+                raise ValueError(f"path {str(path)!r} is not a vogjax map file")
+            header = f.read(min(header_bytes, 1 << 26))
+    except OSError as error:
+        raise ValueError(f"path {str(path)!r} cannot be read: {error.strerror}") from None
+    try:
+        kind = json.loads(header)["kind"]
+    except (ValueError, KeyError, TypeError):
+        raise ValueError(f"path {str(path)!r} has a damaged header") from None
+    return str(kind)
+
+
+def load_map(path, device=None):
+    """The map a .vog file holds, as the class its header names (VoxelMap or GlobalMap)."""
+    from vogjax.maps import GlobalMap, VoxelMap
+
+    kinds = {"VoxelMap": VoxelMap, "GlobalMap": GlobalMap}
+    kind = map_kind(path)
+    if kind not in kinds:
+        raise ValueError(f"path {str(path)!r} holds a {kind!r}; this command reads {', '.join(kinds)}")
+    return kinds[kind].load(path, device)
