@@ -29,22 +29,25 @@ def _survey_depths(bounds: np.ndarray) -> np.ndarray:
 
 
 def propeller() -> Scene:
-    """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin."""
+    """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin. About
+    7 x 4 x 6 m as the thesis gives for SS Curtiss's (4.4.2): 7 m from rudder to shaft, blades
+    3.2 m long, their disc 6 m tall and pressed to 4 m across (y) like the thesis's model."""
     parts = [cylinder_between([-0.7, 0, 0], [0.7, 0, 0], 0.55),  # hub
-             cylinder_between([0.7, 0, 0], [3.5, 0, 0], 0.25),  # shaft into the hull
+             cylinder_between([0.7, 0, 0], [3.8, 0, 0], 0.25),  # shaft into the hull
              box([-3.2, -0.12, -2.6], [-2.2, 0.12, 2.2])]  # rudder aft of the propeller
     for k in range(5):
-        blade = trimesh.creation.box(extents=[0.9, 0.08, 2.5])  # chord, thickness, span
+        blade = trimesh.creation.box(extents=[0.9, 0.08, 2.7])  # chord, thickness, span
         vertices, faces = trimesh.remesh.subdivide_to_size(blade.vertices, blade.faces, max_edge=0.3)
-        radial = vertices[:, 2] + 1.25 + 0.5  # from the hub axis
+        radial = vertices[:, 2] + 1.35 + 0.5  # from the hub axis
         twist = 0.9 - 0.25 * radial  # pitch angle falls off along the span
         c, s = np.cos(twist), np.sin(twist)
         x, y = vertices[:, 0], vertices[:, 1]
         vertices = np.stack([c * x - s * y, s * x + c * y, radial], axis=1)
         angle = 2 * np.pi * k / 5
         rotation = trimesh.transformations.rotation_matrix(angle, [1, 0, 0])
+        rotation[1, :3] *= 0.66  # the disc 4 m across, 6 m tall
         parts.append(placed(trimesh.Trimesh(vertices, faces), rotation))
-    bounds = np.array([[-6.0, -10.5, -1.75], [6.0, -3.5, 1.75]])  # starboard of the propeller
+    bounds = np.array([[-6.0, -10.5, -1.75], [6.0, -3.5, 1.75]])  # 12 x 7 x 3.5 m, starboard of it
     survey = lawnmower(bounds, np.pi / 2, _survey_depths(bounds))  # looking at the propeller
     return _scene("propeller", parts, bounds, pose(0.0, -7.0, 0.0, np.pi / 2), survey)
 

@@ -7,7 +7,8 @@ import warp as wp
 
 @functools.cache
 def init() -> None:
-    wp.config.quiet = True
+    """Start Warp once, quietly: no banner or per-module load lines (stdout carries results only)."""
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
 
 

@@ -11,7 +11,12 @@ from vogjax.config.schema import Config, number, positive, probability
 
 
 def logodds(probability: float) -> np.float32:
-    """Log-odds of a probability, rounded to float32 the way OctoMap stores it."""
+    """Log-odds of a probability, rounded to float32 the way OctoMap stores it (+-inf at 1 and 0:
+    clamping at those probabilities clamps nothing)."""
+    if probability <= 0.0:
+        return np.float32(-np.inf)
+    if probability >= 1.0:
+        return np.float32(np.inf)
     return np.float32(math.log(probability / (1.0 - probability)))
 
 
@@ -23,7 +28,8 @@ class MapConfig(Config):
     prob_hit, prob_miss: inverse sensor model for the endpoint and the cells a beam crosses
     occupied_threshold:  probability at or above which a voxel is OCCUPIED
     free_threshold:      probability at or below which a voxel is FREE (between: UNKNOWN)
-    clamp_min, clamp_max: probabilities the log-odds are clamped to after every update
+    clamp_min, clamp_max: probabilities the log-odds are clamped to after every update; 0 and 1
+                         clamp nothing (Sodhi et al.'s p_min = 0, p_max = 1: `MapConfig.paper()`)
     max_range:           beams longer than this give free space up to it and no hit, metres
     """
 
@@ -32,9 +38,16 @@ class MapConfig(Config):
     prob_miss: float = probability(0.2)
     occupied_threshold: float = probability(0.7)
     free_threshold: float = probability(0.3)
-    clamp_min: float = probability(0.1192)
-    clamp_max: float = probability(0.971)
+    clamp_min: float = number(0.1192, low=0, high=1, high_open=True)
+    clamp_max: float = number(0.971, low=0, high=1, low_open=True)
     max_range: float = positive(11.0)
+
+    @classmethod
+    def paper(cls, **changes) -> "MapConfig":
+        """Sodhi et al. IV-C: 10 cm voxels, hit/miss 0.75/0.2, thresholds 0.7/0.3, and no clamping
+        (p_min = 0, p_max = 1), which keeps every update invertible."""
+        return cls(**{"voxel_size": 0.1, "prob_hit": 0.75, "prob_miss": 0.2, "occupied_threshold": 0.7,
+                      "free_threshold": 0.3, "clamp_min": 0.0, "clamp_max": 1.0, **changes})
 
     def check(self) -> None:
         if not self.prob_miss < 0.5 < self.prob_hit:

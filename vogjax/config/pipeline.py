@@ -31,6 +31,14 @@ class PipelineConfig(Config):
     batch_scans: int = integer(200, low=1)
     standard_map: bool = flag(True)
 
+    @classmethod
+    def paper(cls, **changes) -> "PipelineConfig":
+        """Sodhi et al. IV-C: 200 scans per submap, `MapConfig.paper()` (hit/miss 0.75/0.2,
+        thresholds 0.7/0.3, no clamping), eps_rot 1e-2 rad and eps_trans 2e-3 m, eps_cov the
+        largest uncertainty among the first ten submaps."""
+        return cls(**{"map": MapConfig.paper(), "scans_per_submap": 200, "eps_rot": 1e-2, "eps_trans": 2e-3,
+                      "eps_cov": "auto", **changes})
+
 
 @dataclasses.dataclass(frozen=True)
 class ReportConfig(Config):
@@ -51,3 +59,15 @@ class JobConfig(Config):
 
     pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
     report: ReportConfig = section(ReportConfig())
+
+    @classmethod
+    def preset(cls, name: str | None) -> "JobConfig":
+        """The defaults (None or "default") or a named preset ("paper": `PipelineConfig.paper()`)."""
+        if name in (None, "default"):
+            return cls()
+        if name == "paper":
+            return cls(pipeline=PipelineConfig.paper())
+        raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {name!r}")
+
+
+PRESETS = ("default", "paper")

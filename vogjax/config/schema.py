@@ -168,7 +168,7 @@ class Config:
         return _replaced(cls(), values, where or cls.__name__)
 
     @classmethod
-    def from_toml(cls, path):
+    def from_toml(cls, path, base: "Config | None" = None):
         """This Config from a TOML file (see `from_document`)."""
         path = Path(path)
         try:
@@ -177,11 +177,12 @@ class Config:
             raise ValueError(f"config {str(path)!r} does not exist") from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError, IsADirectoryError, PermissionError) as error:
             raise ValueError(f"config {str(path)!r} is not valid TOML: {error}") from None
-        return cls.from_document(document)
+        return cls.from_document(document, base)
 
     @classmethod
-    def from_document(cls, document: dict):
-        """From a settings document: one table per section (`[map]`, `[loop_closure.icp]`, ...)."""
+    def from_document(cls, document: dict, base: "Config | None" = None):
+        """From a settings document: one table per section (`[map]`, `[loop_closure.icp]`, ...),
+        each setting given replacing that of `base` (default: the defaults)."""
         tables = {}  # table name -> (path of fields to the Config it sets)
         for field in dataclasses.fields(cls):
             if field.metadata.get("flatten"):
@@ -195,7 +196,7 @@ class Config:
         unknown = sorted(set(document) - set(tables))
         if unknown:
             raise ValueError(f"unknown config table(s) {', '.join(unknown)} (known: {', '.join(tables)})")
-        config = cls()
+        config = cls() if base is None else base
         for table, path in tables.items():
             if table not in document:
                 continue

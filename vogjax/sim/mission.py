@@ -17,6 +17,8 @@ from vogjax.io.dataset import DatasetWriter
 from vogjax.sim import navigation, ranging, vehicle
 
 CHUNK_SCANS = 500
+MAX_SCANS = 10_000_000  # 23 days of scans at 5 Hz
+MAX_LAPS = 1000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,26 +40,34 @@ def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
     return int(np.ceil(1.4 * seconds * rate_hz)) + 10
 
 
-def simulate_run(scene_name: str, out, laps: int = 2, seed: int = 0, num_scans: int | None = None,
+def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, num_scans: int | None = None,
                  sensor: RangeSensor | None = None, noise: NavNoise | None = None,
                  progress: bool = True) -> RunSummary:
     """Simulate the default survey of a built-in scene and write it to `out` (HDF5).
-    sensor: a RangeSensor (or a SonarConfig); default: the papers' profiling sonar."""
+
+    laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);
+    num_scans: scans recorded (default: enough for the laps; the run ends 5 s after the last
+    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar."""
     sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
     noise = noise or NavNoise()
-    if not (isinstance(laps, int) and laps >= 1):
-        raise ValueError(f"laps must be a positive integer, got {laps!r}")
+    if laps is not None and not (isinstance(laps, int) and 1 <= laps <= MAX_LAPS):
+        raise ValueError(f"laps must be an integer in [1, {MAX_LAPS}], got {laps!r}")
+    if num_scans is not None and not (isinstance(num_scans, int) and 1 <= num_scans <= MAX_SCANS):
+        raise ValueError(f"num_scans must be an integer in [1, {MAX_SCANS}], got {num_scans!r}")
     scene = scenes.load(scene_name)
+    until_done = num_scans is None  # else record exactly num_scans, flying laps enough for them
+    if laps is None:
+        # mission_scans has a 40% margin: 1.4 x its laps keep the vehicle busy to the last scan
+        per_lap = mission_scans(scene.survey(1), scene.start_pose, sensor.rate_hz)
+        laps = 2 if until_done else min(MAX_LAPS, max(2, -(-int(1.4 * num_scans) // per_lap)))
     waypoints = scene.survey(laps)
-    if num_scans is None:
+    if until_done:
         num_scans = mission_scans(waypoints, scene.start_pose, sensor.rate_hz)
-    if not (isinstance(num_scans, int) and num_scans >= 1):
-        raise ValueError(f"num_scans must be a positive integer, got {num_scans!r}")
     # 1. fly the survey (MJX), and stop recording once the last waypoint is reached
     truth, index = vehicle.simulate(scene.start_pose, waypoints, num_scans, sensor.rate_hz)
     arrived = np.flatnonzero((index == len(waypoints) - 1)
                              & (np.linalg.norm(truth[:, :3, 3] - waypoints[-1, :3], axis=1) < 0.2))
-    if len(arrived):
+    if until_done and len(arrived):
         num_scans = min(num_scans, int(arrived[0]) + int(sensor.rate_hz * 5))
         truth = truth[:num_scans]
     times = np.arange(num_scans) / sensor.rate_hz
