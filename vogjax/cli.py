@@ -7,7 +7,8 @@ import importlib
 import sys
 
 # command name -> module in vogjax.commands
-COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo", "export": "export"}
+COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo", "export": "export", "import": "importing",
+            "view": "view"}
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,31 @@
+"""Settings of a recorded range sensor whose beams change from scan to scan (a lidar's point
+cloud or a laser scanner's fan, imported from a ROS bag)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from vogjax.config.schema import Config, integer, non_negative, positive, text
+
+
+@dataclasses.dataclass(frozen=True)
+class PointCloudConfig(Config):
+    """message:     the ROS message the scans came from (PointCloud2 or LaserScan)
+    beams:       beams per stored scan (scans with fewer real beams are padded with copies of
+                 one of their own beams, which changes no map)
+    rate_hz:     mean scans per second of the recording
+    min_range_m: returns below it were dropped as invalid (LaserScan's range_min)
+    max_range_m: the sensor's reach: LaserScan's range_max, or for a point cloud the farthest
+                 return (or what the importer was told); beams without a return clear free space
+                 up to it
+    """
+
+    message: str = text("PointCloud2", ("PointCloud2", "LaserScan"))
+    beams: int = integer(1, low=1)
+    rate_hz: float = positive(10.0)
+    min_range_m: float = non_negative(0.0)
+    max_range_m: float = positive(100.0)
+
+    def check(self) -> None:
+        if not self.min_range_m < self.max_range_m:
+            raise ValueError("PointCloudConfig.min_range_m must lie in [0, max_range_m)")

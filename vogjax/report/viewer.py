@@ -1,0 +1,200 @@
+"""A 3D look at a map or a `vogjax map` report folder in the rerun viewer (`pip install
+'vogjax[view]'`), live or saved to an .rrd file (`rerun FILE.rrd` opens it later).
+
+    vogjax.report.viewer.view("maps/propeller", save="propeller.rrd")
+
+What is logged (entity paths):
+- `map/occupied`: occupied voxels as boxes, viridis by height (static);
+- `trajectory/navigation`, `trajectory/optimized`, `trajectory/truth` (whichever the folder's
+  trajectories.csv holds): the submap base poses as a line strip, growing along the `submap`
+  timeline (and `scan`, the submap's first scan), the newest base as a point;
+- `loop_closures`: a line between the optimised bases of each accepted closure (from
+  loop_closures.csv, columns i and k, when the folder has one), shown from submap k on;
+- `timing/online_update_ms`, `timing/virtual_update_ms`, `timing/full_merge_ms`: the report's
+  cumulative average update time per submap, on the `submap` timeline;
+- `report`: the headline figures of report.json as text.
+A folder holding several runs' folders (the `--out` of `vogjax map` for many runs) logs each under
+its run name.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from vogjax.io.atomic import AtomicPath
+from vogjax.io.ply import height_colours
+from vogjax.io.voxels import VoxelSet, load_map
+
+TRAJECTORIES = {"navigation": (220, 60, 40), "optimized": (40, 110, 220), "truth": (120, 120, 120)}
+CLOSURE_COLOUR = (40, 180, 60)
+
+
+def rerun():
+    """The rerun module; a ValueError naming the extra when it is not installed."""
+    try:
+        import rerun as rr
+    except ImportError:
+        raise ValueError("the viewer needs rerun: pip install 'vogjax[view]'") from None
+    return rr
+
+
+def view(path, save=None, spawn: bool | None = None) -> dict:
+    """Log a map file (.vog) or report folder into a rerun recording, saved to `save` (.rrd)
+    and/or shown in a spawned viewer (default: when not saving). Returns what was logged:
+    entity path -> number of items."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"path {str(path)!r} does not exist")
+    runs = _runs(path)
+    if save is not None:
+        save = Path(save)
+        if save.suffix != ".rrd":
+            raise ValueError(f"--save must name an .rrd file, got {str(save)!r}")
+    rr = rerun()
+    recording = rr.RecordingStream("vogjax", recording_id=f"vogjax-{path.resolve()}")
+    publication = None if save is None else AtomicPath(save)
+    try:
+        if publication is not None:
+            recording.save(publication.temporary)
+        if spawn if spawn is not None else save is None:
+            recording.spawn()
+        logged = {}
+        with recording:  # leaving it finalises the file
+            recording.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            for prefix, run in runs:
+                if run.is_file():
+                    logged.update(log_map(recording, load_map(run, device="cpu"), prefix))
+                else:
+                    logged.update(log_folder(recording, run, prefix))
+    except BaseException:
+        if publication is not None:
+            publication.abort()
+        raise
+    if publication is not None:
+        publication.commit()
+    return logged
+
+
+def _runs(path: Path) -> list[tuple[str, Path]]:
+    """(entity prefix, map file or run folder) to log."""
+    if path.is_file():
+        return [("", path)]
+    if (path / "global_map.vog").is_file():
+        return [("", path)]
+    runs = sorted(p for p in path.iterdir() if (p / "global_map.vog").is_file())
+    if not runs:
+        raise ValueError(f"path {str(path)!r} is neither a map file nor a `vogjax map` folder (no global_map.vog)")
+    return [(run.name, run) for run in runs]
+
+
+def _entity(prefix: str, name: str) -> str:
+    return f"{prefix}/{name}" if prefix else name
+
+
+def log_map(recording, source, prefix: str = "") -> dict:
+    """Occupied voxels of a map (or VoxelSet) as boxes coloured by height."""
+    rr = rerun()
+    voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
+    centres = voxels.centres[voxels.state() == 2]
+    entity = _entity(prefix, "map/occupied")
+    recording.log(entity, rr.Boxes3D(centers=centres, half_sizes=np.full(3, voxels.voxel_size / 2),
+                                     colors=height_colours(centres[:, 2]), fill_mode="solid"), static=True)
+    return {entity: len(centres)}
+
+
+def log_folder(recording, folder: Path, prefix: str = "") -> dict:
+    """A `vogjax map` run folder: map, trajectories, loop closures, per-submap timings, report."""
+    rr = rerun()
+    logged = log_map(recording, load_map(folder / "global_map.vog", device="cpu"), prefix)
+    table = read_trajectories(folder / "trajectories.csv")
+    report = _read_report(folder / "report.json")
+    closures = read_loop_closures(folder / "loop_closures.csv", len(table["submap"]))
+    submaps = len(table["submap"])
+    curves = (report or {}).get("timing_s", {}).get("curves", {})
+    timing = {name: np.asarray(curves.get(f"{name}_s", []), dtype=np.float64) for name in
+              ("online", "virtual", "full_merge")}
+    for i in range(submaps):
+        recording.set_time("submap", sequence=i)
+        recording.set_time("scan", sequence=int(table["first_scan"][i]))
+        for name, colour in TRAJECTORIES.items():
+            if name not in table:
+                continue
+            entity = _entity(prefix, f"trajectory/{name}")
+            recording.log(entity, rr.LineStrips3D([table[name][:i + 1]], colors=[colour], radii=0.02))
+            recording.log(f"{entity}/base", rr.Points3D(table[name][i:i + 1], colors=[colour], radii=0.06))
+            logged[entity] = i + 1
+        if "optimized" in table:
+            shown = closures[closures[:, 1] <= i]
+            entity = _entity(prefix, "loop_closures")
+            recording.log(entity, rr.LineStrips3D(table["optimized"][shown], colors=[CLOSURE_COLOUR], radii=0.015))
+            logged[entity] = len(shown)
+        for name, seconds in timing.items():
+            if len(seconds) == submaps:
+                entity = _entity(prefix, f"timing/{name}_update_ms")
+                recording.log(entity, rr.Scalars(seconds[i] * 1e3))
+                logged[entity] = i + 1
+    if report is not None:
+        entity = _entity(prefix, "report")
+        recording.log(entity, rr.TextDocument(_summary(report), media_type=rr.MediaType.MARKDOWN), static=True)
+        logged[entity] = 1
+    return logged
+
+
+def read_trajectories(path: Path) -> dict:
+    """trajectories.csv as {"submap": (N,), "first_scan": (N,), name: (N,3) positions per
+    trajectory present (navigation, optimized, truth)}."""
+    try:
+        table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"path {str(path)!r} cannot be read: {error}") from None
+    names = table.dtype.names or ()
+    if "submap" not in names or "first_scan" not in names:
+        raise ValueError(f"path {str(path)!r} is not a trajectories.csv of `vogjax map` (columns: {names})")
+    out = {"submap": table["submap"].astype(int), "first_scan": table["first_scan"].astype(int)}
+    for name in TRAJECTORIES:
+        columns = [f"{name}_{axis}" for axis in "xyz"]
+        if all(c in names for c in columns):
+            out[name] = np.stack([table[c] for c in columns], axis=1)
+    return out
+
+
+def read_loop_closures(path: Path, submaps: int) -> np.ndarray:
+    """(C,2) int submap pairs (i, k) of loop_closures.csv (columns i and k), none if absent."""
+    if not path.is_file():
+        return np.zeros((0, 2), dtype=int)
+    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    names = table.dtype.names or ()
+    if "i" not in names or "k" not in names:
+        raise ValueError(f"path {str(path)!r} needs columns i and k (submap ids), has {names}")
+    pairs = np.stack([table["i"], table["k"]], axis=1).astype(int).reshape(-1, 2)
+    if len(pairs) and (pairs.min() < 0 or pairs.max() >= submaps):
+        raise ValueError(f"path {str(path)!r} names submaps outside 0-{submaps - 1}")
+    return pairs
+
+
+def _read_report(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"path {str(path)!r} is not a readable report: {error}") from None
+
+
+def _summary(report: dict) -> str:
+    closures = report.get("loop_closures", {})
+    lines = [f"# {Path(str(report.get('run', ''))).stem}", "",
+             f"- scans: {report.get('scans')}, submaps: {report.get('submaps')}",
+             f"- loop closures: {closures.get('accepted')} accepted, {closures.get('rejected')} rejected"]
+    auc = {k: v for k, v in (report.get("auc") or {}).items() if v is not None}
+    if auc:
+        lines.append("- AUC: " + ", ".join(f"{k} {v:.3f}" for k, v in auc.items()))
+    else:
+        lines.append("- AUC: no ground truth")
+    errors = report.get("trajectory_rmse_m") or {}
+    if errors:
+        lines.append("- base-pose RMSE: " + ", ".join(f"{k} {v:.2f} m" for k, v in errors.items()))
+    return "\n".join(lines)
