@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from vogjax.config.schema import Config, integer, non_negative, positive, section, text
+from vogjax.config.schema import Config, integer, non_negative, number, positive, section, text
 
 ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
+ALIGNERS = ("correlative_icp",)  # vogjax.slam.loop_closure.ALIGNERS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,9 +40,13 @@ class CorrelativeConfig(Config):
 
 @dataclasses.dataclass(frozen=True)
 class LoopClosureConfig(Config):
-    """method: ICP variant; icp: ICP settings (it starts at the correlative peak); correlative;
-    max_search_m: the correlative search radius, the drift bound capped here;
-    min_overlap_score: the correlative peak's mean blurred occupancy; max_refinement_m: ICP may
+    """aligner: how a candidate pair is aligned (`correlative_icp`: a correlative x-y-yaw search
+    seeds ICP); method: ICP variant; icp: ICP settings (it starts at the correlative peak);
+    correlative; max_search_m: the correlative search radius, the drift bound capped here;
+    min_overlap_score: the correlative peak's mean blurred occupancy; max_ambiguity: the best
+    score at least `correlative.exclusion_m` away from the peak, over the peak's, at most this
+    (repetitive structure matches in several places); min_inlier_fraction: ICP must match this
+    share of the source cloud; max_refinement_m: ICP may
     move the peak's result this far in x-y; min_points: both clouds need this many occupied
     voxels; min_separation: |i - k| at least this (neighbours are tied by odometry already);
     max_candidates: the earlier submaps nearest to k are aligned, at most this many;
@@ -50,11 +55,14 @@ class LoopClosureConfig(Config):
     is overconfident: each submap is bent by the drift within it (0.17 m sigma over 20 s at the
     default rates), which ICP cannot see."""
 
+    aligner: str = text("correlative_icp", ALIGNERS)
     method: str = text("point_to_plane", ICP_METHODS)
     icp: IcpConfig = section(IcpConfig(max_correspondence_m=0.3))
     correlative: CorrelativeConfig = section(CorrelativeConfig())
     max_search_m: float = non_negative(4.0)
     min_overlap_score: float = non_negative(0.3)
+    max_ambiguity: float = non_negative(1.0)
+    min_inlier_fraction: float = number(0.0, low=0, high=1)
     max_refinement_m: float = non_negative(0.2)
     min_points: int = integer(50, low=0)
     min_separation: int = integer(2, low=0)

@@ -64,6 +64,14 @@ class ScanBatch:
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "first"}
         return ScanBatch(self.first + lo, **{k: None if v is None else v[lo:hi] for k, v in fields.items()})
 
+    @staticmethod
+    def concatenate(batches: list) -> "ScanBatch":
+        """Consecutive batches as one (the first scan index of the first)."""
+        names = [f.name for f in dataclasses.fields(ScanBatch) if f.name != "first"]
+        fields = {name: (None if getattr(batches[0], name) is None
+                         else np.concatenate([getattr(b, name) for b in batches])) for name in names}
+        return ScanBatch(batches[0].first, **fields)
+
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Sensor origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
         Beams without a return end past max_range_m (free space up to it, no hit)."""

@@ -14,11 +14,13 @@ from vogjax.slam import LoopClosure, Rejection
 
 @dataclasses.dataclass(frozen=True)
 class SubmapRecord:
-    """One submap as the pipeline cut it: its first scan, how many scans it holds, the time of
-    its base pose, and the base pose by navigation and (when the run has it) by ground truth."""
+    """One submap as the pipeline cut it: its first scan, how many scans it holds, its base
+    scan (the middle one: see `vogjax.pipeline.mapper`), the time of the base scan, and the
+    base pose by navigation and (when the run has it) by ground truth."""
 
     first_scan: int
     scans: int
+    base_scan: int
     time_s: float
     T_world_base_nav: np.ndarray
     T_world_base_truth: np.ndarray | None
@@ -70,6 +72,10 @@ class Result:
     @property
     def submap_first_scan(self) -> np.ndarray:
         return np.array([s.first_scan for s in self.submaps], dtype=np.int64)
+
+    @property
+    def submap_base_scan(self) -> np.ndarray:
+        return np.array([s.base_scan for s in self.submaps], dtype=np.int64)
 
     @property
     def metrics(self) -> dict:

@@ -46,7 +46,7 @@ def trajectories(result, path, title: str = "") -> None:
         if poses is None:
             continue
         ax.plot(poses[:, 0, 3], poses[:, 1, 3], label=name, **style)
-        bases = poses[result.submap_first_scan]
+        bases = poses[result.submap_base_scan]
         ax.plot(bases[:, 0, 3], bases[:, 1, 3], ".", color=style["color"], ms=4)
     xy = result.optimized[:, :2, 3]
     for closure in result.loop_closures:

@@ -1,13 +1,16 @@
 """Loop-closure detection between submaps (Ho, thesis 4.2, Algorithm 6 and its criteria).
 
 For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
-centroid of k's cloud (moved by the current relative estimate) is a candidate. Navigation can
-have drifted metres between the two visits, beyond ICP's reach, so a correlative x-y-yaw search
-over that drift (`correlative.py`) finds the best overlap first and ICP refines it. A candidate
-is accepted when the overlap peak is high enough, ICP converged near the peak with a low
-fitness, and the result lies within the navigation's possible drift of the odometry relative
-pose. Degenerate alignments give partial factors over their well-conditioned directions; the
-rest get full Pose3 factors.
+centroid of k's cloud (moved by the current relative estimate) is a candidate; the nearest few
+are aligned. The aligner (`ALIGNERS`, chosen by `LoopClosureConfig.aligner`) turns a candidate
+pair into an `Alignment`; the default, `correlative_then_icp`, searches x, y and yaw over the
+navigation's possible drift first (`correlative.py`: navigation can drift metres between two
+visits, beyond ICP's reach) and refines the peak with ICP. The detector then accepts or
+rejects each alignment by the same criteria whatever the aligner: enough overlap, an
+unambiguous peak, ICP converged near it with a low fitness and enough of the source matched,
+and a result within the navigation's possible drift of the odometry relative pose. Degenerate
+alignments give partial factors over their well-conditioned directions; the rest get full
+Pose3 factors.
 """
 
 from __future__ import annotations
@@ -25,24 +28,60 @@ from vogjax.slam.icp import IcpResult, icp_batch
 
 @dataclasses.dataclass(frozen=True)
 class LoopClosure:
-    """A constraint T_world_i^-1 T_world_k = T_i_k for PoseGraph.add_loop_closure."""
+    """A constraint T_world_i^-1 T_world_k = T_i_k for PoseGraph.add_loop_closure, with the
+    evidence it was accepted on."""
 
     i: int
     k: int
     T_i_k: np.ndarray
     covariance: np.ndarray  # (6,6), GTSAM order
     basis: np.ndarray | None  # (6,r) for a partial factor, None for a full one
-    fitness: float
+    fitness: float  # mean squared inlier distance, m^2
     num_inliers: int
+    overlap: float = np.nan  # the aligner's overlap score (correlative peak)
+    ambiguity: float = np.nan  # runner-up over peak score (0: unambiguous, 1: a tie)
 
 
 @dataclasses.dataclass(frozen=True)
 class Rejection:
     i: int
     k: int
-    reason: str  # "overlap", "not converged", "fitness", "refinement", "drift"
-    fitness: float  # NaN when ICP did not run ("overlap")
+    reason: str  # "overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift"
+    fitness: float  # NaN when ICP did not run ("overlap", "ambiguous")
     deviation_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Alignment:
+    """What an aligner found for a pair: `icp` (None when it stopped before ICP), the seed it
+    refined (T_i_k), its overlap score and ambiguity (NaN when it has none)."""
+
+    icp: IcpResult | None
+    T_seed: np.ndarray
+    overlap: float
+    ambiguity: float
+
+
+def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict) -> list[Alignment]:
+    """The default aligner. pairs: (source (N,3), target (M,3), T_init (4,4), radius_m,
+    yaw_radius_rad) per candidate, source = submap k's cloud, target = submap i's; `seconds`
+    collects the time per phase."""
+    start = time.perf_counter()
+    seeds = [correlative_xyh(source, target, T_init, radius_m, yaw_radius_rad, config.correlative)
+             for source, target, T_init, radius_m, yaw_radius_rad in pairs]
+    seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
+    # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
+    refine = [n for n, seed in enumerate(seeds)
+              if seed.score >= config.min_overlap_score and seed.ratio <= config.max_ambiguity]
+    start = time.perf_counter()
+    results = icp_batch([pairs[n][0] for n in refine], [pairs[n][1] for n in refine],
+                        [seeds[n].T_target_source for n in refine], config.method, config.icp) if refine else []
+    seconds["icp"] = seconds.get("icp", 0.0) + time.perf_counter() - start
+    refined = dict(zip(refine, results))
+    return [Alignment(refined.get(n), seed.T_target_source, seed.score, seed.ratio) for n, seed in enumerate(seeds)]
+
+
+ALIGNERS = {"correlative_icp": correlative_then_icp}
 
 
 class LoopClosureDetector:
@@ -65,7 +104,7 @@ class LoopClosureDetector:
             if np.all(in_i >= bounds[i][0]) and np.all(in_i <= bounds[i][1]):
                 found.append(i)
                 distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
-        # the correlative search costs most of a submap's time: bound it by the best-placed few
+        # aligning costs most of a submap's time: bound it by the best-placed few
         nearest = np.argsort(distances, kind="stable")[:cfg.max_candidates]
         return sorted(found[j] for j in nearest)
 
@@ -83,50 +122,50 @@ class LoopClosureDetector:
         if not found:
             return accepted, rejected
         cfg = self.config
-        start = time.perf_counter()
-        seeds = {}
+        pairs = []
         for i in found:
             elapsed = abs(times_s[k] - times_s[i])
-            seeds[i] = correlative_xyh(clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
-                                       min(self._drift_bound(elapsed), cfg.max_search_m),
-                                       cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed), cfg.correlative)
-        self.seconds["correlative_search"] = time.perf_counter() - start
-        # too little overlap at the best offset: nothing for ICP to refine
-        for i in [i for i in found if seeds[i].score < cfg.min_overlap_score]:
-            rejected.append(Rejection(i, k, "overlap", np.nan, np.nan))
-            found.remove(i)
-        start = time.perf_counter()
-        results = icp_batch([clouds[k]] * len(found), [clouds[i] for i in found],
-                            [seeds[i].T_target_source for i in found], cfg.method, cfg.icp) if found else []
-        self.seconds["icp"] = time.perf_counter() - start
-        for i, result in zip(found, results):
+            pairs.append((clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
+                          min(self._drift_bound(elapsed), cfg.max_search_m),
+                          cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed)))
+        alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds)
+        for i, alignment in zip(found, alignments):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
-            deviation = float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
-            refinement = float(np.linalg.norm((inverse(seeds[i].T_target_source) @ result.T_target_source)[:2, 3]))
-            reason = self._rejection(result, refinement, deviation, abs(times_s[k] - times_s[i]))
+            result = alignment.icp
+            deviation = np.nan if result is None else \
+                float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
+            reason = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
             if reason:
-                rejected.append(Rejection(i, k, reason, result.fitness, deviation))
+                rejected.append(Rejection(i, k, reason, np.nan if result is None else result.fitness, deviation))
             else:
-                accepted.append(self._closure(i, k, result))
+                accepted.append(self._closure(i, k, alignment))
         return accepted, rejected
 
     def _drift_bound(self, elapsed_s: float) -> float:
         """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma."""
         return self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
 
-    def _rejection(self, result: IcpResult, refinement_m: float, deviation: float, elapsed_s: float) -> str | None:
-        if not result.converged:
+    def _rejection(self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float) -> str | None:
+        cfg, result = self.config, alignment.icp
+        if alignment.overlap < cfg.min_overlap_score:
+            return "overlap"
+        if alignment.ambiguity > cfg.max_ambiguity:
+            return "ambiguous"
+        if result is None or not result.converged:
             return "not converged"
-        if result.fitness > self.config.max_fitness_m2:
+        if result.fitness > cfg.max_fitness_m2:
             return "fitness"
-        if refinement_m > self.config.max_refinement_m:
+        if result.num_inliers < cfg.min_inlier_fraction * source_points:
+            return "inliers"
+        refinement = float(np.linalg.norm((inverse(alignment.T_seed) @ result.T_target_source)[:2, 3]))
+        if refinement > cfg.max_refinement_m:
             return "refinement"
         if deviation > self._drift_bound(elapsed_s):
             return "drift"
         return None
 
-    def _closure(self, i: int, k: int, result: IcpResult) -> LoopClosure:
-        cfg = self.config
+    def _closure(self, i: int, k: int, alignment: Alignment) -> LoopClosure:
+        cfg, result = self.config, alignment.icp
         good = result.eigenvalues >= cfg.icp.lambda_min * result.num_inliers
         vectors = result.eigenvectors
         # sigma^2 H^-1 over the constrained directions; degenerate ones left unconstrained
@@ -137,4 +176,4 @@ class LoopClosureDetector:
         covariance = covariance + np.diag(floor)
         basis = None if good.all() else result.basis
         return LoopClosure(i, k, result.T_target_source, covariance, basis, result.fitness,
-                           result.num_inliers)
+                           result.num_inliers, alignment.overlap, alignment.ambiguity)
