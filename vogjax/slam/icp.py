@@ -110,7 +110,7 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
             steps = _xyh_steps(moved, q, weight)
         else:
             J, r = _plane_system(moved, T[ids, :3, :3], p, q, n)
-            J = J * weight[..., None]
+            J = J * weight[..., None] * _free_columns(config)
             H = np.einsum("pni,pnj->pij", J, J)
             g = np.einsum("pni,pn->pi", J, r)
             values, vectors = np.linalg.eigh(H)
@@ -154,6 +154,7 @@ def _result(source, target, tree, normals, T, converged, iterations, config) -> 
     if inlier.any():
         J, _ = _plane_system(moved[inlier], T[:3, :3], source[inlier], target[index[inlier]],
                              normals[index[inlier]])
+        J = J * _free_columns(config)
         H = J.T @ J
         fitness = float(np.mean(distance[inlier] ** 2))
     else:
@@ -163,6 +164,12 @@ def _result(source, target, tree, normals, T, converged, iterations, config) -> 
     good = values >= config.lambda_min * max(num_inliers, 1)
     return IcpResult(T, bool(converged and num_inliers >= config.min_inliers), fitness, num_inliers,
                      iterations, H, values, vectors, vectors[:, good])
+
+
+def _free_columns(config: IcpConfig) -> np.ndarray:
+    """Mask of the tangent directions (rotation, translation) ICP may move: a held direction
+    contributes nothing to J^T J, so it is never updated and never reported as constrained."""
+    return np.array([config.free == "all"] * 3 + [True] * 3, dtype=np.float64)
 
 
 def _cloud(name: str, value) -> np.ndarray:

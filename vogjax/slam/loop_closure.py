@@ -125,9 +125,10 @@ class LoopClosureDetector:
         pairs = []
         for i in found:
             elapsed = abs(times_s[k] - times_s[i])
+            # with ICP holding the rotation, the search takes the yaw from the estimate too
+            yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if cfg.icp.free == "all" else 0.0
             pairs.append((clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
-                          min(self._drift_bound(elapsed), cfg.max_search_m),
-                          cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed)))
+                          min(self._drift_bound(elapsed), cfg.max_search_m), yaw_radius))
         alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds)
         for i, alignment in zip(found, alignments):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
