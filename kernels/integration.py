@@ -1,23 +1,44 @@
 """Scan integration with OctoMap `insertPointCloud` semantics, batched over many scans.
 
-A batch of scans is integrated in three passes, all over rays:
-1. `list_ray_blocks`: walk each beam, record the blocks it touches (so they can be allocated).
-2. `mark_ray_voxels`: walk again and set, per touched voxel and scan, a "free" or "occupied" bit
-   (two bits per scan, 32 scans per uint64 word). OR-ing bits makes every voxel take at most one
-   update per scan with occupied winning, whatever order the rays run in.
-3. `apply_marks`: per touched voxel, replay the scans in order: add the hit or miss log-odds and
-   clamp after each. This is exactly the sequence single-scan integration would apply.
+A pass integrates up to a few dozen scans in two launches:
+1. `mark_beams_dense` (or `mark_beams_hashed`), over rays: walk each beam once and set, per voxel
+   and scan, a "free" or "occupied" bit (two bits per scan, 32 scans per uint64 word) in the
+   scratch marks of the voxel's block. OR-ing bits gives every voxel at most one update per scan
+   with occupied winning, whatever order the rays run in. Blocks are numbered as the pass meets
+   them. The dense kernel indexes blocks by their cell in the pass's bounding box, reading the
+   number at every step (one load, no branch to mispredict on entering a block); when the box
+   is too large for that, the hashed kernel looks a block up in an open-addressing table only on
+   entering it.
+2. `apply_marks`, over the voxels of the blocks the pass numbered (the host allocates their map
+   blocks in between): replay the scans in order per voxel, adding the hit or miss log-odds and
+   clamping after each, exactly the sequence single-scan integration would apply (a voxel held
+   at a clamp skips the updates that cannot move it). It clears the marks and table entries it
+   read, so the scratch is clean for the next pass without a memset.
+
+Marks are stored word-plane by word-plane (`(word * capacity + block) * 512 + voxel`): the rays
+run in scan order, so the first 32 scans of a pass touch one plane only, half the cache footprint.
+
+On the CPU a launch is split over threads, each with a scratch of its own (`part`): CPU atomics
+are plain read-modify-writes. `apply_marks` ORs the parts' marks of a block before replaying.
 """
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_slot, index_in_block, pack_block
-from .traversal import (VoxelWalk, norm_like_octomap, same_voxel, segment_continues, segment_walk_begin,
-                        voxel_key, walk_step)
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, pack_block
+from .traversal import (VoxelWalk, norm_like_octomap, same_voxel, segment_continues, segment_walk_begin, voxel_key,
+                        walk_step)
 
 wp.set_module_options({"enable_backward": False})
 
 SCANS_PER_WORD = 32
+# Scratch table entries (table_index): not numbered yet, being numbered by another thread
+# (CUDA only), and numbered beyond the scratch's capacity (the host reruns the pass).
+UNCLAIMED = wp.constant(-1)
+NUMBERING = wp.constant(-2)
+FULL = wp.constant(-3)
+# A reader waits at most this many polls for a number being written (a few on CUDA).
+MAX_POLLS = wp.constant(1 << 20)
+PAIR_MASK = wp.constant(wp.uint64(0x5555555555555555))  # the free bit of every scan's pair
 
 
 @wp.func
@@ -46,138 +67,234 @@ def walk_of_beam(origin: wp.vec3f, end: wp.vec4f, resolution: wp.float64,
     return segment_walk_begin(origin, wp.vec3f(end[0], end[1], end[2]), resolution, inv_resolution)
 
 
-@wp.kernel
-def list_ray_blocks(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-                    ray_scan: wp.array(dtype=wp.int32), max_range: wp.float64,
-                    resolution: wp.float64, inv_resolution: wp.float64,
-                    block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32)):
-    tid = wp.tid()
-    origin = origins[ray_scan[tid]]
-    end = beam_end(origin, points[tid], max_range)
-    w = walk_of_beam(origin, end, resolution, inv_resolution)
-    capacity = block_keys.shape[1]
-    n = int(0)
-    current = block_of(w.voxel)
-    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
-    active, steps = bool(w.active), int(0)
-    new_block = bool(True)
-    while active:
-        if new_block:
-            current = block_of(voxel)
-            if n < capacity:
-                block_keys[tid, n] = pack_block(current)
-            n += 1
-        voxel, t_max, _t, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
-        steps += 1
-        active = segment_continues(voxel, t_max, w, steps)
-    if end[3] > 0.0:
-        b = block_of(voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution))
-        if n == 0 or not same_voxel(b, current):
-            if n < capacity:
-                block_keys[tid, n] = pack_block(b)
-            n += 1
-    block_counts[tid] = n
-
-
-@wp.kernel
-def claim_touched_blocks(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
-                         table_slots: wp.array(dtype=wp.int32), touch_index: wp.array(dtype=wp.int32),
-                         touched_slots: wp.array(dtype=wp.int32), num_touched: wp.array(dtype=wp.int32)):
-    """Number the distinct blocks of `keys`: touch_index[slot] = position in touched_slots."""
-    tid = wp.tid()
-    key = keys[tid]
-    if key == EMPTY_KEY:
-        return
-    slot = find_slot(table_keys, table_slots, key)
-    if wp.atomic_cas(touch_index, slot, -1, -2) == -1:
-        c = wp.atomic_add(num_touched, 0, 1)
-        touched_slots[c] = slot
-        touch_index[slot] = c
-
-
-@wp.kernel
-def release_touched_blocks(touched_slots: wp.array(dtype=wp.int32), touch_index: wp.array(dtype=wp.int32)):
-    tid = wp.tid()
-    touch_index[touched_slots[tid]] = -1
+@wp.func
+def published_number(table_index: wp.array(dtype=wp.int32), i: int, wait_unclaimed: bool) -> int:
+    """A block's number once its numbering thread has written it (at once on the CPU); -1 if
+    the scratch was full."""
+    c = table_index[i]
+    polls = int(0)
+    while (c == NUMBERING or (wait_unclaimed and c == UNCLAIMED)) and polls < MAX_POLLS:
+        c = wp.atomic_add(table_index, i, 0)
+        polls += 1
+    return wp.where(c < 0, -1, c)
 
 
 @wp.func
-def mark_voxel(voxel: wp.vec3i, block_slot: int, touch_index: wp.array(dtype=wp.int32),
-               words_per_voxel: int, word: int, bit: wp.uint64, marks: wp.array(dtype=wp.uint64)):
-    if block_slot < 0:
-        return
-    compact = touch_index[block_slot]
-    i = (compact * BLOCK_VOXELS + index_in_block(voxel)) * words_per_voxel + word
-    wp.atomic_or(marks, i, bit)
+def number_block(block: wp.vec3i, i: int, capacity: int, table_index: wp.array(dtype=wp.int32),
+                 table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+                 counters: wp.array(dtype=wp.int32)) -> int:
+    """Give the block at table entry i the pass's next number and publish it (FULL beyond
+    `capacity`; counters[0] still counts it, so the host knows how much room to make)."""
+    c = wp.atomic_add(counters, 0, 1)
+    if c < capacity:
+        block_keys[c] = pack_block(block)
+        table_position[c] = i
+    else:
+        c = FULL
+    wp.atomic_exch(table_index, i, c)
+    return wp.where(c < 0, -1, c)
+
+
+@wp.func
+def dense_block(block: wp.vec3i, cell: int, capacity: int, table_index: wp.array(dtype=wp.int32),
+                table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+                counters: wp.array(dtype=wp.int32)) -> int:
+    """Number of the block in box cell `cell` (its table entry), numbering it if new; -1 if full."""
+    if wp.atomic_cas(table_index, cell, UNCLAIMED, NUMBERING) == UNCLAIMED:
+        return number_block(block, cell, capacity, table_index, table_position, block_keys, counters)
+    return published_number(table_index, cell, False)
+
+
+@wp.func
+def box_cell(voxel: wp.vec3i, box_lo: wp.vec3i, box_dims: wp.vec3i) -> int:
+    """Cell of the voxel's block in the pass's box (blocks box_lo + [0, box_dims)); -1 outside."""
+    x = (voxel[0] >> 3) - box_lo[0]
+    y = (voxel[1] >> 3) - box_lo[1]
+    z = (voxel[2] >> 3) - box_lo[2]
+    if x < 0 or y < 0 or z < 0 or x >= box_dims[0] or y >= box_dims[1] or z >= box_dims[2]:
+        return -1
+    return (x * box_dims[1] + y) * box_dims[2] + z
+
+
+@wp.func
+def hashed_block(block: wp.vec3i, capacity: int, table_keys: wp.array(dtype=wp.int64),
+                 table_index: wp.array(dtype=wp.int32), table_position: wp.array(dtype=wp.int32),
+                 block_keys: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.int32)) -> int:
+    """Number of `block` in the hashed scratch table, numbering it if new; -1 when the scratch
+    is full (counters[0] above the capacity, or counters[1] > 0: no free table entry)."""
+    key = pack_block(block)
+    size = table_keys.shape[0]
+    i = first_probe(key, size)
+    for _probe in range(size):
+        k = table_keys[i]
+        if k == EMPTY_KEY:
+            k = wp.atomic_cas(table_keys, i, EMPTY_KEY, key)
+            if k == EMPTY_KEY:
+                return number_block(block, i, capacity, table_index, table_position, block_keys, counters)
+        if k == key:
+            return published_number(table_index, i, True)
+        i = (i + 1) & (size - 1)
+    wp.atomic_add(counters, 1, 1)
+    return -1
+
+
+@wp.func
+def scan_bits(scan: int) -> wp.vec2ul:
+    """The free and hit bits of a scan (relative to the pass) in its mark word."""
+    free_bit = wp.uint64(1) << wp.uint64(2 * (scan & 31))
+    return wp.vec2ul(free_bit, free_bit << wp.uint64(1))
 
 
 @wp.kernel
-def mark_ray_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-                    ray_scan: wp.array(dtype=wp.int32), max_range: wp.float64,
-                    resolution: wp.float64, inv_resolution: wp.float64,
-                    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                    touch_index: wp.array(dtype=wp.int32), words_per_voxel: int,
-                    marks: wp.array(dtype=wp.uint64)):
+def mark_beams_dense(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
+                     ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
+                     resolution: wp.float64, inv_resolution: wp.float64, box_lo: wp.vec3i,
+                     box_dims: wp.vec3i, capacity: int, table_index: wp.array(dtype=wp.int32),
+                     table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+                     counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
+    """Per beam: a free bit for every voxel it crosses and a hit bit for its endpoint voxel.
+    A voxel outside the box (never, but for round-off beyond the box's margin) counts in
+    counters[1] and the host reruns the pass with the hashed kernel."""
     tid = wp.tid()
     scan = ray_scan[tid]
     origin = origins[scan]
-    word = scan // SCANS_PER_WORD
-    free_bit = wp.uint64(1) << wp.uint64(2 * (scan % SCANS_PER_WORD))
-    hit_bit = free_bit << wp.uint64(1)
+    scan = scan - first_scan
+    bits = scan_bits(scan)
+    plane = (scan >> 5) * capacity * BLOCK_VOXELS
     end = beam_end(origin, points[tid], max_range)
     w = walk_of_beam(origin, end, resolution, inv_resolution)
-    slot = int(-1)
+    step, t_delta = w.step, w.t_delta
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active, steps = bool(w.active), int(0)
+    while active:
+        cell = box_cell(voxel, box_lo, box_dims)
+        if cell < 0:
+            wp.atomic_add(counters, 1, 1)
+            return
+        c = table_index[cell]
+        if c < 0:
+            c = dense_block(block_of(voxel), cell, capacity, table_index, table_position, block_keys, counters)
+        if c >= 0:
+            wp.atomic_or(marks, plane + c * BLOCK_VOXELS + index_in_block(voxel), bits[0])
+        voxel, t_max, _t, _new_block = walk_step(voxel, step, t_max, t_delta)
+        steps += 1
+        active = segment_continues(voxel, t_max, w, steps)
+    if end[3] > 0.0:
+        v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
+        cell = box_cell(v, box_lo, box_dims)
+        if cell < 0:
+            wp.atomic_add(counters, 1, 1)
+            return
+        c = table_index[cell]
+        if c < 0:
+            c = dense_block(block_of(v), cell, capacity, table_index, table_position, block_keys, counters)
+        if c >= 0:
+            wp.atomic_or(marks, plane + c * BLOCK_VOXELS + index_in_block(v), bits[1])
+
+
+@wp.kernel
+def mark_beams_hashed(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
+                      ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
+                      resolution: wp.float64, inv_resolution: wp.float64, capacity: int,
+                      table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
+                      table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+                      counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
+    """As mark_beams_dense, for passes whose box is too large to index: blocks are looked up in
+    a hash table, once on entering each."""
+    tid = wp.tid()
+    scan = ray_scan[tid]
+    origin = origins[scan]
+    scan = scan - first_scan
+    bits = scan_bits(scan)
+    plane = (scan >> 5) * capacity * BLOCK_VOXELS
+    end = beam_end(origin, points[tid], max_range)
+    w = walk_of_beam(origin, end, resolution, inv_resolution)
+    step, t_delta = w.step, w.t_delta
+    base = int(-1)  # marks index of the current block's voxel 0; -1: none (scratch full)
     current = block_of(w.voxel)
+    looked_up = bool(False)
     voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
     active, steps = bool(w.active), int(0)
     new_block = bool(True)
     while active:
         if new_block:
             current = block_of(voxel)
-            slot = find_slot(table_keys, table_slots, pack_block(current))
-        mark_voxel(voxel, slot, touch_index, words_per_voxel, word, free_bit, marks)
-        voxel, t_max, _t, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+            looked_up = True
+            c = hashed_block(current, capacity, table_keys, table_index, table_position, block_keys, counters)
+            base = wp.where(c < 0, -1, plane + c * BLOCK_VOXELS)
+        if base >= 0:
+            wp.atomic_or(marks, base + index_in_block(voxel), bits[0])
+        voxel, t_max, _t, new_block = walk_step(voxel, step, t_max, t_delta)
         steps += 1
         active = segment_continues(voxel, t_max, w, steps)
     if end[3] > 0.0:
         v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
         b = block_of(v)
-        if slot < 0 or not same_voxel(b, current):
-            slot = find_slot(table_keys, table_slots, pack_block(b))
-        mark_voxel(v, slot, touch_index, words_per_voxel, word, hit_bit, marks)
+        if not looked_up or not same_voxel(b, current):
+            c = hashed_block(b, capacity, table_keys, table_index, table_position, block_keys, counters)
+            base = wp.where(c < 0, -1, plane + c * BLOCK_VOXELS)
+        if base >= 0:
+            wp.atomic_or(marks, base + index_in_block(v), bits[1])
+
+
+@wp.func
+def lowest_bit(x: wp.uint64) -> wp.uint64:
+    return x & (~x + wp.uint64(1))
 
 
 @wp.kernel
-def apply_marks(touched_slots: wp.array(dtype=wp.int32), first: int, marks: wp.array2d(dtype=wp.uint64),
-                words_per_voxel: int, log_hit: wp.float32, log_miss: wp.float32,
-                clamp_min: wp.float32, clamp_max: wp.float32, log_odds: wp.array(dtype=wp.float32)):
-    tid = first + wp.tid()  # voxel among the touched blocks' voxels
-    compact = tid // BLOCK_VOXELS
-    i = touched_slots[compact] * BLOCK_VOXELS + tid % BLOCK_VOXELS
+def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(dtype=wp.int32),
+                first: int, words_per_voxel: int, capacity: int, log_hit: wp.float32,
+                log_miss: wp.float32, clamp_min: wp.float32, clamp_max: wp.float32,
+                marks: wp.array2d(dtype=wp.uint64), table_keys: wp.array2d(dtype=wp.int64),
+                table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
+                log_odds: wp.array(dtype=wp.float32)):
+    """Per voxel of the touched blocks (block u = map slot block_slots[u], numbered
+    part_blocks[u, p] in scratch part p, -1 where that part did not touch it): replay the marked
+    scans in order, then clear the marks read (and, once per block, its table entries)."""
+    tid = first + wp.tid()
+    u = tid // BLOCK_VOXELS
+    voxel = tid - u * BLOCK_VOXELS
+    i = block_slots[u] * BLOCK_VOXELS + voxel
     value = log_odds[i]
-    changed = bool(False)
+    marked = bool(False)
     for word in range(words_per_voxel):
         m = wp.uint64(0)
-        for copy in range(marks.shape[0]):  # one copy per CPU thread that marked
-            m = m | marks[copy, tid * words_per_voxel + word]
-        for _scan in range(SCANS_PER_WORD):
-            if m == wp.uint64(0):
-                break
-            bits = m & wp.uint64(3)
-            m = m >> wp.uint64(2)
-            if bits != wp.uint64(0):
-                if not changed:
-                    changed = True
-                    if wp.isnan(value):
-                        value = wp.float32(0.0)
-                if bits >= wp.uint64(2):
-                    value = value + log_hit
-                else:
-                    value = value + log_miss
-                # OctoMap's order: the lower bound first.
-                if value < clamp_min:
-                    value = clamp_min
-                elif value > clamp_max:
-                    value = clamp_max
-    if changed:
+        for part in range(part_blocks.shape[1]):
+            c = part_blocks[u, part]
+            if c >= 0:
+                j = (word * capacity + c) * BLOCK_VOXELS + voxel
+                bits = marks[part, j]
+                if bits != wp.uint64(0):
+                    m = m | bits
+                    marks[part, j] = wp.uint64(0)
+        if m != wp.uint64(0):
+            if not marked:
+                marked = True
+                if wp.isnan(value):
+                    value = wp.float32(0.0)
+            touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order
+            hits = (m >> wp.uint64(1)) & PAIR_MASK  # occupied wins over free within a scan
+            while touched != wp.uint64(0):
+                # At a clamp, the updates pushing further out leave the value as it is: go on
+                # from the next scan that pulls it back.
+                if value == clamp_min:
+                    touched = touched & ~(lowest_bit(touched & hits) - wp.uint64(1))
+                elif value == clamp_max:
+                    touched = touched & ~(lowest_bit(touched & ~hits) - wp.uint64(1))
+                low = lowest_bit(touched)
+                if low != wp.uint64(0):
+                    touched = touched ^ low
+                    update = wp.where((hits & low) != wp.uint64(0), log_hit, log_miss)
+                    # OctoMap clamps after every update (lower bound first: the same as
+                    # min(max(.)) for clamp_min < clamp_max)
+                    value = wp.min(wp.max(value + update, clamp_min), clamp_max)
+    if marked:
         log_odds[i] = value
+    if voxel == 0:
+        for part in range(part_blocks.shape[1]):
+            c = part_blocks[u, part]
+            if c >= 0:
+                position = table_position[part, c]
+                table_keys[part, position] = EMPTY_KEY
+                table_index[part, position] = UNCLAIMED

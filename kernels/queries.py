@@ -5,9 +5,10 @@ Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer 
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block
+from .hashing import BLOCK_VOXELS, VOXEL_KEY_LIMIT_C, block_of, find_voxel_slot, grid_slot, index_in_block
 from .integration import walk_of_beam
-from .traversal import VoxelWalk, ray_walk_begin, segment_continues, voxel_key, walk_step
+from .traversal import (VoxelWalk, l1_distance, ray_box_span, ray_entry, ray_key_range, ray_voxel_at,
+                        ray_voxels_until, ray_walk_begin, ray_walk_resume, segment_continues, voxel_key, walk_step)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -33,17 +34,40 @@ def lookup_log_odds(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64
     values[tid] = value_in_slot(find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds)
 
 
+# A stretch of unknown voxels longer than this is counted in closed form, not walked.
+SKIP_VOXELS = wp.constant(64)
+
+
 @wp.kernel
 def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
               max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
               inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
-              table_slots: wp.array(dtype=wp.int32), log_odds: wp.array(dtype=wp.float32),
+              table_slots: wp.array(dtype=wp.int32), grid_lo: wp.vec3i, grid_hi: wp.vec3i,
+              grid_dims: wp.vec3i, grid: wp.array(dtype=wp.int32), log_odds: wp.array(dtype=wp.float32),
               log_occupied: wp.float32, log_free: wp.float32,
               hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
               num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    """First OCCUPIED voxel along each ray within its range, and the FREE and UNKNOWN voxels
+    passed before it.
+
+    The map's blocks lie in [grid_lo, grid_hi] (block coordinates); with grid_dims > 0 a dense
+    grid gives each block's slot in one load. Outside that box every voxel is unknown: a ray
+    skips a long stretch before it (`ray_voxel_at`) and counts the rest after it
+    (`ray_voxels_until`) without walking, so its cost is bounded by the map, not the range.
+    Voxels outside the key range are not counted.
+    """
     tid = wp.tid()
+    origin, direction = origins[tid], directions[tid]
     max_range = max_ranges[tid]
-    w = ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, max_range)
+    w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
+    step, t_delta = w.step, w.t_delta
+    # the map's box widened by a voxel: the ray is before it until t_in, past it after t_out
+    lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))
+    hi = wp.vec3d(wp.float64(grid_hi[0] * 8 + 9), wp.float64(grid_hi[1] * 8 + 9), wp.float64(grid_hi[2] * 8 + 9))
+    span = ray_box_span(origin, direction, lo * resolution, hi * resolution)
+    t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
+    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
+        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
     unknown = int(0)
     free = int(0)
     found = bool(False)
@@ -52,8 +76,32 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     slot = int(-1)
     new_block = bool(True)
     steps = int(0)
-    while t_entry < max_range and steps <= w.max_steps:
-        if new_block:
+    # whether the stretch before (after) the box was measured and found short enough to walk
+    before_checked = bool(False)
+    after_checked = bool(False)
+    while t_entry < t_end and steps <= w.max_steps:
+        if t_entry > span[1] and not after_checked:
+            after_checked = True
+            n = ray_voxels_until(origin, direction, voxel, step, resolution, inv_resolution, t_end)
+            if n > SKIP_VOXELS:
+                unknown += n
+                break
+        elif t_entry < span[0] and span[0] < t_end and not before_checked:
+            before_checked = True
+            target = ray_voxel_at(origin, direction, voxel, step, inv_resolution, span[0])
+            skipped = l1_distance(voxel, target)
+            if skipped > SKIP_VOXELS:
+                unknown += skipped
+                steps += skipped
+                t_entry = ray_entry(origin, direction, voxel, target, step, resolution)
+                voxel = target
+                t_max = ray_walk_resume(origin, direction, voxel, step, resolution)
+                new_block = True
+                continue
+        block = block_of(voxel)
+        if grid_dims[0] > 0:
+            slot = grid_slot(block, grid_lo, grid_dims, grid)
+        elif new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         value = value_in_slot(slot, voxel, log_odds)
         # NaN (never observed) fails both comparisons: unknown.
@@ -65,7 +113,7 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
             free += 1
         else:
             unknown += 1
-        voxel, t_max, t_entry, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, t_entry, new_block = walk_step(voxel, step, t_max, t_delta)
         steps += 1
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)

@@ -7,6 +7,12 @@ Two ways to start a walk:
 - `ray_walk_begin` starts from a float64 origin and unit direction, for planner ray casts.
 
 Voxel k covers [k*s, (k+1)*s) on each axis.
+
+Long rays: a ray walk's cost grows with its range, so ray casts skip the stretches where nothing
+is known (before and after the map's box) in closed form: `ray_voxels_until` counts the voxels a
+walk would visit up to a distance, `ray_walk_resume` restarts a walk at a voxel further on.
+Both evaluate the boundary distances directly instead of summing steps, so they agree with a
+step-by-step walk except where a voxel boundary lies within rounding of the distance.
 """
 
 import warp as wp
@@ -14,6 +20,9 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 FAR = wp.constant(wp.float64(1.0e300))
+# Voxels per axis a walk can meet inside the key range (hashing.VOXEL_KEY_LIMIT = 2^23 each way),
+# so 3x this bounds the steps of any walk and the count stays far from int32's limit.
+KEY_SPAN = wp.constant(wp.float64(1 << 24))
 
 
 @wp.struct
@@ -118,9 +127,92 @@ def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64
             w.t_max[i] = (wp.float64(w.voxel[i]) * resolution - origin[i]) / direction[i]
         if w.step[i] != 0:
             w.t_delta[i] = resolution / wp.abs(direction[i])
-    w.max_steps = 3 * int(max_range * inv_resolution) + 6
+    # in float64 and capped: 3 * int(range / s) overflows int32 for ranges above ~7e7 voxels
+    w.max_steps = 3 * int(wp.min(max_range * inv_resolution, KEY_SPAN)) + 6
     w.active = max_range > wp.float64(0.0)
     return w
+
+
+@wp.func
+def ray_walk_resume(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
+                    resolution: wp.float64) -> wp.vec3d:
+    """t_max of a ray walk (from `origin` along unit `direction`) that has reached `voxel`:
+    the distance to the voxel's far boundary per axis, as ray_walk_begin computes it."""
+    t_max = wp.vec3d(FAR, FAR, FAR)
+    for i in range(3):
+        if step[i] > 0:
+            t_max[i] = (wp.float64(voxel[i] + 1) * resolution - origin[i]) / direction[i]
+        elif step[i] < 0:
+            t_max[i] = (wp.float64(voxel[i]) * resolution - origin[i]) / direction[i]
+    return t_max
+
+
+@wp.func
+def ray_voxel_at(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
+                 inv_resolution: wp.float64, t: wp.float64) -> wp.vec3i:
+    """The voxel holding the ray's point at distance t, for a walk now in `voxel` (a walk is
+    monotone per axis, so round-off never puts it behind that voxel)."""
+    v = voxel_key_d(origin + direction * t, inv_resolution)
+    for i in range(3):
+        if (v[i] - voxel[i]) * step[i] <= 0:
+            v[i] = voxel[i]
+    return v
+
+
+@wp.func
+def ray_entry(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, target: wp.vec3i, step: wp.vec3i,
+              resolution: wp.float64) -> wp.float64:
+    """Distance at which a walk now in `voxel` enters `target` further on: the latest of the
+    entry faces of `target` on the axes it moves along (-FAR when target is voxel)."""
+    t = -FAR
+    for i in range(3):
+        if target[i] != voxel[i]:
+            face = wp.float64(target[i]) + wp.where(step[i] < 0, wp.float64(1.0), wp.float64(0.0))
+            t = wp.max(t, (face * resolution - origin[i]) / direction[i])
+    return t
+
+
+@wp.func
+def ray_voxels_until(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
+                     resolution: wp.float64, inv_resolution: wp.float64, t_end: wp.float64) -> int:
+    """Voxels a ray walk now in `voxel` visits from it on, it included, entering each before
+    t_end. Each step moves one axis by one, so that is the L1 distance to the voxel holding the
+    point at t_end, plus one, less that voxel if the walk enters it at t_end or later."""
+    last = ray_voxel_at(origin, direction, voxel, step, inv_resolution, t_end)
+    n = l1_distance(voxel, last) + 1
+    if n > 1 and ray_entry(origin, direction, voxel, last, step, resolution) >= t_end:
+        n -= 1
+    return n
+
+
+@wp.func
+def ray_key_range(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64, limit: int) -> wp.float64:
+    """Distance at which the ray leaves the key range [-limit, limit) voxels per axis."""
+    t = FAR
+    for i in range(3):
+        if direction[i] > wp.float64(0.0):
+            t = wp.min(t, (wp.float64(limit) * resolution - origin[i]) / direction[i])
+        elif direction[i] < wp.float64(0.0):
+            t = wp.min(t, (wp.float64(-limit) * resolution - origin[i]) / direction[i])
+    return t
+
+
+@wp.func
+def ray_box_span(origin: wp.vec3d, direction: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d) -> wp.vec2d:
+    """[t_in, t_out] of the ray (all t, negative included) inside the box [lo, hi]; empty
+    (t_in > t_out) when it misses."""
+    t_in = -FAR
+    t_out = FAR
+    for i in range(3):
+        if direction[i] == wp.float64(0.0):
+            if origin[i] < lo[i] or origin[i] > hi[i]:
+                return wp.vec2d(FAR, -FAR)
+        else:
+            a = (lo[i] - origin[i]) / direction[i]
+            b = (hi[i] - origin[i]) / direction[i]
+            t_in = wp.max(t_in, wp.min(a, b))
+            t_out = wp.min(t_out, wp.max(a, b))
+    return wp.vec2d(t_in, t_out)
 
 
 @wp.func

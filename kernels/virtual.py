@@ -10,7 +10,12 @@ import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
 from .submap_view import SubmapView, submap_value, voxel_centre
-from .traversal import ray_walk_begin, walk_step
+from .hashing import VOXEL_KEY_LIMIT_C
+from .traversal import (FAR, l1_distance, ray_entry, ray_key_range, ray_voxel_at, ray_voxels_until, ray_walk_begin,
+                        ray_walk_resume, walk_step)
+
+# A stretch of unknown voxels longer than this is counted in closed form, not walked.
+SKIP_VOXELS = wp.constant(64)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -83,17 +88,51 @@ def cast_virtual_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
                       clamp_max: wp.float32, log_occupied: wp.float32, log_free: wp.float32,
                       hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
                       num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
-    """Walk the world voxel grid; at each voxel centre sum the candidate submaps the ray is in."""
+    """Walk the world voxel grid; at each voxel centre sum the candidate submaps the ray is in.
+
+    Before the first candidate's span and after the last one every voxel is unknown: long
+    stretches there are skipped and counted in closed form (as cast_rays does), and voxels
+    outside the key range are not counted.
+    """
     r = wp.tid() + first
+    origin, direction = origins[r], directions[r]
     max_range = max_ranges[r]
-    w = ray_walk_begin(origins[r], directions[r], resolution, inv_resolution, max_range)
+    w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
+    step, t_delta = w.step, w.t_delta
+    t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
+    known_from = FAR
+    known_to = wp.float64(-1.0)
+    for k in range(offsets[r], offsets[r + 1]):
+        known_from = wp.min(known_from, spans[k][0])
+        known_to = wp.max(known_to, spans[k][1])
+    # spans come from boxes widened by a voxel: voxels entered outside [known_from, known_to]
+    # lie outside every candidate's box
     voxel, t_max, t_entry = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     unknown = int(0)
     free = int(0)
     found = bool(False)
     t_hit = max_range
     steps = int(0)
-    while t_entry < max_range and steps <= w.max_steps:
+    before_checked = bool(False)
+    after_checked = bool(False)
+    while t_entry < t_end and steps <= w.max_steps:
+        if t_entry > known_to and not after_checked:
+            after_checked = True
+            n = ray_voxels_until(origin, direction, voxel, step, resolution, inv_resolution, t_end)
+            if n > SKIP_VOXELS:
+                unknown += n
+                break
+        elif t_entry < known_from and known_from < t_end and not before_checked:
+            before_checked = True
+            target = ray_voxel_at(origin, direction, voxel, step, inv_resolution, known_from)
+            skipped = l1_distance(voxel, target)
+            if skipped > SKIP_VOXELS:
+                unknown += skipped
+                steps += skipped
+                t_entry = ray_entry(origin, direction, voxel, target, step, resolution)
+                voxel = target
+                t_max = ray_walk_resume(origin, direction, voxel, step, resolution)
+                continue
         t_exit = wp.min(wp.min(t_max[0], t_max[1]), t_max[2])
         centre = voxel_centre(voxel, resolution)
         total = wp.int64(0)
@@ -114,7 +153,7 @@ def cast_virtual_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
             free += 1
         else:
             unknown += 1
-        voxel, t_max, t_entry, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, t_entry, _new_block = walk_step(voxel, step, t_max, t_delta)
         steps += 1
     hit[r] = found
     distance[r] = wp.float32(t_hit)

@@ -19,6 +19,9 @@ from vogjax.validation import float_array, positive_range, within_key_range
 UNKNOWN = 0
 FREE = 1
 OCCUPIED = 2
+# Voxels one line of line_query may cross (its output holds a row this long per line): 6.5 km
+# along an axis at 0.1 m voxels. Longer lines are refused rather than allocated.
+MAX_LINE_VOXELS = 1 << 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,9 +97,14 @@ class BlockMap:
     def raycast(self, origins, directions, max_range) -> RaycastResult:
         """First OCCUPIED voxel along each ray, within `max_range` (float or (R,)) metres.
 
-        origins (R,3), directions (R,3) (any nonzero length; normalised here).
+        origins (R,3) inside the key range, directions (R,3) (any nonzero length; normalised
+        here). Any range is accepted: stretches of unknown space outside the map's box are
+        counted without walking them, so a ray costs at most about the voxels of the map it
+        crosses; voxels outside the key range (`hashing.VOXEL_KEY_LIMIT` voxels from the
+        origin per axis) are not counted.
         """
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
+        check_extent(self.config, origins=origins)
         count = origins.shape[0]
         device = self.device
         d = {
@@ -110,17 +118,20 @@ class BlockMap:
             "num_unknown": wp.empty(count, dtype=wp.int32, device=device),
             "num_free": wp.empty(count, dtype=wp.int32, device=device),
         }
-        cfg, store = self.config, self._store
+        cfg = self.config
 
         def launch(part: int, lo: int, hi: int) -> None:
             wp.launch(queries.cast_rays, dim=hi - lo,
                       inputs=[d["origins"][lo:hi], d["directions"][lo:hi], d["ranges"][lo:hi],
                               np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
-                              store.table_keys, store.table_slots, store.layers["log_odds"],
+                              store.table_keys, store.table_slots, *grid_inputs, store.layers["log_odds"],
                               cfg.log_occupied, cfg.log_free],
                       outputs=[a[lo:hi] for a in out.values()], device=device)
 
         with self._lock.reading():
+            store = self._store
+            grid = store.grid()
+            grid_inputs = [wp.vec3i(*grid.lo), wp.vec3i(*grid.hi), wp.vec3i(*grid.dims), grid.cells]
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
@@ -183,10 +194,17 @@ def ray_arguments(origins, directions, max_range):
     """Validated rays: origins (R,3), unit directions (R,3), ranges (R,), all float64."""
     origins = float_array("origins", origins, (-1, 3), np.float64)
     directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
-    norms = np.linalg.norm(directions, axis=1)
-    if np.any(norms == 0):
+    return origins, unit_directions(directions), positive_range("max_range", max_range, origins.shape[0])
+
+
+def unit_directions(directions: np.ndarray) -> np.ndarray:
+    """(R,3) finite float64 directions scaled to unit length. Each row is first divided by its
+    largest |component|, so neither huge (1e200) nor tiny (1e-320) ones overflow or vanish."""
+    scale = np.abs(directions).max(axis=1, initial=0.0)
+    if np.any(scale == 0):
         raise ValueError("directions must be nonzero")
-    return origins, directions / norms[:, None], positive_range("max_range", max_range, origins.shape[0])
+    scaled = directions / scale[:, None]
+    return scaled / np.linalg.norm(scaled, axis=1)[:, None]
 
 
 def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:
@@ -198,6 +216,14 @@ def line_arguments(config: MapConfig, starts, ends) -> tuple[np.ndarray, np.ndar
     starts = float_array("starts", starts, (-1, 3))
     ends = float_array("ends", ends, (starts.shape[0], 3))
     check_extent(config, starts=starts, ends=ends)
+    # a line visits one voxel per unit of L1 key distance, plus its first
+    inv = 1.0 / config.voxel_size
+    span = np.abs(np.floor(ends.astype(np.float64) * inv) - np.floor(starts.astype(np.float64) * inv)).sum(axis=1) + 1
+    if starts.shape[0] and span.max() > MAX_LINE_VOXELS:
+        i = int(np.argmax(span))
+        raise ValueError(f"ends: line {i} crosses {int(span[i])} voxels; line_query takes at most "
+                         f"{MAX_LINE_VOXELS} voxels per line ({MAX_LINE_VOXELS * config.voxel_size:.0f} m "
+                         "along an axis): split longer lines")
     return starts, ends
 
 

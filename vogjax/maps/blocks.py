@@ -7,6 +7,9 @@ The table maps packed block coordinates to slots; each voxel layer is one flat a
 
 from __future__ import annotations
 
+import dataclasses
+import threading
+
 import numpy as np
 import warp as wp
 
@@ -19,6 +22,8 @@ _FIELD = (1 << 21) - 1
 _BIAS = 1 << 20
 _MIN_TABLE = 1024
 _MIN_BLOCKS = 64
+# A block grid (BlockGrid) is built when the blocks' box has at most this many cells (16 MiB).
+GRID_CELLS = 1 << 22
 
 
 def pack_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -44,6 +49,29 @@ def voxel_offsets() -> np.ndarray:
     return np.stack([i // 64, (i // 8) % 8, i % 8], axis=1)
 
 
+@dataclasses.dataclass(frozen=True)
+class BlockGrid:
+    """The box of a store's blocks and, when small enough, a dense index of it for queries.
+
+    lo, hi: (3,) int lowest and highest block coordinates of the blocks (hi < lo: no blocks)
+    dims: (3,) int cells per axis of `cells`, all 0 when there is no dense index
+    cells: int32 (prod(dims),) slot of the block in each cell, -1 where none (one -1 without index)
+    """
+
+    lo: tuple
+    hi: tuple
+    dims: tuple
+    cells: wp.array
+
+    @property
+    def voxel_lo(self) -> tuple:
+        return tuple(int(v) * BLOCK_EDGE for v in self.lo)
+
+    @property
+    def voxel_hi(self) -> tuple:
+        return tuple(int(v) * BLOCK_EDGE + BLOCK_EDGE - 1 for v in self.hi)
+
+
 class BlockStore:
     """Blocks of voxel layers addressed by an open-addressing hash table on one device.
 
@@ -64,6 +92,9 @@ class BlockStore:
         self.touch_index = wp.full(capacity, -1, dtype=wp.int32, device=device)
         self.layers = {name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
                        for name, (dtype, fill) in self.layer_specs.items()}
+        self.version = 0  # counts changes to the set of blocks (BlockGrid follows it)
+        self._grid: tuple | None = None  # (version, BlockGrid)
+        self._grid_lock = threading.Lock()
 
     @property
     def block_capacity(self) -> int:
@@ -80,7 +111,34 @@ class BlockStore:
     def memory_bytes(self) -> int:
         arrays = [self.table_keys, self.table_slots, self.slot_keys, self.touch_index,
                   *self.layers.values()]
-        return int(sum(a.capacity for a in arrays))
+        grid = self._grid
+        return int(sum(a.capacity for a in arrays)) + (grid[1].cells.capacity if grid else 0)
+
+    def grid(self) -> BlockGrid:
+        """The blocks' box and dense index, rebuilt after blocks were added or released (call
+        it under the owner's read lock; concurrent readers share one build)."""
+        with self._grid_lock:
+            if self._grid is None or self._grid[0] != self.version:
+                self._grid = (self.version, self._build_grid())
+            return self._grid[1]
+
+    def _build_grid(self) -> BlockGrid:
+        keys = self.slot_keys.numpy()[: self.num_blocks]
+        keys = keys[keys != EMPTY_KEY]
+        none = wp.full(1, -1, dtype=wp.int32, device=self.device)
+        if len(keys) == 0:
+            return BlockGrid((1, 1, 1), (0, 0, 0), (0, 0, 0), none)
+        blocks = unpack_blocks(keys)
+        lo, hi = blocks.min(axis=0), blocks.max(axis=0)
+        dims = hi - lo + 1
+        box = (tuple(lo.tolist()), tuple(hi.tolist()))
+        if int(np.prod(dims)) > GRID_CELLS:
+            return BlockGrid(*box, (0, 0, 0), none)
+        cells = wp.full(int(np.prod(dims)), -1, dtype=wp.int32, device=self.device)
+        wp.launch(hashing.fill_block_grid, dim=self.num_blocks,
+                  inputs=[self.slot_keys, wp.vec3i(*box[0]), wp.vec3i(*dims.tolist())], outputs=[cells],
+                  device=self.device)
+        return BlockGrid(*box, tuple(dims.tolist()), cells)
 
     def ensure_blocks(self, keys: wp.array) -> None:
         """Allocate a block for every packed key in `keys` (EMPTY_KEY entries are skipped)."""
@@ -103,6 +161,7 @@ class BlockStore:
                           inputs=[new_positions, wp.array(slots, dtype=wp.int32, device=self.device)],
                           outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
                 self.num_blocks += fresh
+                self.version += 1
             if failed or 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
                 self._reserve_table(self.live_blocks + max(failed, self.live_blocks // 2))
             if not failed:
@@ -120,6 +179,7 @@ class BlockStore:
                 self.layers[name][int(slot) * BLOCK_VOXELS:(int(slot) + 1) * BLOCK_VOXELS].fill_(fill)
         self.free_slots.extend(int(s) for s in slots)
         self.tombstones += len(slots)
+        self.version += 1
         if 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
             self._reserve_table(self.live_blocks)
 
@@ -181,8 +241,9 @@ class BlockStore:
         old = self.block_capacity
         if num_blocks <= old:
             return
-        # Small steps keep the slack low; copies stay cheap next to integration.
-        capacity = max(num_blocks, old + old // 8)
+        # Steps of a half: a map grown block by block copies its pool about twice in all, and
+        # holds at most a third of it spare.
+        capacity = max(num_blocks, old + old // 2)
         self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
         self.touch_index = _grown(self.touch_index, capacity, -1)
         for name, (_, fill) in self.layer_specs.items():
@@ -190,6 +251,7 @@ class BlockStore:
 
 
 def _grown(array: wp.array, size: int, fill) -> wp.array:
-    grown = wp.full(size, fill, dtype=array.dtype, device=array.device)
+    grown = wp.empty(size, dtype=array.dtype, device=array.device)
     wp.copy(grown, array, count=array.shape[0])
+    grown[array.shape[0]:].fill_(fill)
     return grown

@@ -10,7 +10,8 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.maps import parallel
-from vogjax.maps.blockmap import RaycastResult, classify, line_voxels, probability_from_log_odds, ray_arguments
+from vogjax.maps.blockmap import (RaycastResult, check_extent, classify, line_voxels, probability_from_log_odds,
+                                  ray_arguments)
 from vogjax.config import MapConfig
 from vogjax.geometry import rigid_poses
 from vogjax.kernels import fixed_point, virtual
@@ -158,14 +159,16 @@ class VogMap:
         return classify(self._values_at(points), self.config)
 
     def raycast(self, origins, directions, max_range) -> RaycastResult:
-        """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre."""
+        """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre (long
+        stretches before and after the submaps' boxes are counted, not walked, likewise)."""
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
+        check_extent(self.config, origins=origins)
         cfg, device, count = self.config, self.device, origins.shape[0]
         rays = [wp.array(origins, dtype=wp.vec3d, device=device),
                 wp.array(directions, dtype=wp.vec3d, device=device),
                 wp.array(ranges, dtype=wp.float64, device=device)]
         out = {"hit": wp.zeros(count, dtype=wp.bool, device=device),
-               "distance": wp.array(ranges.astype(np.float32), dtype=wp.float32, device=device),
+               "distance": wp.zeros(count, dtype=wp.float32, device=device),  # every ray writes its own
                "num_unknown": wp.zeros(count, dtype=wp.int32, device=device),
                "num_free": wp.zeros(count, dtype=wp.int32, device=device)}
         parts = parallel.num_parts(device, count)
