@@ -19,9 +19,11 @@ eps_rot = 0
 eps_trans = 0
 eps_cov = 0
 
-[report]
+[timing]
 rays = 2000
-timing_samples = 3
+every_submaps = 6
+
+[report]
 surface_points = 20000
 """
 
@@ -76,7 +78,7 @@ def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
 def test_map_writes_a_complete_report(mapped, boxes_run):
     report = json.loads((mapped / "report.json").read_text())
     assert report["run"] == str(boxes_run) and report["scene"] == "boxes"
-    assert set(report["auc"]) == {"online", "virtual", "full_merge", "standard"}
+    assert set(report["auc"]) == {"online", "virtual", "full_merge", "standard", "true_pose"}
     assert all(0.5 < v <= 1.0 for v in report["auc"].values())
     assert report["auc"]["online"] == report["auc"]["full_merge"]  # eps = 0: the same map
     assert abs(report["auc"]["online"] - report["auc"]["virtual"]) < 0.01
@@ -91,7 +93,7 @@ def test_map_writes_a_complete_report(mapped, boxes_run):
     curves = timing["curves"]
     assert len(curves["online_s"]) == report["submaps"] and curves["rays"] == 2000
     assert curves["sampled_submaps"][-1] == report["submaps"]
-    assert report["config"]["pipeline"]["eps_cov"] == 0 and report["config"]["report"]["rays"] == 2000
+    assert report["config"]["pipeline"]["eps_cov"] == 0 and report["config"]["pipeline"]["timing"]["rays"] == 2000
     assert {"vogjax", "warp", "jax", "gtsam", "numpy"} <= set(report["versions"])
     # the map file holds the online map; the CSV one row per submap
     gmap = vj.GlobalMap.load(mapped / "global_map.vog")
@@ -110,7 +112,7 @@ def test_a_failure_while_writing_leaves_the_earlier_results(mapped, boxes_run, m
         raise RuntimeError("disk full")
 
     monkeypatch.setattr(job.plots, "timing", broken)
-    config = JobConfig.from_document({"report": {"rays": 100, "timing_samples": 2, "surface_points": 1000}})
+    config = JobConfig.from_document({"timing": {"rays": 100, "every_submaps": 5}, "report": {"surface_points": 1000}})
     with pytest.raises(RuntimeError, match="disk full"):
         job.map_runs([boxes_run], mapped.parent, config, progress=False)
     assert (mapped / "report.json").read_text() == before
@@ -146,7 +148,7 @@ def test_missing_and_corrupt_runs_are_clear_errors_with_no_output(boxes_run, tmp
     ("[map]\nvoxel_size = -1.0\n", "voxel_size must be a positive number"),
     ("[pipeline]\neps_cov = 'big'\n", "eps_cov must be 'auto'"),
     ("[loop_closure.icp]\nmax_iterations = 2.5\n", "loop_closure.icp.max_iterations must be int"),
-    ("[report]\nrays = 0\n", "rays must be a positive integer"),
+    ("[timing]\nrays = 0\n", "rays must be a positive integer"),
     ("[map\nvoxel_size = 0.1\n", "not valid TOML"),
 ])
 def test_bad_settings_are_clear_errors_with_no_output(boxes_run, tmp_path, capsys, settings, message):

@@ -5,11 +5,12 @@
 """
 
 from vogjax.config.maps import MapConfig, logodds
-from vogjax.config.pipeline import JobConfig, PipelineConfig, ReportConfig
+from vogjax.config.pipeline import PRESETS, JobConfig, PipelineConfig, ReportConfig, TimingConfig
 from vogjax.config.schema import Config, Rule
 from vogjax.config.sensing import NavNoise, SonarConfig
 from vogjax.config.sim import ControllerConfig
 from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig
 
 __all__ = ["Config", "ControllerConfig", "CorrelativeConfig", "IcpConfig", "JobConfig", "LoopClosureConfig",
-           "MapConfig", "NavNoise", "PipelineConfig", "ReportConfig", "Rule", "SonarConfig", "logodds"]
+           "MapConfig", "NavNoise", "PRESETS", "PipelineConfig", "ReportConfig", "Rule", "SonarConfig", "TimingConfig",
+           "logodds"]

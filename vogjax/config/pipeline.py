@@ -11,6 +11,19 @@ from vogjax.config.slam import LoopClosureConfig
 
 
 @dataclasses.dataclass(frozen=True)
+class TimingConfig(Config):
+    """Timing probes taken while a run is mapped (Sodhi et al., Figs. 8 and 9): after every
+    `every_submaps` finished submaps (0: never) and after the last, a full merge of every
+    submap so far (what a full-merge baseline redoes at a loop closure) and one query of
+    `rays` planner rays of `ray_length_m` on the global and on the virtual map. Probe time is
+    kept out of the pipeline's own timings."""
+
+    every_submaps: int = integer(10, low=0)
+    rays: int = integer(100_000, low=1, high=10_000_000)
+    ray_length_m: float = positive(4.0)
+
+
+@dataclasses.dataclass(frozen=True)
 class PipelineConfig(Config):
     """scans_per_submap: cut a submap every this many scans (100 in Ho, 200 in Sodhi), or
     None ("covariance" in a settings file) to cut by Eq. 2: when the x, y or yaw variance
@@ -22,6 +35,7 @@ class PipelineConfig(Config):
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
     loop_closure: LoopClosureConfig = section(LoopClosureConfig())
+    timing: TimingConfig = section(TimingConfig())
     scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
     max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
     max_yaw_variance_rad2: float = positive(2e-6)
@@ -42,20 +56,16 @@ class PipelineConfig(Config):
 
 @dataclasses.dataclass(frozen=True)
 class ReportConfig(Config):
-    """rays: planner rays per timed query; timing_samples: submap counts at which full merges
-    and queries are timed (0: no timing curves); surface_points: samples of the true surface
-    for the reconstruction RMSE."""
+    """surface_points: samples of the true surface for the reconstruction RMSE."""
 
-    rays: int = integer(100_000, low=1, high=10_000_000)
-    timing_samples: int = integer(6, low=0, high=1000)
     surface_points: int = integer(50_000, low=1, high=10_000_000)
 
 
 @dataclasses.dataclass(frozen=True)
 class JobConfig(Config):
     """Everything `vogjax map` reads from its settings file: tables [map], [nav_noise],
-    [loop_closure] (with [loop_closure.icp], [loop_closure.correlative]) and [pipeline] set
-    `pipeline`; [report] sets `report`."""
+    [loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [timing] and
+    [pipeline] set `pipeline`; [report] sets `report`."""
 
     pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
     report: ReportConfig = section(ReportConfig())

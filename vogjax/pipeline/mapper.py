@@ -10,7 +10,10 @@ b. adds the pose-graph node with its xyh and zpr factors and updates iSAM2,
 c. looks for loop closures with earlier submaps (correlative search, then ICP),
 d. adds the accepted closures, updates iSAM2 and computes the marginals it needs,
 e. moves the virtual map's submaps (setting poses is its whole update),
-f. re-applies the moved and uncertain submaps in the global map (Algorithm 1), adds the new one.
+f. re-applies the moved and uncertain submaps in the global map (Algorithm 1), adds the new one,
+g. every so many submaps, times a full merge and planner queries (`probes.py`).
+When the run has ground truth it also builds each submap from the true poses (`truth_vog`):
+the map this sensor would give with perfect SLAM, the ceiling the report compares against.
 
 Why the middle scan: a submap's scans are placed by navigation relative to its base pose, so
 each submap is bent by the drift accumulated inside it, and a loop closure (aligning two clouds)
@@ -34,6 +37,7 @@ from vogjax.geometry import inverse, pose_deltas
 from vogjax.io.dataset import ScanBatch
 from vogjax.maps import GlobalMap, VogMap, VoxelMap
 from vogjax.pipeline.cutter import SubmapCutter
+from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
 from vogjax.slam import LoopClosureDetector, PoseGraph
 
@@ -45,6 +49,7 @@ class Mapper:
             raise ValueError(f"config must be a PipelineConfig, got {type(config).__name__}")
         self.metadata = dict(metadata or {})
         self.vog = VogMap(config.map)
+        self.truth_vog = VogMap(config.map)  # the same submaps from true poses, when the run has them
         self.global_map = GlobalMap(config.map)
         self.standard_map = VoxelMap(config.map) if config.standard_map else None
         self.graph: PoseGraph | None = None
@@ -53,6 +58,8 @@ class Mapper:
         self.timings = defaultdict(list)
         self.submaps: list[SubmapRecord] = []
         self.accepted, self.rejected = [], []
+        self.probes: list[dict] = []
+        self.clouds: list[np.ndarray] = []  # per submap: its returns, one mean point per voxel
         self.scans = 0
         self._pending: list[ScanBatch] = []  # the scans of the submap being filled
         self._scan_time, self._scan_nav, self._scan_truth = [], [], []
@@ -111,7 +118,7 @@ class Mapper:
         start = time.perf_counter()
         submaps = [self.vog.submap(i) for i in range(k + 1)]
         accepted, rejected = self.detector.detect(
-            k, [s.occupied_points() for s in submaps], [s.bounds() for s in submaps], poses,
+            k, self.clouds, [s.bounds() for s in submaps], poses,
             nav_bases, np.array([s.time_s for s in self.submaps]))
         self.accepted += accepted
         self.rejected += rejected
@@ -145,10 +152,23 @@ class Mapper:
         start = time.perf_counter()
         self.global_map.add(self.vog, [k], marginals)
         self.timings["add"].append(time.perf_counter() - start)
+        self.timings["closures"].append(len(accepted))
+        # g. timing probes, every so many submaps (their time is kept apart)
+        every = cfg.timing.every_submaps
+        if every and len(self.submaps) % every == 0:
+            self._probe()
+
+    def _probe(self) -> None:
+        start = time.perf_counter()
+        self.probes.append(probe(self))
+        self.timings["probes"].append(time.perf_counter() - start)
 
     def result(self) -> Result:
         """The maps and poses so far (every submap finished)."""
         self.finish_submap()
+        if self.config.timing.every_submaps and self.submaps and \
+                (not self.probes or self.probes[-1]["submaps"] != len(self.submaps)):
+            self._probe()
         has_truth = all(t is not None for t in self._scan_truth)
         return Result(config=self.config, global_map=self.global_map, vog=self.vog,
                       standard_map=self.standard_map, submaps=tuple(self.submaps),
@@ -156,7 +176,8 @@ class Mapper:
                       rejected=tuple(self.rejected), timings=dict(self.timings), metadata=self.metadata,
                       scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
                       scan_navigation=_stack(self._scan_nav),
-                      scan_truth=_stack(self._scan_truth) if has_truth else None)
+                      scan_truth=_stack(self._scan_truth) if has_truth else None,
+                      truth_vog=self.truth_vog if has_truth else None, probes=tuple(self.probes))
 
     def _integrate_submap(self, scans: ScanBatch) -> None:
         """The complete submap: its base at the middle scan, every scan integrated in that frame."""
@@ -171,11 +192,32 @@ class Mapper:
         self.vog.submap(i).integrate_scans(origins, endpoints.reshape(-1, 3),
                                            np.repeat(np.arange(len(scans)), endpoints.shape[1]))
         self.timings["integration"].append(time.perf_counter() - start)
+        returns = endpoints[~scans.no_return]
+        self.clouds.append(voxel_means(returns, self.config.map.voxel_size))
+        if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
+            start = time.perf_counter()
+            j = self.truth_vog.add_submap(truth)
+            origins, endpoints = scans.world(inverse(truth) @ scans.pose_truth, self.config.map.max_range)
+            self.truth_vog.submap(j).integrate_scans(origins, endpoints.reshape(-1, 3),
+                                                     np.repeat(np.arange(len(scans)), endpoints.shape[1]))
+            self.timings["truth_maps"].append(time.perf_counter() - start)
 
     def _predicted_pose(self, base_nav: np.ndarray) -> np.ndarray:
         """Where the optimised previous submap puts a new base pose (navigation's relative motion)."""
         previous = self.graph.num_submaps - 1
         return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ base_nav
+
+
+def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:
+    """The mean of the points in each voxel (K,3), sorted by voxel: a cloud as dense as the map,
+    as precise as the sensor (loop closures align these, not voxel centres)."""
+    if len(points) == 0:
+        return np.zeros((0, 3))
+    keys = np.floor(points / voxel_size).astype(np.int64)
+    _, inverse_index, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse_index.reshape(-1), points)
+    return sums / counts[:, None]
 
 
 def _stack(parts: list) -> np.ndarray:

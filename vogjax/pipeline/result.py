@@ -8,6 +8,7 @@ import functools
 import numpy as np
 
 from vogjax.config import PipelineConfig
+from vogjax.geometry import inverse, log_se3
 from vogjax.maps import GlobalMap, VogMap, VoxelMap
 from vogjax.slam import LoopClosure, Rejection
 
@@ -31,7 +32,9 @@ class Result:
     """The maps (`global_map` kept online, `vog` the virtual map at the optimised poses,
     `standard_map` from navigation poses or None), one `SubmapRecord` per submap, the optimised
     base poses (N,4,4), loop closures by verdict, per-step `timings` (step -> seconds per
-    submap or per batch), and every scan's time (S,), navigation and true pose (S,4,4)."""
+    submap or per batch; "reapplied" and "closures" count per submap), every scan's time (S,),
+    navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None) and the
+    timing `probes` (dicts: submaps, full_merge_s, query_global_s, query_virtual_s)."""
 
     config: PipelineConfig
     global_map: GlobalMap
@@ -46,6 +49,8 @@ class Result:
     scan_time_s: np.ndarray
     scan_navigation: np.ndarray
     scan_truth: np.ndarray | None
+    truth_vog: VogMap | None = None
+    probes: tuple = ()
 
     @property
     def scans(self) -> int:
@@ -90,9 +95,27 @@ class Result:
         rejected = {}
         for r in self.rejected:
             rejected[r.reason] = rejected.get(r.reason, 0) + 1
-        return {"trajectory_rmse_m": errors,
-                "loop_closures": {"accepted": len(self.loop_closures), "rejected": len(self.rejected),
-                                  "rejected_by_reason": rejected}}
+        closures = {"accepted": len(self.loop_closures), "rejected": len(self.rejected),
+                    "rejected_by_reason": rejected}
+        if truth is not None:
+            closures.update(self.closure_errors())
+        return {"trajectory_rmse_m": errors, "loop_closures": closures}
+
+    def closure_errors(self, max_translation_m: float = 0.2, max_rotation_deg: float = 1.0) -> dict:
+        """Each accepted closure against the true relative pose, in the directions it constrains
+        (all six for a full factor): translation and rotation error, and `precision`, the share
+        within `max_translation_m` and `max_rotation_deg` (NaN without closures)."""
+        truth = self.truth
+        errors = []
+        for c in self.loop_closures:
+            twist = log_se3(inverse(inverse(truth[c.i]) @ truth[c.k]) @ c.T_i_k)
+            basis = np.eye(6) if c.basis is None else c.basis
+            constrained = basis @ (basis.T @ twist)
+            errors.append({"i": c.i, "k": c.k, "translation_m": float(np.linalg.norm(constrained[3:])),
+                           "rotation_deg": float(np.degrees(np.linalg.norm(constrained[:3]))),
+                           "directions": int(basis.shape[1])})
+        good = [e["translation_m"] <= max_translation_m and e["rotation_deg"] <= max_rotation_deg for e in errors]
+        return {"precision": float(np.mean(good)) if errors else float("nan"), "errors": errors}
 
     @functools.cached_property
     def full_merge(self) -> GlobalMap:
@@ -100,6 +123,15 @@ class Result:
         when Algorithm 1's thresholds are zero)."""
         merged = GlobalMap(self.config.map, self.global_map.device)
         merged.merge(self.vog)
+        return merged
+
+    @functools.cached_property
+    def truth_merge(self) -> GlobalMap | None:
+        """The submaps built from true poses, merged at their true poses (None without truth)."""
+        if self.truth_vog is None:
+            return None
+        merged = GlobalMap(self.config.map, self.global_map.device)
+        merged.merge(self.truth_vog)
         return merged
 
     @functools.cached_property

@@ -15,10 +15,12 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
     """The report of a pipeline `result` of the run at `run_path`, with its ground-truth
     `metrics` ({} when the run has no scene), timing `curves` (or None), the pipeline's wall
     time and the JobConfig used."""
-    steps = {name: float(np.sum(values)) for name, values in result.timings.items() if name != "reapplied"}
+    steps = {name: float(np.sum(values)) for name, values in result.timings.items()
+             if name not in ("reapplied", "closures")}
     duration_s = result.duration_s
-    timing_s = {"pipeline": pipeline_s, "scans_per_s": result.scans / pipeline_s,
-                "real_time_factor": duration_s / pipeline_s, "steps": steps}
+    mapping_s = pipeline_s - steps.get("probes", 0.0)  # the probes' time is not the pipeline's
+    timing_s = {"pipeline": mapping_s, "scans_per_s": result.scans / mapping_s,
+                "real_time_factor": duration_s / mapping_s, "steps": steps}
     if curves is not None:
         n = len(curves.online_s)
         timing_s["update_per_submap"] = {"online": float(curves.online_s[-1]), "virtual": float(curves.virtual_s[-1]),
@@ -27,15 +29,18 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
                              "virtual": float(curves.query_virtual_s[-1]),
                              "submaps": int(curves.sampled_submaps[-1])}
         timing_s["curves"] = curves.to_dict()
+        timing_s["reapplied_per_submap"] = float(np.mean(curves.reapplied))
     empty = dict.fromkeys(("online", "virtual", "full_merge", "standard"))
     return {
         "run": str(run_path), "scene": result.metadata.get("scene"), "scans": result.scans,
         "duration_s": duration_s, "submaps": result.vog.num_submaps,
         "auc": metrics.get("auc", empty),
+        "auc_vs_reference": metrics.get("auc_vs_reference", {}),
         "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),
         "agreement": metrics.get("agreement"),
         **result.metrics,
         "timing_s": timing_s,
+        "fig9": curves.fig9() if curves is not None else None,
         "config": dataclasses.asdict(config),
         "versions": versions(),
         "device": str(result.global_map.device),

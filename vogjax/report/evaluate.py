@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vogjax.maps import OCCUPIED, UNKNOWN
 from vogjax.report.metrics import misclassified, reconstruction_rmse, roc
 from vogjax.scenes import FREE
 from vogjax.scenes import OCCUPIED as TRUE_OCCUPIED
@@ -13,7 +14,9 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     """Measures of a pipeline Result against a Scene's ground truth.
 
     Returns (metrics, curves): metrics holds `auc` for the online global map, the virtual map at
-    the optimised poses, a full merge and the standard map; `rmse_m` for the standard map and
+    the optimised poses, a full merge, the standard map and (with true poses) `true_pose`, the
+    same submaps built and placed by the truth; `auc_vs_reference`, the same maps scored
+    against the true-pose map's states instead of the mesh; `rmse_m` for the standard map and
     the virtual map without and with loop closures; `agreement` of the online map with the full
     merge. curves holds the ROC curves (for plots).
     """
@@ -32,7 +35,19 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         if name in maps:
             observed |= maps[name].log_odds(centres) != 0  # 0.0: never observed
     centres, occupied = centres[observed], occupied[observed]
+    if result.truth_merge is not None:
+        maps["true_pose"] = result.truth_merge
     curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()}
+    # against the map this sensor gives from true poses (as the thesis registers against a
+    # true-odometry reconstruction): the discretisation of the surface cancels out
+    vs_reference = {}
+    if result.truth_merge is not None:
+        state = result.truth_merge.state(centres)
+        known = state != UNKNOWN
+        labels = state[known] == OCCUPIED
+        if labels.any() and not labels.all():
+            vs_reference = {name: roc(m.probability(centres[known]), labels).auc
+                            for name, m in maps.items() if name != "true_pose"}
     surface = scene.surface_points(surface_points)
 
     def occupied_centres(m):
@@ -43,7 +58,7 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
             "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
     if "standard" in maps:
         rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
-    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "rmse_m": rmse,
+    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "auc_vs_reference": vs_reference, "rmse_m": rmse,
                "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
                "evaluated_voxels": int(len(centres))}
     return metrics, curves

@@ -64,8 +64,7 @@ def _evaluate_and_write(result, path: Path, pipeline_s: float, config: JobConfig
     name = result.metadata.get("scene")
     scene = scenes.load(name) if name in scenes.NAMES else None
     metrics, roc = evaluate_run(result, scene, config.report.surface_points) if scene else ({}, {})
-    curves = (timing.measure(result, config.report.rays, config.report.timing_samples, progress=progress)
-              if config.report.timing_samples else None)
+    curves = timing.curves(result)
     report = document.build(result, path, metrics, curves, pipeline_s, config)
     # 1. the map and the trajectories
     result.global_map.save(folder / "global_map.vog")

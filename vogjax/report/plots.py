@@ -82,7 +82,7 @@ def timing(curves, path, title: str = "") -> None:
     planner query against the global and the virtual map by submap count (Fig. 8)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), dpi=120)
     n = np.arange(1, len(curves.online_s) + 1)
-    for name, values in (("full merge", curves.full_merge_s), ("virtual map (pose update)", curves.virtual_s),
+    for name, values in (("full merge at loop closures", curves.full_merge_s), ("virtual map (pose update)", curves.virtual_s),
                          ("online global map", curves.online_s)):
         left.plot(n, np.maximum(values, 1e-6) * 1e3, label=name)
     left.set_yscale("log")
