@@ -18,9 +18,11 @@ SETTINGS = """
 [pipeline]
 scans_per_submap = 60
 
-[report]
+[timing]
+every_submaps = 3
 rays = 500
-timing_samples = 2
+
+[report]
 surface_points = 2000
 """
 CLOSURES = [(0, 3), (1, 4), (2, 5)]

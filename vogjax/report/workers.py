@@ -1,0 +1,144 @@
+"""Many runs at once: one Ray task per run, each calling `vogjax.report.map_run`
+(`pip install 'vogjax[workers]'`).
+
+    outcomes = map_runs_parallel(["a.h5", "b.h5"], "out", workers=2)            # a local Ray
+    outcomes = map_runs_parallel(paths, "out", workers=16, address="ray://head:10001")   # a cluster
+
+At most `workers` runs are mapped at a time, each in its own process, so a run that fails (a
+damaged file, an error while mapping, a crashed worker) fails alone: its outcome carries the
+error and the other runs finish. A task takes one CPU and, when the cluster has GPUs, a share of
+them (GPUs / workers, at most one), so several runs can share one GPU; JAX's memory
+preallocation is off in every worker (XLA_PYTHON_CLIENT_PREALLOCATE=false) for that reason.
+Ray stays quiet: no dashboard, no banner, worker output not forwarded, errors only.
+
+Run files and the output folder must be reachable at the same paths from every node (a shared
+file system), and every node needs the same vogjax installed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import warnings
+from pathlib import Path
+
+from vogjax.config import JobConfig
+from vogjax.io.atomic import check_writable
+
+WORKER_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+# forwarded from this process when set, so workers find the same caches and devices
+FORWARDED_ENV = ("WARP_CACHE_PATH", "CUDA_VISIBLE_DEVICES", "JAX_PLATFORMS")
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """One run: its path, its report (None when it failed) and the error (one line, or None)."""
+
+    path: Path
+    report: dict | None
+    error: str | None
+
+
+def ray_module():
+    """Ray, or a ValueError naming the extra that installs it."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("--workers needs Ray: pip install 'vogjax[workers]'") from None
+    return ray
+
+
+def map_runs_parallel(paths, out, config: JobConfig | None = None, workers: int = 2, address: str | None = None,
+                      progress: bool = False) -> list[Outcome]:
+    """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
+    `address` is None, else the cluster there); the outcomes in the order of `paths`."""
+    config = config or JobConfig()
+    if not isinstance(config, JobConfig):
+        raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"--workers must be a positive integer, got {workers!r}")
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("paths must name at least one run file")
+    names = [p.stem for p in paths]
+    if len(set(names)) != len(names):
+        raise ValueError(f"paths: two runs would share an output folder: {names}")
+    for path in paths:
+        if not path.is_file():
+            raise ValueError(f"path {str(path)!r} does not exist")
+    out = Path(out)
+    for path in paths:
+        check_writable(out / path.stem, folder=True)
+    ray = ray_module()
+    out.mkdir(parents=True, exist_ok=True)
+    started = _start(ray, address, workers)
+    try:
+        return _run_all(ray, paths, out, config, workers, progress)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _start(ray, address: str | None, workers: int) -> bool:
+    """Connect to Ray; True when this call started it (and so shuts it down)."""
+    if ray.is_initialized():
+        return False
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage-stats notice
+    env = {**WORKER_ENV, **{k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}}
+    options = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
+                   runtime_env={"env_vars": env})
+    try:
+        with warnings.catch_warnings():
+            # JAX warns of any fork; Ray's fork is followed by exec, so nothing is shared
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+            if address is None:
+                ray.init(num_cpus=workers, **options)
+            else:
+                ray.init(address=address, **options)
+    except (ConnectionError, RuntimeError, ValueError) as error:
+        where = "a local Ray" if address is None else f"the Ray cluster at {address!r}"
+        raise ValueError(f"--address: cannot start or reach {where}: {str(error).splitlines()[0]}") from None
+    return True
+
+
+def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: bool) -> list[Outcome]:
+    from tqdm import tqdm
+
+    gpus = float(ray.cluster_resources().get("GPU", 0.0))
+    task = ray.remote(num_cpus=1, num_gpus=min(1.0, gpus / workers) if gpus else 0, max_retries=1)(_map_one)
+    outcomes: dict[int, Outcome] = {}
+    pending, waiting = {}, list(enumerate(paths))
+    with tqdm(total=len(paths), unit="run", desc="mapping runs", disable=not progress) as bar:
+        while waiting or pending:
+            while waiting and len(pending) < workers:  # at most `workers` in flight
+                index, path = waiting.pop(0)
+                pending[task.remote(str(path), str(out / path.stem), config, os.getcwd())] = index
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                index = pending.pop(ref)
+                try:
+                    outcomes[index] = Outcome(paths[index], ray.get(ref), None)
+                except Exception as error:  # the task's error, or Ray's when its worker died
+                    outcomes[index] = Outcome(paths[index], None, _one_line(error))
+                bar.update(1)
+    return [outcomes[i] for i in range(len(paths))]
+
+
+def _map_one(path: str, out_dir: str, config: JobConfig, cwd: str) -> dict:
+    """The task: one run mapped in a worker (quiet: no progress bars), from the caller's
+    working folder, so relative paths and the report's `run` read as they would one by one."""
+    from vogjax.report.job import map_run
+
+    os.chdir(cwd)
+    return map_run(path, out_dir, config, progress=False)
+
+
+def _one_line(error: BaseException) -> str:
+    """The original error of a failed task as one line (Ray wraps it with a traceback)."""
+    cause = getattr(error, "cause", None)
+    if isinstance(cause, BaseException):
+        error = cause
+    text = str(error).strip().splitlines()
+    message = text[0] if text else ""
+    return f"{type(error).__name__}: {message}" if not isinstance(error, ValueError) else message
