@@ -1,0 +1,423 @@
+"""Integration of the confidence-rich map (Agha-mohammadi's sensor cause model, Eqs. 14-27).
+
+Each voxel holds a distribution over its occupancy level m at num_bins points m_k = k/(K-1)
+(a vector layer), its mean and variance (scalar layers, NaN while never observed) and a
+"pending" byte. A beam is the ray from the sensor along the reading; its *cone* is every voxel
+it passes with a chord of positive length, from the sensor out to the reading plus cone_sigmas
+standard deviations (to max_range for a beam without a return). Along the cone, with m^_c the
+mean of voxel c before the scan:
+
+    bounce  B_c = m^_c                        reach  T_c = prod_{l<c} (1 - m^_l)     (Eqs. 15-16)
+    likelihood of the reading if c caused it, L_c: for a return at range z, the N(z; t, sigma^2)
+    density averaged over the chord [t_in, t_out] (the bounce is anywhere on it); without a
+    return, P(t_mid + noise > max_range). The cause at infinity (nothing bounced within reach)
+    explains only "no return" (L = 1); a spurious reading (probability p_s) explains only
+    returns, L_s = 1/max_range.
+
+The update of voxel i (Eqs. 21-25) multiplies its distribution by the likelihood of the reading
+as a function of m^i with every other voxel at its mean, which is linear in m^i:
+
+    f(m) = (1 - m) f0 + m f1,   f0 = (1-p_s)(P_i + T_i S_i) + p_s L_s,
+                                f1 = (1-p_s)(P_i + T_i L_i) + p_s L_s,
+    P_i = sum_{c<i} L_c m^_c T_c               (caused before i: the ratio 1 in Eq. 22)
+    S_i = sum_{c>i} L_c m^_c prod_{i<l<c}(1-m^_l) + L_inf prod_{l>i}(1-m^_l)   (caused beyond i)
+
+f divided by its mean under the voxel's distribution is the paper's alpha m + beta; we divide
+by max(f0, f1) instead (the scan's final renormalisation removes any constant), so the factors
+lie in [0, 1] and nothing overflows. S comes from one backward pass over the cone, P and T from
+one forward pass: no division by m^ or 1 - m^ anywhere.
+
+A scan: every beam's factors are computed from the means before the scan; each voxel then
+multiplies in the factors of the beams that cross it in beam order, and at the end of the scan
+is renormalised, floored at bin_floor, renormalised again, and gets its new mean and variance.
+On the CPU one sequential launch does a whole pass of scans in order; on CUDA the factors are
+computed in parallel and a stable sort by voxel replays each voxel's factors in beam order. The
+two give the same bits.
+"""
+
+import functools
+import math
+import types
+
+import numpy as np
+
+import warp as wp
+
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, pack_block
+from .traversal import ray_walk_begin, voxel_key, walk_step
+
+wp.set_module_options({"enable_backward": False})
+
+INV_SQRT2 = wp.constant(wp.float64(1.0 / math.sqrt(2.0)))
+INV_SQRT_2PI = wp.constant(wp.float64(1.0 / math.sqrt(2.0 * math.pi)))
+# A chord shorter than this many sigma takes the density at its middle: the averaged form
+# would divide a difference of nearly equal CDFs by nearly nothing.
+SHORT_CHORD_SIGMAS = wp.constant(wp.float64(1.0e-3))
+# The range noise is taken as exactly zero beyond this many sigma (its tail there is 6e-16).
+NOISE_CUTOFF = wp.constant(wp.float64(8.0))
+# Bins are scaled back up when the largest falls below this mid-scan (many beams in one scan).
+RESCALE_BELOW = wp.constant(wp.float32(1.0e-20))
+
+
+# ---------------------------------------------------------------- geometry of the cones
+@wp.func
+def tail(u: wp.float64) -> wp.float64:
+    """P(N(0,1) beyond |u| on u's side); 0 past NOISE_CUTOFF (the noise is cut off there)."""
+    a = wp.abs(u)
+    if a >= NOISE_CUTOFF:
+        return wp.float64(0.0)
+    return wp.float64(0.5) * wp.erfc(a * INV_SQRT2)
+
+
+@wp.func
+def cdf_difference(a: wp.float64, tail_a: wp.float64, b: wp.float64, tail_b: wp.float64) -> wp.float64:
+    """Phi(b) - Phi(a) for a < b from the tails at a and b (no cancellation in either tail)."""
+    if a > wp.float64(0.0):
+        return tail_a - tail_b
+    if b <= wp.float64(0.0):
+        return tail_b - tail_a
+    return wp.float64(1.0) - tail_a - tail_b
+
+
+@wp.func
+def density(u: wp.float64, sigma: wp.float64) -> wp.float64:
+    """N(0,1) density at u over sigma: the noise density of a reading u sigma off."""
+    if wp.abs(u) >= NOISE_CUTOFF:
+        return wp.float64(0.0)
+    return wp.exp(wp.float64(-0.5) * u * u) * INV_SQRT_2PI / sigma
+
+
+@wp.func
+def chord_likelihood(u_in: wp.float64, tail_in: wp.float64, u_out: wp.float64, tail_out: wp.float64,
+                     length: wp.float64, sigma: wp.float64) -> wp.float64:
+    """L_c of a return with the bounce anywhere on the chord: the noise density averaged over
+    it, u = (z - t) / sigma at its ends (u_out < u_in)."""
+    if length < SHORT_CHORD_SIGMAS * sigma:
+        return density(wp.float64(0.5) * (u_in + u_out), sigma)
+    return cdf_difference(u_out, tail_out, u_in, tail_in) / length
+
+
+@wp.func
+def no_return_likelihood(t_cause: wp.float64, sigma: wp.float64, max_range: wp.float64) -> wp.float64:
+    """L_c of "no return": the reading from range t_cause lands past max_range."""
+    v = (t_cause - max_range) / sigma
+    if v <= wp.float64(0.0):
+        return tail(v)
+    return wp.float64(1.0) - tail(v)
+
+
+@wp.func
+def centre_distance(voxel: wp.vec3i, origin: wp.vec3d, resolution: wp.float64) -> wp.float64:
+    half = wp.float64(0.5)
+    c = wp.vec3d((wp.float64(voxel[0]) + half) * resolution - origin[0],
+                 (wp.float64(voxel[1]) + half) * resolution - origin[1],
+                 (wp.float64(voxel[2]) + half) * resolution - origin[2])
+    return wp.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+
+
+@wp.func
+def first_boundary(t_max: wp.vec3d, length: wp.float64) -> wp.float64:
+    return wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
+
+
+@wp.kernel
+def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                     lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
+                     inv_resolution: wp.float64, block_keys: wp.array2d(dtype=wp.int64),
+                     block_counts: wp.array(dtype=wp.int32), step_counts: wp.array(dtype=wp.int32)):
+    """Per beam: the blocks its cone's voxels lie in (consecutive repeats dropped) and how many
+    voxels the cone has."""
+    tid = wp.tid()
+    length = lengths[tid]
+    w = ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, length)
+    capacity = block_keys.shape[1]
+    n_blocks = int(0)
+    n_steps = int(0)
+    last_key = EMPTY_KEY
+    voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    steps = int(0)
+    while t_in < length and steps <= w.max_steps:
+        if first_boundary(t_max, length) > t_in:
+            key = pack_block(block_of(voxel))
+            if key != last_key:
+                if n_blocks < capacity:
+                    block_keys[tid, n_blocks] = key
+                n_blocks += 1
+                last_key = key
+            n_steps += 1
+        voxel, t_max, t_in, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+    block_counts[tid] = n_blocks  # above the capacity: the host lists again with more room
+    step_counts[tid] = n_steps
+
+
+@wp.kernel
+def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                    lengths: wp.array(dtype=wp.float64), ranges: wp.array(dtype=wp.float64),
+                    returned: wp.array(dtype=wp.int32), first_step: wp.array(dtype=wp.int32),
+                    resolution: wp.float64, inv_resolution: wp.float64, sigma: wp.float64,
+                    max_range: wp.float64, at_centre: int, table_keys: wp.array(dtype=wp.int64),
+                    table_slots: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
+                    step_likelihood: wp.array(dtype=wp.float64)):
+    """Per beam, walking exactly as `list_cone_blocks`: each cone voxel's index in the voxel
+    pool and its likelihood L_c, at the beam's steps [first_step[tid], first_step[tid + 1]).
+    at_centre: a cause's range is the distance to its voxel's centre (the paper's Eq. 18), not
+    spread over its chord."""
+    tid = wp.tid()
+    origin = origins[tid]
+    length = lengths[tid]
+    z = ranges[tid]
+    hit = returned[tid] != 0
+    w = ray_walk_begin(origin, directions[tid], resolution, inv_resolution, length)
+    n = first_step[tid]
+    end = first_step[tid + 1]
+    voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    slot = int(-1)
+    new_block = bool(True)
+    steps = int(0)
+    u_in = z / sigma  # chord ends as (z - t) / sigma; each boundary's tail is computed once
+    tail_in = tail(u_in)
+    while t_in < length and steps <= w.max_steps:
+        if new_block:
+            slot = find_voxel_slot(table_keys, table_slots, voxel)
+        t_out = first_boundary(t_max, length)
+        if t_out > t_in and n < end:
+            step_voxel[n] = slot * BLOCK_VOXELS + index_in_block(voxel)
+            if at_centre != 0:
+                t_cause = centre_distance(voxel, origin, resolution)
+                if hit:
+                    step_likelihood[n] = density((z - t_cause) / sigma, sigma)
+                else:
+                    step_likelihood[n] = no_return_likelihood(t_cause, sigma, max_range)
+            elif hit:
+                u_out = (z - t_out) / sigma
+                tail_out = tail(u_out)
+                step_likelihood[n] = chord_likelihood(u_in, tail_in, u_out, tail_out, t_out - t_in, sigma)
+                u_in = u_out
+                tail_in = tail_out
+            else:
+                step_likelihood[n] = no_return_likelihood(wp.float64(0.5) * (t_in + t_out), sigma, max_range)
+            n += 1
+        voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+
+
+# ---------------------------------------------------------------- the sensor cause model
+@wp.func
+def mean_or_prior(mean: wp.array(dtype=wp.float32), voxel: int, prior_mean: wp.float32) -> wp.float32:
+    m = mean[voxel]
+    if wp.isnan(m):
+        return prior_mean
+    return m
+
+
+@wp.func
+def beam_tails(lo: int, hi: int, hit: bool, step_voxel: wp.array(dtype=wp.int32),
+               step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
+               prior_mean: wp.float32, step_mean: wp.array(dtype=wp.float32),
+               step_tail: wp.array(dtype=wp.float64)):
+    """Backward over one beam's cone, steps [lo, hi): each voxel's mean before the scan and S_i,
+    the likelihood of the reading caused beyond it."""
+    tail = wp.float64(0.0)
+    if not hit:
+        tail = wp.float64(1.0)  # the cause at infinity
+    for back in range(hi - lo):
+        i = hi - 1 - back
+        m = mean_or_prior(mean, step_voxel[i], prior_mean)
+        step_mean[i] = m
+        step_tail[i] = tail
+        m64 = wp.float64(m)
+        tail = step_likelihood[i] * m64 + (wp.float64(1.0) - m64) * tail
+
+
+@wp.func
+def spurious_term(hit: bool, spurious: wp.float64, spurious_likelihood: wp.float64) -> wp.float64:
+    if hit:
+        return spurious * spurious_likelihood
+    return wp.float64(0.0)  # a spurious reading is always a return
+
+
+@wp.func
+def cause_factor(likelihood: wp.float64, tail: wp.float64, before: wp.float64, reach: wp.float64,
+                 keep: wp.float64, floor_term: wp.float64) -> wp.vec2f:
+    """(r0, r1): the reading's likelihood if the voxel were empty, full, over the larger one."""
+    f0 = keep * (before + reach * tail) + floor_term
+    f1 = keep * (before + reach * likelihood) + floor_term
+    if f0 >= f1:
+        if f0 > wp.float64(0.0) and f0 < wp.float64(1.0e300):
+            return wp.vec2f(wp.float32(1.0), wp.float32(f1 / f0))
+        return wp.vec2f(wp.float32(1.0), wp.float32(1.0))  # the map deems the reading impossible
+    if f1 < wp.float64(1.0e300):
+        return wp.vec2f(wp.float32(f0 / f1), wp.float32(1.0))
+    return wp.vec2f(wp.float32(1.0), wp.float32(1.0))
+
+
+@wp.kernel
+def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int32),
+                         returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
+                         step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
+                         prior_mean: wp.float32, spurious: wp.float64, spurious_likelihood: wp.float64,
+                         step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
+                         step_factor: wp.array(dtype=wp.vec2f)):
+    """The factors of beams first_beam + tid (one scan's beams: they all read the means before it)."""
+    tid = wp.tid()
+    beam = first_beam + tid
+    lo = beam_first_step[beam]
+    hi = beam_first_step[beam + 1]
+    hit = returned[beam] != 0
+    beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, step_mean, step_tail)
+    keep = wp.float64(1.0) - spurious
+    floor_term = spurious_term(hit, spurious, spurious_likelihood)
+    before = wp.float64(0.0)  # P_i: the reading caused before voxel i
+    reach = wp.float64(1.0)  # T_i
+    for i in range(lo, hi):
+        m64 = wp.float64(step_mean[i])
+        likelihood = step_likelihood[i]
+        step_factor[i] = cause_factor(likelihood, step_tail[i], before, reach, keep, floor_term)
+        before = before + likelihood * m64 * reach
+        reach = reach * (wp.float64(1.0) - m64)
+
+
+@wp.kernel
+def sort_keys_of_steps(first: int, step_voxel: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
+                       order: wp.array(dtype=wp.int32)):
+    tid = wp.tid()
+    keys[tid] = step_voxel[first + tid]
+    order[tid] = first + tid
+
+
+# ---------------------------------------------------------------- per number of bins
+@functools.cache
+def for_bins(num_bins: int) -> types.SimpleNamespace:
+    """The kernels over distributions of `num_bins` bins (one compiled module per bin count)."""
+    K = int(num_bins)
+    Bins = wp.types.vector(length=K, dtype=wp.float32)
+    last = float(K - 1)
+
+    @wp.func
+    def level(k: int) -> wp.float32:
+        return wp.float32(k) / wp.float32(last)
+
+    LEVELS = Bins(*[float(np.float32(k) / np.float32(last)) for k in range(K)])
+    ONES = Bins(*([1.0] * K))
+
+    @wp.func
+    def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
+        """Multiply a voxel's bins by f(m_k) = r0 + m_k (r1 - r0), kept away from underflow."""
+        b = wp.cw_mul(bins[voxel], ONES * r[0] + LEVELS * (r[1] - r[0]))
+        top = wp.max(b)
+        if top < RESCALE_BELOW and top > wp.float32(0.0):
+            b = b * (wp.float32(1.0) / top)
+        bins[voxel] = b
+
+    @wp.func
+    def moments(b: Bins) -> wp.vec2f:
+        mean = wp.dot(b, LEVELS)
+        d = LEVELS - ONES * mean
+        return wp.vec2f(mean, wp.dot(b, wp.cw_mul(d, d)))
+
+    @wp.func
+    def normalise(bins: wp.array(dtype=Bins), voxel: int, floor: wp.float32,
+                  mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+        """End of a scan: bins to sum 1, none below `floor`, sum 1 again; the new moments."""
+        b = bins[voxel]
+        total = wp.dot(b, ONES)
+        if total > wp.float32(0.0) and total < wp.float32(1.0e30):
+            b = wp.max(b * (wp.float32(1.0) / total), ONES * floor)
+            b = b * (wp.float32(1.0) / wp.dot(b, ONES))
+        else:  # cannot happen with a positive floor; a voxel never becomes NaN
+            b = ONES * (wp.float32(1.0) / wp.float32(K))
+        bins[voxel] = b
+        mv = moments(b)
+        mean[voxel] = mv[0]
+        variance[voxel] = mv[1]
+
+    @wp.kernel(module="unique")
+    def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
+                           returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
+                           step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
+                           spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
+                           step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
+                           touched: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),
+                           mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
+                           pending: wp.array(dtype=wp.uint8)):
+        """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
+        compute_beam_factors and apply_sorted_factors, in the same order per voxel."""
+        _tid = wp.tid()
+        keep = wp.float64(1.0) - spurious
+        beam = int(0)
+        for scan in range(scan_end_beam.shape[0]):
+            count = int(0)
+            while beam < scan_end_beam[scan]:
+                lo = beam_first_step[beam]
+                hi = beam_first_step[beam + 1]
+                hit = returned[beam] != 0
+                beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, step_mean, step_tail)
+                floor_term = spurious_term(hit, spurious, spurious_likelihood)
+                before = wp.float64(0.0)
+                reach = wp.float64(1.0)
+                for i in range(lo, hi):
+                    m64 = wp.float64(step_mean[i])
+                    likelihood = step_likelihood[i]
+                    r = cause_factor(likelihood, step_tail[i], before, reach, keep, floor_term)
+                    before = before + likelihood * m64 * reach
+                    reach = reach * (wp.float64(1.0) - m64)
+                    v = step_voxel[i]
+                    if pending[v] == wp.uint8(0):
+                        pending[v] = wp.uint8(1)
+                        touched[count] = v
+                        count += 1
+                    apply_factor(bins, v, r)
+                beam += 1
+            for t in range(count):
+                v = touched[t]
+                normalise(bins, v, floor, mean, variance)
+                pending[v] = wp.uint8(0)
+
+    @wp.kernel(module="unique")
+    def apply_sorted_factors(keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), count: int,
+                             step_factor: wp.array(dtype=wp.vec2f), floor: wp.float32, bins: wp.array(dtype=Bins),
+                             mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+        """One scan's factors sorted by voxel (stable: beam order kept); the first entry of each
+        voxel's run applies the whole run, then renormalises (the parallel path)."""
+        tid = wp.tid()
+        v = keys[tid]
+        if tid > 0:
+            if keys[tid - 1] == v:
+                return
+        j = tid
+        while j < count:
+            if keys[j] != v:
+                break
+            apply_factor(bins, v, step_factor[order[j]])
+            j += 1
+        normalise(bins, v, floor, mean, variance)
+
+    @wp.kernel(module="unique")
+    def compute_moments(observed: wp.array(dtype=wp.uint8), bins: wp.array(dtype=Bins),
+                        mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+        """Mean and variance of observed voxels (a loaded map), NaN elsewhere."""
+        tid = wp.tid()
+        if observed[tid] == wp.uint8(0):
+            mean[tid] = wp.nan
+            variance[tid] = wp.nan
+            return
+        mv = moments(bins[tid])
+        mean[tid] = mv[0]
+        variance[tid] = mv[1]
+
+    @wp.kernel(module="unique")
+    def lookup_bins(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
+                    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
+                    bins: wp.array(dtype=Bins), prior: Bins, values: wp.array(dtype=Bins)):
+        tid = wp.tid()
+        voxel = voxel_key(points[tid], inv_resolution)
+        slot = find_voxel_slot(table_keys, table_slots, voxel)
+        if slot < 0:
+            values[tid] = prior
+        else:
+            values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
+
+    return types.SimpleNamespace(Bins=Bins, integrate_in_order=integrate_in_order,
+                                 apply_sorted_factors=apply_sorted_factors, compute_moments=compute_moments,
+                                 lookup_bins=lookup_bins)

@@ -1,0 +1,93 @@
+"""Settings of the confidence-rich map (Agha-mohammadi, *Confidence-aware Occupancy Grid Mapping*)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from vogjax.config.schema import Config, integer, number, positive, probability, text
+
+
+@dataclasses.dataclass(frozen=True)
+class CrmConfig(Config):
+    """Confidence-rich map parameters.
+
+    voxel_size:           edge of a voxel, metres; voxel k covers [k*s, (k+1)*s) on each axis
+    max_range:            readings longer than this are "no return" (the cause lies beyond the
+                          sensor's reach), metres
+    range_sigma_m:        standard deviation of the range noise, metres (the paper's R = sigma^2;
+                          its 2D experiment: R = 0.04 m^2, sigma = 0.2 m)
+    cause_range:          where along a beam a cause voxel puts its reading: "chord", anywhere on
+                          the beam's chord through it (a surface somewhere inside the voxel:
+                          scenes, sonar), or "centre", at the distance of its centre (the
+                          paper's Eq. 18: solid cells, as in its 2D experiment)
+    num_bins:             points of the discretised distribution of a voxel's occupancy level m,
+                          at m_k = k / (num_bins - 1): both ends included, so a voxel can be
+                          certainly free (m = 0) or certainly occupied (m = 1). 16 is the
+                          measured knee of error against memory (benchmarks/bench_crm.py --bins)
+    spurious_probability: chance that a return is spurious (uniform over (0, max_range), caused by
+                          nothing in the map); 0 is the paper's model. It floors every update, so
+                          one outlier cannot make a voxel certain
+    cone_sigmas:          voxels up to this many range_sigma_m past a return are candidate causes
+                          of it; farther ones could cause it with a probability below
+                          Q(cone_sigmas) and are neither causes nor updated
+    bin_floor:            after every scan, no bin of an updated voxel is left below this
+                          probability (then renormalised), the analogue of OctoMap's clamping: a
+                          wrong certainty can still be undone by later evidence
+    occupied_threshold:   mean occupancy at or above which a voxel is OCCUPIED
+    free_threshold:       mean occupancy at or below which a voxel is FREE (between: UNKNOWN)
+    """
+
+    voxel_size: float = number(0.1, low=1e-4)
+    max_range: float = positive(11.0)
+    range_sigma_m: float = positive(0.05)
+    cause_range: str = text("chord", ("chord", "centre"))
+    num_bins: int = integer(16, low=2, high=64)
+    spurious_probability: float = number(0.0, low=0, high=1, high_open=True)
+    cone_sigmas: float = number(3.0, low=0.5, high=10.0)
+    bin_floor: float = number(1e-6, low=0, high=0.01, low_open=True)
+    occupied_threshold: float = probability(0.7)
+    free_threshold: float = probability(0.3)
+
+    def check(self) -> None:
+        if not self.free_threshold <= self.occupied_threshold:
+            raise ValueError("CrmConfig.free_threshold must not exceed CrmConfig.occupied_threshold")
+        if not self.bin_floor * self.num_bins < 0.5:
+            raise ValueError("CrmConfig.bin_floor times CrmConfig.num_bins must stay below 0.5")
+
+    # ---------------------------------------------------------------- the discretisation
+    @property
+    def bin_centres(self) -> np.ndarray:
+        """(num_bins,) float32 occupancy levels m_k = k / (num_bins - 1), as the kernels compute them."""
+        k = np.arange(self.num_bins, dtype=np.float32)
+        return k / np.float32(self.num_bins - 1)
+
+    @property
+    def prior(self) -> np.ndarray:
+        """(num_bins,) float32 prior distribution: uniform over the levels."""
+        return np.full(self.num_bins, np.float32(1.0) / np.float32(self.num_bins), np.float32)
+
+    @property
+    def prior_mean(self) -> np.float32:
+        return moments(self.prior, self.bin_centres)[0]
+
+    @property
+    def prior_variance(self) -> np.float32:
+        return moments(self.prior, self.bin_centres)[1]
+
+
+def moments(bins: np.ndarray, centres: np.ndarray) -> tuple[np.float32, np.float32]:
+    """Mean and variance of distributions (..., K) over `centres` (K,), accumulated in float64 in
+    bin order and rounded to float32, the way the kernels do it."""
+    bins = np.asarray(bins, np.float32).astype(np.float64)
+    m = centres.astype(np.float64)
+    mean = np.zeros(bins.shape[:-1])
+    for k in range(bins.shape[-1]):
+        mean = mean + bins[..., k] * m[k]
+    variance = np.zeros(bins.shape[:-1])
+    for k in range(bins.shape[-1]):
+        d = m[k] - mean
+        variance = variance + bins[..., k] * d * d
+    return np.float32(mean) if np.ndim(mean) == 0 else mean.astype(np.float32), \
+        np.float32(variance) if np.ndim(variance) == 0 else variance.astype(np.float32)
