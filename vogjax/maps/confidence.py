@@ -156,6 +156,7 @@ class ConfidenceMap:
         within a scan by their endpoints' coordinates: the order they were given in changes nothing."""
         cfg = self.config
         within_key_range("origins", origins, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
+        within_key_range("points", points, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         order = np.lexsort((points[:, 2], points[:, 1], points[:, 0], scan_index))
         points, scan_index = points[order], scan_index[order]
         starts = origins.astype(np.float64)[scan_index]
@@ -167,8 +168,8 @@ class ConfidenceMap:
         returned = ranges <= cfg.max_range
         lengths = np.where(returned, np.minimum(ranges + cfg.cone_sigmas * cfg.range_sigma_m, cfg.max_range),
                            cfg.max_range)
-        within_key_range("points", starts + directions * lengths[:, None], cfg.voxel_size,
-                         hashing.VOXEL_KEY_LIMIT)
+        # a cone reaches cone_sigmas past its reading
+        within_key_range("points", starts + directions * lengths[:, None], cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         scan_ends = np.searchsorted(scan_index, np.arange(1, origins.shape[0] + 1)).astype(np.int64)
         return _Beams(starts, directions, ranges, lengths, returned.astype(np.int32), scan_ends)
 
