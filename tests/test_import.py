@@ -120,7 +120,8 @@ class Messages:
 
     def laser(self, stamp_ns, frame, ranges, angle_min, increment, range_min, range_max):
         return self.t["sensor_msgs/msg/LaserScan"](
-            header=self.header(stamp_ns, frame), angle_min=angle_min, angle_max=angle_min + increment * (len(ranges) - 1),
+            header=self.header(stamp_ns, frame), angle_min=angle_min,
+            angle_max=angle_min + increment * (len(ranges) - 1),
             angle_increment=increment, time_increment=0.0, scan_time=0.1, range_min=range_min, range_max=range_max,
             ranges=np.asarray(ranges, dtype=np.float32), intensities=np.zeros(0, dtype=np.float32))
 
@@ -173,7 +174,8 @@ def cloud_bag(path, kind, scans=12, frame="lidar", float64=False, with_tf=True, 
     events = [(s, "odom", i) for i, s in enumerate(o_stamps)] + [(s, "scan", k) for k, s in enumerate(scan_stamps)]
     for stamp, what, index in sorted(events, key=lambda e: (e[0], e[1])):
         if what == "odom":
-            messages.append(("/odom", "nav_msgs/msg/Odometry", stamp, m.odometry(stamp, positions[index], quats[index])))
+            message = m.odometry(stamp, positions[index], quats[index])
+            messages.append(("/odom", "nav_msgs/msg/Odometry", stamp, message))
             continue
         count = int(rng.integers(20, 60))
         directions = rng.normal(size=(count, 3))
@@ -280,7 +282,8 @@ def test_padding_never_changes_the_map(tmp_path):
 def test_laser_scans_keep_returns_and_no_returns_and_drop_invalid_beams(tmp_path, kind):
     m = Messages(kind == "ros1")
     o_stamps, positions, quats = odometry_samples(30)
-    messages = [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q)) for s, p, q in zip(o_stamps, positions, quats)]
+    messages = [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q))
+                for s, p, q in zip(o_stamps, positions, quats)]
     rng = np.random.default_rng(4)
     scans = []
     for k in range(8):
@@ -294,13 +297,18 @@ def test_laser_scans_keep_returns_and_no_returns_and_drop_invalid_beams(tmp_path
         messages.append(("/scan", "sensor_msgs/msg/LaserScan", stamp,
                          m.laser(stamp, "base_link", ranges, -1.2, 0.06, 0.1, 9.0)))
         scans.append((stamp, ranges))
-    bag = write_bag(tmp_path / ("scan.bag" if kind == "ros1" else "scan_bag"), kind, sorted(messages, key=lambda x: x[2]))
+    # a second scan with the last one's stamp: not later than it, dropped
+    messages.append(("/scan", "sensor_msgs/msg/LaserScan", stamp + 1,
+                     m.laser(stamp, "base_link", ranges[::-1].copy(), -1.2, 0.06, 0.1, 9.0)))
+    bag = write_bag(tmp_path / ("scan.bag" if kind == "ros1" else "scan_bag"), kind,
+                    sorted(messages, key=lambda x: x[2]))
     out = tmp_path / "scan.h5"
     assert cli.main(["import", str(bag), "--points", "/scan", "--odometry", "/odom", "--out", str(out), "--quiet"]) == 0
     rows, metadata, _ = beams_of(out)
     assert len(rows) == 8 and metadata["sensor_config"]["max_range_m"] == pytest.approx(9.0)
     assert metadata["sensor_config"]["min_range_m"] == pytest.approx(0.1)
-    assert metadata["import"]["invalid_beams"] == 8 * 4 and metadata["source"]["mount"].startswith("identity")
+    assert metadata["import"]["dropped"] == {"stamp_not_increasing": 1}
+    assert metadata["import"]["invalid_beams"] == 9 * 4 and metadata["source"]["mount"].startswith("identity")
     angles = -1.2 + 0.06 * np.arange(40)
     for (stamp, ranges), (_, origin, ends, no_return, stored) in zip(scans, rows):
         keep = ~(np.isnan(ranges) | (ranges < 0.1))
@@ -360,6 +368,8 @@ def test_bad_bags_and_arguments_are_clear_errors(tmp_path, capsys):
     untied, _, _ = cloud_bag(tmp_path / "untied.bag", "ros1", scans=4, with_tf=False)
     assert "TF (/tf_static, /tf) does not connect it" in run_cli(
         capsys, untied, "--points", "/points", "--odometry", "/odom", "--out", out, "--frame", "lidar")
+    assert "folder" in run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out",
+                               tmp_path / "no" / "x.h5", "--frame", "lidar")
     assert not out.exists()
 
 

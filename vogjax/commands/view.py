@@ -6,10 +6,13 @@ from pathlib import Path
 
 
 def add_parser(commands) -> None:
-    view = commands.add_parser("view", help="show a map or report folder in the rerun viewer (pip install 'vogjax[view]')")
-    view.add_argument("path", type=Path, help="a report folder of `vogjax map` (DIR/<run> or DIR) or a map file (.vog)")
+    view = commands.add_parser("view", help="show a map or report folder in the rerun viewer "
+                                            "(pip install 'vogjax[view]')")
+    view.add_argument("path", type=Path,
+                      help="a report folder of `vogjax map` (DIR/<run> or DIR) or a map file (.vog)")
     view.add_argument("--save", type=Path, default=None,
-                      help="write the recording to this .rrd file instead of opening a viewer (`rerun FILE.rrd` shows it)")
+                      help="write the recording to this .rrd file instead of opening a viewer "
+                           "(`rerun FILE.rrd` shows it)")
 
 
 def run(args) -> None:

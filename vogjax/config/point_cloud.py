@@ -13,7 +13,7 @@ class PointCloudConfig(Config):
     """message:     the ROS message the scans came from (PointCloud2 or LaserScan)
     beams:       beams per stored scan (scans with fewer real beams are padded with copies of
                  one of their own beams, which changes no map)
-    rate_hz:     mean scans per second of the recording
+    rate_hz:     mean scans per second of the recording (10 when it holds a single scan)
     min_range_m: returns below it were dropped as invalid (LaserScan's range_min)
     max_range_m: the sensor's reach: LaserScan's range_max, or for a point cloud the farthest
                  return (or what the importer was told); beams without a return clear free space

@@ -12,9 +12,10 @@ their parent (OctoMap's pruning); an inner node holds the largest of its childre
 
 - .bt ("binary", max-likelihood): per inner node two bytes, two bits per child in the
   little-endian 16-bit word: bit 2i alone for a free leaf, bit 2i+1 alone for an occupied leaf,
-  both for an inner node, neither for an absent child. Occupied and free follow the map's own thresholds; observed voxels the map calls
-  unknown (probability between free_threshold and occupied_threshold) are left out, so OctoMap
-  reports them unknown too. OctoMap gives read leaves its clamping bounds as log-odds.
+  both for an inner node, neither for an absent child. Occupied and free follow the map's own
+  thresholds; observed voxels the map calls unknown (probability between free_threshold and
+  occupied_threshold) are left out, so OctoMap reports them unknown too. OctoMap gives the
+  leaves it reads its clamping bounds as log-odds.
 - .ot (full): per node its float32 log-odds and one byte of child-exists bits, every voxel's
   log-odds as the map holds it.
 

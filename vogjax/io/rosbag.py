@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.geometry import inverse, rigid_poses
+from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import MAX_RANGE_M, DatasetWriter
 from vogjax.sensors.point_cloud import PointCloudSensor
 
@@ -92,14 +93,18 @@ def import_bag(bag, out, points_topic: str, odometry_topic: str, frame: str | No
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
-    bag = Path(bag)
-    if max_range_m is not None and not (isinstance(max_range_m, (int, float)) and 0 < max_range_m <= MAX_RANGE_M):
+    bag, out = Path(bag), Path(out)
+    if max_range_m is not None and (isinstance(max_range_m, bool) or not isinstance(max_range_m, (int, float))
+                                    or not 0 < max_range_m <= MAX_RANGE_M):
         raise ValueError(f"max_range_m must be a number in (0, {MAX_RANGE_M:g}], got {max_range_m!r}")
     if not bag.exists():
         raise ValueError(f"bag {str(bag)!r} does not exist")
+    check_writable(out)  # before reading the whole bag
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: folder {str(out.parent)!r} does not exist")
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            return _import(reader, bag, Path(out), points_topic, odometry_topic, frame, max_range_m, progress)
+            return _import(reader, bag, out, points_topic, odometry_topic, frame, max_range_m, progress)
     except AnyReaderError as error:
         raise ValueError(f"bag {str(bag)!r} cannot be read: {error}") from None
 
@@ -123,7 +128,7 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
             dropped["outside_odometry"] += 1
         elif len(scan.ranges) == 0:
             dropped["no_valid_beams"] += 1
-        elif stamps and scan.stamp_ns <= stamps[-1]:
+        elif stamps and scan.stamp_ns * 1e-9 <= stamps[-1] * 1e-9:  # as the run stores times
             dropped["stamp_not_increasing"] += 1
         else:
             kept.append(ordinal)
@@ -175,14 +180,14 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
             written += 1
             rows.append(_padded(scan, beams, rotation))
             if len(rows) == BATCH_SCANS or written == len(kept):
-                stamps = np.array([r[0] for r in rows], dtype=np.int64)
-                writer.append(time_s=stamps * 1e-9, pose_nav=odometry.at(stamps),
+                batch_ns = np.array([r[0] for r in rows], dtype=np.int64)
+                writer.append(time_s=batch_ns * 1e-9, pose_nav=odometry.at(batch_ns),
                               sonar_origin=np.tile(origin, (len(rows), 1)).astype(np.float32),
                               sonar_directions=np.stack([r[1] for r in rows]),
                               ranges=np.stack([r[2] for r in rows]), no_return=np.stack([r[3] for r in rows]))
                 bar.update(len(rows))
                 rows = []
-    return ImportSummary(Path(out), len(kept), scans_read, beams, dict(dropped), invalid,
+    return ImportSummary(out, len(kept), scans_read, beams, dict(dropped), invalid,
                          metadata["import"]["padded_beams"], metadata)
 
 
