@@ -194,3 +194,24 @@ def test_tum_trajectory_reads_back_with_scipys_quaternions(tmp_path):
         save_tum(tmp_path / "bad.tum", times[::-1], poses)
     with pytest.raises(ValueError, match="poses must have shape"):
         save_tum(tmp_path / "bad.tum", times, poses[:3])
+
+
+def test_a_confidence_rich_map_exports_its_mean_occupancy(tmp_path):
+    from vogjax.config.crm import CrmConfig
+    from vogjax.maps.confidence import ConfidenceMap
+
+    crm = ConfidenceMap(CrmConfig(voxel_size=0.2, max_range=6.0))
+    crm.integrate_scans(*ref.random_scans(np.random.default_rng(7), 4, 100, spread=3.0, far=0.1))
+    crm.save(tmp_path / "crm.vog")
+    centres, mean, _ = crm.voxels()
+    state = crm.state(centres)
+    assert {vj.FREE, vj.OCCUPIED} <= set(state.tolist())
+    for format in ("bt", "ot"):
+        assert cli.main(["export", str(tmp_path / "crm.vog"), "--out", str(tmp_path / f"crm.{format}")]) == 0
+    full = octomap.OcTree.read(str(tmp_path / "crm.ot").encode())
+    np.testing.assert_allclose([full.search(c).getOccupancy() for c in centres], mean, rtol=1e-5)
+    tree = octomap.OcTree(str(tmp_path / "crm.bt").encode())
+    for centre, expected in zip(centres, state):
+        if expected != vj.UNKNOWN:
+            assert tree.isNodeOccupied(tree.search(centre)) == (expected == vj.OCCUPIED)
+    assert covered_voxels(tree, 0.2) == np.count_nonzero(state != vj.UNKNOWN)

@@ -66,7 +66,7 @@ class Tree:
 
 
 def save(source, path, format: str | None = None) -> int:
-    """Write `source` (a VoxelMap, GlobalMap or VoxelSet) to `path` as .bt or .ot (`format`,
+    """Write `source` (a VoxelMap, GlobalMap, ConfidenceMap or VoxelSet) to `path` as .bt or .ot (`format`,
     default: the file's suffix). Returns the number of octree nodes written."""
     path = Path(path)
     format = format or path.suffix.lstrip(".").lower()

@@ -36,7 +36,7 @@ def height_colours(z: np.ndarray, low: float | None = None, high: float | None =
 
 
 def save(source, path) -> int:
-    """Write the occupied voxels of `source` (a VoxelMap, GlobalMap or VoxelSet) to `path`;
+    """Write the occupied voxels of `source` (a VoxelMap, GlobalMap, ConfidenceMap or VoxelSet) to `path`;
     returns how many."""
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
     occupied = voxels.state() == 2

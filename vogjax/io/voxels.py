@@ -1,9 +1,9 @@
 """What the exporters read of a map: observed voxels, their log-odds and the state thresholds.
 
-Any map kind can be exported once it is a `VoxelSet`: a VoxelMap or GlobalMap
-(`VoxelSet.from_map`), or anything else that has voxel centres with log-odds or occupancy
-probabilities (`VoxelSet.from_log_odds`, `VoxelSet.from_probabilities`; e.g. a confidence-rich
-map's mean occupancy). `load_map` opens a .vog file of whichever kind its header names.
+Any map kind can be exported once it is a `VoxelSet`: a VoxelMap, GlobalMap or ConfidenceMap
+(`VoxelSet.from_map`; a confidence-rich map by its mean occupancy), or anything else that has
+voxel centres with log-odds or occupancy probabilities (`VoxelSet.from_log_odds`,
+`VoxelSet.from_probabilities`). `load_map` opens a .vog file of whichever kind its header names.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ class VoxelSet:
     voxel_size:   s, metres
     log_occupied: float32 log-odds at or above which a voxel is occupied
     log_free:     float32 log-odds at or below which a voxel is free (between: unknown)
+    states:       (K,) int8 UNKNOWN (0), FREE (1), OCCUPIED (2) as the source map classifies its
+                  voxels; None: from log_odds and the thresholds, as a VoxelMap classifies
     """
 
     centres: np.ndarray
@@ -39,6 +41,7 @@ class VoxelSet:
     voxel_size: float
     log_occupied: np.float32
     log_free: np.float32
+    states: np.ndarray | None = None
 
     def __post_init__(self):
         centres = np.asarray(self.centres)
@@ -61,18 +64,35 @@ class VoxelSet:
         object.__setattr__(self, "voxel_size", float(size))
         object.__setattr__(self, "log_occupied", np.float32(self.log_occupied))
         object.__setattr__(self, "log_free", np.float32(self.log_free))
+        if self.states is None:
+            states = np.zeros(len(centres), dtype=np.int8)  # the order of the maps' classify
+            states[self.log_odds >= self.log_occupied] = 2
+            states[self.log_odds <= self.log_free] = 1
+        else:
+            states = np.asarray(self.states)
+            if states.shape != (len(centres),) or not np.isin(states, (0, 1, 2)).all():
+                raise ValueError(f"states must be ({len(centres)},) values 0 (unknown), 1 (free) or 2 (occupied)")
+        object.__setattr__(self, "states", states.astype(np.int8))
         keys = self.keys()
         if len(keys) and len(np.unique(keys, axis=0)) != len(keys):
             raise ValueError("centres must name each voxel once")
 
     @classmethod
     def from_map(cls, voxel_map) -> "VoxelSet":
-        """The observed voxels of a VoxelMap or GlobalMap (anything with `voxels()` and a MapConfig)."""
+        """The observed voxels of a VoxelMap or GlobalMap (log-odds) or a ConfidenceMap (its
+        mean occupancy, states as it classifies them)."""
         config = getattr(voxel_map, "config", None)
-        if not isinstance(config, MapConfig) or not callable(getattr(voxel_map, "voxels", None)):
-            raise ValueError(f"map must be a vj.VoxelMap or vj.GlobalMap, got {type(voxel_map).__name__}")
-        centres, values = voxel_map.voxels()
-        return cls(centres, values, config.voxel_size, config.log_occupied, config.log_free)
+        if isinstance(config, MapConfig) and callable(getattr(voxel_map, "voxels", None)):
+            centres, values = voxel_map.voxels()
+            return cls(centres, values, config.voxel_size, config.log_occupied, config.log_free)
+        from vogjax.maps.confidence import ConfidenceMap
+
+        if isinstance(voxel_map, ConfidenceMap):
+            centres, mean, _ = voxel_map.voxels()
+            return cls.from_probabilities(centres, mean, config.voxel_size, config.occupied_threshold,
+                                          config.free_threshold)
+        raise ValueError(f"map must be a vj.VoxelMap, vj.GlobalMap or vj.ConfidenceMap, got "
+                         f"{type(voxel_map).__name__}")
 
     @classmethod
     def from_log_odds(cls, centres, log_odds, voxel_size: float, occupied_threshold: float = 0.7,
@@ -83,12 +103,17 @@ class VoxelSet:
     @classmethod
     def from_probabilities(cls, centres, probabilities, voxel_size: float, occupied_threshold: float = 0.7,
                            free_threshold: float = 0.3) -> "VoxelSet":
-        """Voxels with occupancy probabilities in (0, 1) (e.g. a confidence-rich map's mean)."""
-        p = np.asarray(probabilities, dtype=np.float64)
-        if p.dtype.kind != "f" or not np.all((p > 0) & (p < 1)):
+        """Voxels with occupancy probabilities in (0, 1) (e.g. a confidence-rich map's mean),
+        classified by comparing the probabilities themselves with the thresholds."""
+        given = np.asarray(probabilities)
+        p = given.astype(np.float64)
+        if given.dtype.kind not in "fi" or not np.all((p > 0) & (p < 1)):
             raise ValueError("probabilities must lie strictly between 0 and 1")
-        return cls(centres, np.log(p / (1.0 - p)).astype(np.float32), voxel_size,
-                   *_thresholds(occupied_threshold, free_threshold))
+        thresholds = _thresholds(occupied_threshold, free_threshold)
+        states = np.zeros(len(p), dtype=np.int8)
+        states[given >= occupied_threshold] = 2
+        states[given <= free_threshold] = 1
+        return cls(centres, np.log(p / (1.0 - p)).astype(np.float32), voxel_size, *thresholds, states)
 
     def __len__(self) -> int:
         return len(self.centres)
@@ -103,11 +128,8 @@ class VoxelSet:
         return keys
 
     def state(self) -> np.ndarray:
-        """(K,) int8: vj.UNKNOWN (0), vj.FREE (1), vj.OCCUPIED (2), as the maps classify."""
-        state = np.zeros(len(self), dtype=np.int8)
-        state[self.log_odds <= self.log_free] = 1
-        state[self.log_odds >= self.log_occupied] = 2
-        return state
+        """(K,) int8: vj.UNKNOWN (0), vj.FREE (1), vj.OCCUPIED (2), as the source map classifies."""
+        return self.states
 
     def probability(self) -> np.ndarray:
         return (1.0 - 1.0 / (1.0 + np.exp(self.log_odds.astype(np.float64)))).astype(np.float32)
@@ -146,10 +168,12 @@ def map_kind(path) -> str:
 
 
 def load_map(path, device=None):
-    """The map a .vog file holds, as the class its header names (VoxelMap or GlobalMap)."""
+    """The map a .vog file holds, as the class its header names (VoxelMap, GlobalMap or
+    ConfidenceMap)."""
     from vogjax.maps import GlobalMap, VoxelMap
+    from vogjax.maps.confidence import ConfidenceMap
 
-    kinds = {"VoxelMap": VoxelMap, "GlobalMap": GlobalMap}
+    kinds = {"VoxelMap": VoxelMap, "GlobalMap": GlobalMap, "ConfidenceMap": ConfidenceMap}
     kind = map_kind(path)
     if kind not in kinds:
         raise ValueError(f"path {str(path)!r} holds a {kind!r}; this command reads {', '.join(kinds)}")
