@@ -9,7 +9,8 @@ FORMATS = ("bt", "ot", "ply")
 
 def add_parser(commands) -> None:
     export = commands.add_parser("export", help="write a map as OctoMap .bt/.ot or a PLY point cloud")
-    export.add_argument("map", type=Path, help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)")
+    export.add_argument("map", type=Path,
+                        help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)")
     export.add_argument("--format", choices=FORMATS, default=None,
                         help="bt: OctoMap max-likelihood, ot: OctoMap with every log-odds, ply: occupied voxel "
                              "centres coloured by height (default: the suffix of --out)")
