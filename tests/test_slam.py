@@ -173,7 +173,8 @@ def test_detector_accepts_true_and_rejects_wrong_loop_closures():
     poses[2] = truth_k
     clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
     times = np.array([0.0, 600.0, 1200.0])
-    detector = slam.LoopClosureDetector()
+    six_dof = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="all"))
+    detector = slam.LoopClosureDetector(config=six_dof)
     estimate = poses.copy()
     estimate[2] = small_motion(rng, 0.01, 0.05) @ truth_k  # the current estimate is a bit off
     accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, poses, times)
@@ -190,6 +191,26 @@ def test_detector_accepts_true_and_rejects_wrong_loop_closures():
     clouds[2] = np.random.default_rng(9).uniform(0, 5, (2000, 3))
     accepted, rejected = detector.detect(2, clouds, [bounds, None, bounds], estimate, poses, times)
     assert not accepted and rejected[0].reason in ("overlap", "fitness", "not converged")
+
+
+def test_default_closures_constrain_translation_only_with_the_estimated_rotation():
+    rng = np.random.default_rng(3)
+    cloud = structured_cloud(rng, 2000)
+    bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
+    truth_k = small_motion(rng, 0.02, 0.3)
+    clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
+    poses = np.stack([np.eye(4), np.eye(4), truth_k])
+    poses[1, :3, 3] = [20.0, 0, 0]
+    estimate = poses.copy()
+    estimate[2, :3, 3] += [0.25, -0.15, 0.05]  # the rotation estimate is right, the position off
+    accepted, rejected = slam.LoopClosureDetector().detect(2, clouds, [bounds, None, bounds], estimate, poses,
+                                                           np.array([0.0, 600.0, 1200.0]))
+    assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
+    closure = accepted[0]
+    # a partial factor over translation directions only: rotation rows of the basis are zero
+    assert closure.basis is not None and np.abs(closure.basis[:3]).max() == 0 and closure.basis.shape[1] == 3
+    np.testing.assert_allclose(closure.T_i_k[:3, :3], truth_k[:3, :3], atol=1e-12)  # held, as estimated
+    np.testing.assert_allclose(closure.T_i_k[:3, 3], truth_k[:3, 3], atol=0.02)
 
 
 def test_detector_finds_closures_beyond_icps_reach():
@@ -209,7 +230,9 @@ def test_detector_finds_closures_beyond_icps_reach():
     nav[2] = truth_k @ off
     times = np.array([0.0, 900.0, 1800.0])
     assert slam.icp(clouds[2], cloud, nav[2]).T_target_source[0, 3] > truth_k[0, 3] + 0.2  # ICP alone fails
-    accepted, rejected = slam.LoopClosureDetector().detect(2, clouds, [bounds, None, bounds], nav, nav, times)
+    six_dof = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="all"))
+    accepted, rejected = slam.LoopClosureDetector(config=six_dof).detect(2, clouds, [bounds, None, bounds], nav,
+                                                                         nav, times)
     assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
     np.testing.assert_allclose(accepted[0].T_i_k, truth_k, atol=0.02)
 
