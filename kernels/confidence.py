@@ -8,9 +8,11 @@ standard deviations (to max_range for a beam without a return). Along the cone, 
 mean of voxel c before the scan:
 
     bounce  B_c = m^_c                        reach  T_c = prod_{l<c} (1 - m^_l)     (Eqs. 15-16)
-    likelihood of the reading if c caused it, L_c: for a return at range z, the N(z; t, sigma^2)
-    density averaged over the chord [t_in, t_out] (the bounce is anywhere on it); without a
-    return, P(t_mid + noise > max_range). The cause at infinity (nothing bounced within reach)
+    likelihood of the reading if c caused it, L_c (Eq. 18): for a return at range z, the
+    N(z; t, sigma^2) density averaged over the chord [t_in, t_out] (the bounce is anywhere on
+    it), or at t = the distance of the voxel's centre (cause_range "centre", the paper's form);
+    without a return, P(t + noise > max_range), t the chord's middle or the centre. The noise
+    is cut off at NOISE_CUTOFF sigma. The cause at infinity (nothing bounced within reach)
     explains only "no return" (L = 1); a spurious reading (probability p_s) explains only
     returns, L_s = 1/max_range.
 
@@ -28,7 +30,8 @@ lie in [0, 1] and nothing overflows. S comes from one backward pass over the con
 one forward pass: no division by m^ or 1 - m^ anywhere.
 
 A scan: every beam's factors are computed from the means before the scan; each voxel then
-multiplies in the factors of the beams that cross it in beam order, and at the end of the scan
+multiplies in the factors of the beams that cross it in beam order (the host orders a scan's
+beams by their endpoints), rescaling if they fall towards underflow, and at the end of the scan
 is renormalised, floored at bin_floor, renormalised again, and gets its new mean and variance.
 On the CPU one sequential launch does a whole pass of scans in order; on CUDA the factors are
 computed in parallel and a stable sort by voxel replays each voxel's factors in beam order. The
@@ -40,7 +43,6 @@ import math
 import types
 
 import numpy as np
-
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, pack_block
@@ -214,18 +216,18 @@ def mean_or_prior(mean: wp.array(dtype=wp.float32), voxel: int, prior_mean: wp.f
 @wp.func
 def beam_tails(lo: int, hi: int, hit: bool, step_voxel: wp.array(dtype=wp.int32),
                step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
-               prior_mean: wp.float32, step_mean: wp.array(dtype=wp.float32),
+               prior_mean: wp.float32, base: int, step_mean: wp.array(dtype=wp.float32),
                step_tail: wp.array(dtype=wp.float64)):
     """Backward over one beam's cone, steps [lo, hi): each voxel's mean before the scan and S_i,
-    the likelihood of the reading caused beyond it."""
+    the likelihood of the reading caused beyond it, at scratch index i - base."""
     tail = wp.float64(0.0)
     if not hit:
         tail = wp.float64(1.0)  # the cause at infinity
     for back in range(hi - lo):
         i = hi - 1 - back
         m = mean_or_prior(mean, step_voxel[i], prior_mean)
-        step_mean[i] = m
-        step_tail[i] = tail
+        step_mean[i - base] = m
+        step_tail[i - base] = tail
         m64 = wp.float64(m)
         tail = step_likelihood[i] * m64 + (wp.float64(1.0) - m64) * tail
 
@@ -265,7 +267,7 @@ def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int
     lo = beam_first_step[beam]
     hi = beam_first_step[beam + 1]
     hit = returned[beam] != 0
-    beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, step_mean, step_tail)
+    beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, 0, step_mean, step_tail)
     keep = wp.float64(1.0) - spurious
     floor_term = spurious_term(hit, spurious, spurious_likelihood)
     before = wp.float64(0.0)  # P_i: the reading caused before voxel i
@@ -352,14 +354,15 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 lo = beam_first_step[beam]
                 hi = beam_first_step[beam + 1]
                 hit = returned[beam] != 0
-                beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, step_mean, step_tail)
+                # one beam's scratch at a time, so it stays in the cache
+                beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, lo, step_mean, step_tail)
                 floor_term = spurious_term(hit, spurious, spurious_likelihood)
                 before = wp.float64(0.0)
                 reach = wp.float64(1.0)
                 for i in range(lo, hi):
-                    m64 = wp.float64(step_mean[i])
+                    m64 = wp.float64(step_mean[i - lo])
                     likelihood = step_likelihood[i]
-                    r = cause_factor(likelihood, step_tail[i], before, reach, keep, floor_term)
+                    r = cause_factor(likelihood, step_tail[i - lo], before, reach, keep, floor_term)
                     before = before + likelihood * m64 * reach
                     reach = reach * (wp.float64(1.0) - m64)
                     v = step_voxel[i]

@@ -127,3 +127,35 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
     if passing > best_probability:
         best = wp.float64(-1.0)
     ranges[tid] = best
+
+
+@wp.kernel
+def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
+                      inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
+                      table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
+                      variance: wp.array(dtype=wp.float32), prior_mean: wp.float32,
+                      prior_variance: wp.float32, costs: wp.array(dtype=wp.float64)):
+    """Sum of mean + variance (Eq. 34) over every voxel a segment passes with positive length."""
+    tid = wp.tid()
+    length = lengths[tid]
+    w = ray_walk_begin(starts[tid], directions[tid], resolution, inv_resolution, length)
+    total = wp.float64(0.0)
+    voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    slot = int(-1)
+    new_block = bool(True)
+    steps = int(0)
+    while t_in < length and steps <= w.max_steps:
+        if new_block:
+            slot = find_voxel_slot(table_keys, table_slots, voxel)
+        t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
+        if t_out > t_in:
+            m = stored(slot, voxel, mean)
+            v = stored(slot, voxel, variance)
+            if wp.isnan(m):
+                m = prior_mean
+                v = prior_variance
+            total = total + wp.float64(m) + wp.float64(v)
+        voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+    costs[tid] = total

@@ -7,7 +7,8 @@ from tests.crm_reference import cone
 from vogjax.config import SonarConfig
 from vogjax.config.crm import CrmConfig
 from vogjax.maps.confidence import ConfidenceMap
-from vogjax.maps.confidence_cost import choose_path, collision_risk, inconsistency, most_likely_ranges, path_cost
+from vogjax.maps.confidence_cost import (choose_path, collision_risk, edge_risk, inconsistency, most_likely_ranges,
+                                        path_cost)
 
 CFG = CrmConfig(voxel_size=0.1, max_range=4.0, range_sigma_m=0.03, num_bins=8)
 
@@ -54,6 +55,29 @@ def test_path_cost_sums_the_one_step_costs():
     assert water.total < wall.total
     best, costs = choose_path(crm, [into_wall, through_water])
     assert best == 1 and costs[1] == pytest.approx(water.total)
+
+
+def test_edge_risk_sums_the_voxels_a_segment_passes():
+    crm = wall_map()
+    rng = np.random.default_rng(8)
+    starts = rng.uniform(-0.3, 2.5, (25, 3)) * [1, 0.4, 0.1]
+    ends = starts + rng.normal(size=(25, 3)) * [1.0, 0.3, 0.05]
+    ends[0] = starts[0]  # a point costs its voxel
+    got = edge_risk(crm, starts, ends)
+    for i in range(25):
+        length = float(np.linalg.norm(ends[i] - starts[i]))
+        if length == 0:
+            expected = collision_risk(crm, starts[i:i + 1])[0]
+        else:
+            voxels = cone(starts[i], (ends[i] - starts[i]) / length, length, CFG.voxel_size)
+            centres = np.array([(np.array(k) + 0.5) * CFG.voxel_size for k, _, _ in voxels])
+            expected = collision_risk(crm, centres).sum()
+        assert got[i] == pytest.approx(expected, rel=1e-6)
+    through_wall = edge_risk(crm, np.array([[1.0, 0.0, 0.05]]), np.array([[3.0, 0.0, 0.05]]))
+    short_of_it = edge_risk(crm, np.array([[0.0, 0.0, 0.05]]), np.array([[1.9, 0.0, 0.05]]))
+    assert through_wall[0] > short_of_it[0]
+    with pytest.raises(ValueError, match="ends"):
+        edge_risk(crm, starts, ends[:3])
 
 
 def test_most_likely_ranges_against_a_brute_force_walk():

@@ -259,20 +259,23 @@ class ConfidenceMap:
             outputs=[step_voxel, step_likelihood], device=device), count, parts)
 
         # 3. the scans in order
-        scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
-                   wp.empty(total, dtype=wp.float64, device=device)]  # S_i
         model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability),
                  np.float64(1.0 / cfg.max_range)]
         layers = store.layers
         scan_ends = (beams.scan_ends[first_scan:end_scan] - lo).astype(np.int32)
         if not self._sorted_path:
+            longest = int(steps.max())
             wp.launch(self._kernels.integrate_in_order, dim=1,
                       inputs=[wp.array(scan_ends, dtype=wp.int32, device=device), d_first, d_returned, step_voxel,
-                              step_likelihood, *model, np.float32(cfg.bin_floor), *scratch,
+                              step_likelihood, *model, np.float32(cfg.bin_floor),
+                              wp.empty(longest, dtype=wp.float32, device=device),
+                              wp.empty(longest, dtype=wp.float64, device=device),
                               wp.empty(total, dtype=wp.int32, device=device)],
                       outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"]],
                       device=device)
             return
+        scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
+                   wp.empty(total, dtype=wp.float64, device=device)]  # S_i
         scan_steps = first_step[np.r_[0, scan_ends]]
         widest = int(np.diff(scan_steps).max())
         keys = wp.empty(2 * widest, dtype=wp.int32, device=device)

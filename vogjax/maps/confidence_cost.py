@@ -4,6 +4,7 @@ optionally on the map predicted along the path from the most likely future readi
 (Eqs. 29-35).
 
     risk = collision_risk(crm, points)                     # (M,) mean + variance per point
+    edge = edge_risk(crm, starts, ends)                    # (E,) summed over each segment's voxels
     cost = path_cost(crm, waypoints)                       # cost.total: J of Eq. 31
     cost = path_cost(crm, waypoints, T_world_sensor=poses, sensor=vj.SonarConfig())
     best, costs = choose_path(crm, [path_a, path_b])       # Eq. 35
@@ -57,6 +58,36 @@ def collision_risk(crm: ConfidenceMap, points) -> np.ndarray:
     0.5 + variance, so unknown space is riskier than known free space but safer than walls."""
     _check_map(crm)
     return crm.mean(points).astype(np.float64) + crm.variance(points).astype(np.float64)
+
+
+def edge_risk(crm: ConfidenceMap, starts, ends) -> np.ndarray:
+    """(E,) float64 cost of moving along each straight segment starts (E,3) -> ends (E,3): the
+    one-step cost mean + variance (Eq. 34) summed over every voxel the segment passes (Eq. 31
+    with one step per voxel). Zero-length segments cost their start voxel. Fits the planner's
+    `risk` hook: `NbvPlanner(..., risk=functools.partial(edge_risk, crm))`."""
+    _check_map(crm)
+    starts = float_array("starts", starts, (-1, 3), np.float64)
+    ends = float_array("ends", ends, (starts.shape[0], 3), np.float64)
+    cfg, device, store = crm.config, crm.device, crm.store
+    within_key_range("starts", starts, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
+    within_key_range("ends", ends, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
+    offsets = ends - starts
+    lengths = np.linalg.norm(offsets, axis=1)
+    directions = np.where(lengths[:, None] > 0, offsets / np.maximum(lengths, 1e-300)[:, None], [1.0, 0.0, 0.0])
+    # a point: its own voxel (the walk covers [0, length), so give it a sliver of length)
+    lengths = np.where(lengths > 0, lengths, 1e-9 * cfg.voxel_size)
+    out = wp.empty(starts.shape[0], dtype=wp.float64, device=device)
+    with crm.reading():
+        if starts.shape[0]:
+            wp.launch(confidence_queries.sum_segment_costs, dim=starts.shape[0],
+                      inputs=[wp.array(starts, dtype=wp.vec3d, device=device),
+                              wp.array(directions, dtype=wp.vec3d, device=device),
+                              wp.array(lengths, dtype=wp.float64, device=device), np.float64(cfg.voxel_size),
+                              np.float64(1.0 / cfg.voxel_size), store.table_keys, store.table_slots,
+                              store.layers["mean"], store.layers["variance"], np.float32(cfg.prior_mean),
+                              np.float32(cfg.prior_variance)],
+                      outputs=[out], device=device)
+        return out.numpy()
 
 
 def most_likely_ranges(crm: ConfidenceMap, origins, directions, max_range) -> np.ndarray:
