@@ -7,6 +7,7 @@ limits (0.25 m/s, 0.15 rad/s) and turns them into thrust.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -104,3 +105,55 @@ def simulate_batch(start_poses, waypoints, num_scans: int, scan_rate_hz: float =
     run = jax.vmap(lambda q, w: _run(mx, q, w, num_scans, steps, config))
     qpos, index = run(qpos0, jnp.asarray(waypoints, dtype=jnp.float32))
     return poses_from_qpos(np.asarray(qpos)), np.asarray(index)
+
+
+# ---------------------------------------------------------------- flights continued from a state
+# (for closed-loop runs, where the next waypoint depends on what the vehicle has seen so far)
+
+@dataclasses.dataclass(frozen=True)
+class Flight:
+    """S scans of a flight: poses (S,4,4) at each scan, index (S,) of the waypoint being flown
+    to, and the vehicle's state at each scan, qpos (S,7) and qvel (S,6), to continue from."""
+
+    poses: np.ndarray
+    index: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+
+
+def resting_state(pose) -> tuple[np.ndarray, np.ndarray]:
+    """qpos (7,) and qvel (6,) of the vehicle at rest at pose (4,4), to start a `fly`."""
+    return _qpos(pose), np.zeros(6)
+
+
+@functools.partial(jax.jit, static_argnames=("num_scans", "steps_per_scan", "config"))
+def _run_from(mx, qpos0, qvel0, waypoints, num_scans: int, steps_per_scan: int, config: ControllerConfig):
+    data = mjx.make_data(mx).replace(qpos=qpos0, qvel=qvel0)
+
+    def physics_step(carry, _):
+        data, index = carry
+        target = waypoints[index]
+        data = mjx.step(mx, data.replace(ctrl=control(data.qpos, data.qvel, target, config)))
+        index = jnp.where(_reached(data.qpos, target, config), jnp.minimum(index + 1, len(waypoints) - 1), index)
+        return (data, index), None
+
+    def scan_step(carry, _):
+        carry, _ = jax.lax.scan(physics_step, carry, None, length=steps_per_scan)
+        data, index = carry
+        return carry, (data.qpos, data.qvel, index)
+
+    _, (qpos, qvel, index) = jax.lax.scan(scan_step, (data, jnp.int32(0)), None, length=num_scans)
+    return qpos, qvel, index
+
+
+def fly(qpos, qvel, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
+        config: ControllerConfig = ControllerConfig()) -> Flight:
+    """Continue a flight from the state qpos (7,), qvel (6,) (a `resting_state`, or a Flight's
+    last row) through waypoints (W,4: x, y, z, yaw) for num_scans scans. Compiled once per
+    (num_scans, W): callers fly fixed-length pieces."""
+    host, mx = model()
+    steps = max(1, int(round(1.0 / (scan_rate_hz * host.opt.timestep))))
+    qpos, qvel, index = _run_from(mx, jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(waypoints, dtype=jnp.float32),
+                                  num_scans, steps, config)
+    qpos = np.asarray(qpos, dtype=np.float64)
+    return Flight(poses_from_qpos(qpos), np.asarray(index), qpos, np.asarray(qvel, dtype=np.float64))

@@ -1,0 +1,110 @@
+"""Collision checks of planner edges: a box swept along a segment against the map.
+
+A voxel is in the swept box when its cube meets the box at some point of the segment, i.e. when
+the segment meets the voxel's cube grown by the box's half extents (closed intervals: touching
+counts). Threads run over (edge, voxel column in x-y); a column walks z through the edge's
+bounding box. OCCUPIED voxels are unsafe. UNKNOWN ones are unsafe unless they meet the box at
+the vehicle's position, or their centre lies within the clearance radius of it, or (on an edge
+that moves in x-y) the voxel of their column at the height of the edge's centre line there is
+FREE: a sonar fan sees along the layer it travels in, and the box's thin top and bottom slabs
+take that layer's state.
+"""
+
+import warp as wp
+
+from .hashing import block_of
+from .planner_maps import FREE, OCCUPIED, UNKNOWN, MapAccess, state_of, store_slot, voxel_value
+from .submap_view import voxel_centre
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def segment_meets_box(start: wp.vec3d, end: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d) -> bool:
+    """Does the segment start->end meet the closed box [lo, hi]? (slab test)"""
+    t0 = wp.float64(0.0)
+    t1 = wp.float64(1.0)
+    for axis in range(3):
+        d = end[axis] - start[axis]
+        if d == wp.float64(0.0):
+            if start[axis] < lo[axis] or start[axis] > hi[axis]:
+                return False
+        else:
+            a = (lo[axis] - start[axis]) / d
+            b = (hi[axis] - start[axis]) / d
+            t0 = wp.max(t0, wp.min(a, b))
+            t1 = wp.min(t1, wp.max(a, b))
+    return t0 <= t1
+
+
+@wp.func
+def boxes_meet(lo_a: wp.vec3d, hi_a: wp.vec3d, lo_b: wp.vec3d, hi_b: wp.vec3d) -> bool:
+    return (lo_a[0] <= hi_b[0] and lo_b[0] <= hi_a[0] and lo_a[1] <= hi_b[1] and lo_b[1] <= hi_a[1]
+            and lo_a[2] <= hi_b[2] and lo_b[2] <= hi_a[2])
+
+
+@wp.func
+def centre_layer_free(m: MapAccess, start: wp.vec3d, end: wp.vec3d, voxel: wp.vec3i, centre: wp.vec3d,
+                      candidates: wp.array(dtype=wp.int32), first: int, last: int) -> bool:
+    """Is the voxel of `voxel`'s column at the height of the edge's centre line FREE? The
+    height is the line's where it passes nearest the voxel's centre in x-y (none for an edge
+    without x-y motion, nor when that voxel is `voxel` itself)."""
+    dx = end[0] - start[0]
+    dy = end[1] - start[1]
+    flat = dx * dx + dy * dy
+    if flat == wp.float64(0.0):
+        return False
+    t = wp.clamp(((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0),
+                 wp.float64(1.0))
+    layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * (end[2] - start[2])) * m.inv_resolution)))
+    if layer[2] == voxel[2]:
+        return False
+    value = voxel_value(m, layer, store_slot(m, layer), candidates, first, last)
+    return state_of(m, value) == FREE
+
+
+@wp.kernel
+def count_unsafe_voxels(first_edge: int, starts: wp.array(dtype=wp.vec3d), ends: wp.array(dtype=wp.vec3d),
+                        half: wp.vec3d, first_voxels: wp.array(dtype=wp.vec3i), sizes: wp.array(dtype=wp.vec3i),
+                        m: MapAccess, candidate_offsets: wp.array(dtype=wp.int32),
+                        candidates: wp.array(dtype=wp.int32), vehicle: wp.vec3d, clearance: wp.float64,
+                        unsafe: wp.array(dtype=wp.int32)):
+    """unsafe[edge] > 0 when the box swept along the edge holds an unsafe voxel. sizes[edge]:
+    voxels per axis of the edge's bounding box, from first_voxels[edge]."""
+    e, column = wp.tid()
+    e = e + first_edge
+    size = sizes[e]
+    if column >= size[0] * size[1]:
+        return
+    start = starts[e]
+    end = ends[e]
+    s = m.resolution
+    vehicle_lo = vehicle - half
+    vehicle_hi = vehicle + half
+    first = candidate_offsets[e]
+    last = candidate_offsets[e + 1]
+    voxel = wp.vec3i(first_voxels[e][0] + column / size[1], first_voxels[e][1] + column % size[1], first_voxels[e][2])
+    slot = int(-1)
+    block = wp.vec3i(0, 0, 0)
+    looked_up = bool(False)
+    for k in range(size[2]):
+        voxel = wp.vec3i(voxel[0], voxel[1], first_voxels[e][2] + k)
+        lo = wp.vec3d(wp.float64(voxel[0]) * s, wp.float64(voxel[1]) * s, wp.float64(voxel[2]) * s)
+        hi = wp.vec3d(lo[0] + s, lo[1] + s, lo[2] + s)
+        if not segment_meets_box(start, end, lo - half, hi + half):
+            continue
+        here = block_of(voxel)
+        if not looked_up or here[2] != block[2]:
+            slot = store_slot(m, voxel)
+            block = here
+            looked_up = True
+        state = state_of(m, voxel_value(m, voxel, slot, candidates, first, last))
+        if state == OCCUPIED:
+            wp.atomic_add(unsafe, e, 1)
+            return
+        if state == UNKNOWN:
+            centre = voxel_centre(voxel, s)
+            if not (boxes_meet(lo, hi, vehicle_lo, vehicle_hi) or wp.length(centre - vehicle) <= clearance
+                    or centre_layer_free(m, start, end, voxel, centre, candidates, first, last)):
+                wp.atomic_add(unsafe, e, 1)
+                return

@@ -1,0 +1,252 @@
+"""The planner's view gain and collision checks against brute-force NumPy on small maps."""
+
+import math
+
+import numpy as np
+import pytest
+
+import vogjax as vj
+from vogjax import planner
+from vogjax.geometry import pose_from_xyz_yaw
+from vogjax.planner.gain import edge_views
+
+from . import reference as ref
+from .submap_helpers import random_vog
+
+
+def ray_voxels(origin, direction, max_range, voxel_size):
+    """Voxels a ray enters before max_range, with the distances where it enters and leaves
+    each: every boundary crossing per axis, sorted (no stepping)."""
+    crossings = [0.0]
+    for axis in range(3):
+        if direction[axis] == 0:
+            continue
+        first = math.floor(origin[axis] / voxel_size) + (direction[axis] > 0)
+        k = first + np.sign(direction[axis]) * np.arange(max_range / voxel_size + 3)
+        t = (k * voxel_size - origin[axis]) / direction[axis]
+        crossings += t[t > 0].tolist()
+    crossings = np.unique(crossings)
+    entries, exits = crossings[:-1], crossings[1:]
+    keep = entries < max_range
+    keys = np.floor((origin + ((entries + exits) / 2)[:, None] * direction) / voxel_size).astype(np.int64)
+    return keys[keep], entries[keep], exits[keep]
+
+
+def brute_gain(map_, poses, sensor, max_range, region=None, groups=None):
+    """Per group of views: sets of unknown, free, occupied voxels seen (first occupied stops)."""
+    s = map_.config.voxel_size
+    directions = sensor.beam_directions().reshape(-1, 3)
+    groups = np.arange(len(poses)) if groups is None else groups
+    seen = [{} for _ in range(groups.max() + 1)]
+    for pose, group in zip(poses, groups):
+        for d in directions:
+            direction = pose[:3, :3] @ d
+            keys, entries, exits = ray_voxels(pose[:3, 3], direction, max_range, s)
+            states = map_.state((keys + 0.5) * s)
+            for key, state, t_exit in zip(keys, states, exits):
+                centre = (key + 0.5) * s
+                inside = region is None or bool(np.all((centre >= region[0]) & (centre <= region[1])))
+                if t_exit > sensor.min_range_m and inside:
+                    seen[group][tuple(key)] = int(state)
+                if state == vj.OCCUPIED:
+                    break
+    return np.array([[sum(v == state for v in g.values()) for state in (vj.UNKNOWN, vj.FREE, vj.OCCUPIED)]
+                     for g in seen])
+
+
+def small_map(rng, cfg):
+    vmap = vj.VoxelMap(cfg)
+    vmap.integrate_scans(*ref.random_scans(rng, 4, 150, spread=3.0, far=0.1))
+    return vmap
+
+
+def random_views(rng, count, spread=1.0):
+    poses = []
+    for _ in range(count):
+        pose = pose_from_xyz_yaw(*rng.uniform(-spread, spread, 3), rng.uniform(-np.pi, np.pi))
+        poses.append(pose)
+    return np.array(poses)
+
+
+SONAR = vj.sensors.ProfilingSonar(vj.SonarConfig(beams=24, fov_deg=40.0, min_range_m=0.3))
+
+
+def test_view_gain_matches_brute_force_on_a_voxel_map():
+    rng = np.random.default_rng(0)
+    cfg = vj.MapConfig(voxel_size=0.2, max_range=4.0)
+    vmap = small_map(rng, cfg)
+    poses = random_views(rng, 12)
+    gain = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0)
+    expected = brute_gain(vmap, poses, SONAR, 3.0)
+    np.testing.assert_array_equal(np.c_[gain.unknown, gain.free, gain.occupied], expected)
+    assert expected[:, 0].sum() > 50 and expected[:, 1].sum() > 50 and expected[:, 2].sum() > 5
+    np.testing.assert_allclose(gain.unknown_m3, expected[:, 0] * 0.2**3)
+    assert gain.rays == 12 * 24
+    # a voxel seen by two rays of a view counts once: fewer voxels than the rays passed through
+    walked = sum(len(ray_voxels(p[:3, 3], p[:3, :3] @ d, 3.0, 0.2)[0]) for p in poses[:1]
+                 for d in SONAR.beam_directions().reshape(-1, 3))
+    assert expected[0].sum() < walked
+
+
+def test_view_gain_counts_only_the_region():
+    rng = np.random.default_rng(1)
+    cfg = vj.MapConfig(voxel_size=0.2, max_range=4.0)
+    vmap = small_map(rng, cfg)
+    poses = random_views(rng, 6)
+    region = np.array([[-1.0, -2.0, -0.5], [2.0, 1.0, 1.5]])
+    gain = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0, region=region)
+    np.testing.assert_array_equal(np.c_[gain.unknown, gain.free, gain.occupied],
+                                  brute_gain(vmap, poses, SONAR, 3.0, region))
+
+
+def vog_and_global(rng, submaps=5):
+    vog = random_vog(rng, submaps, vj.MapConfig(voxel_size=0.2, max_range=4.0), scans=2, beams=80, spread=2.5)
+    gmap = vj.GlobalMap(vog.config)
+    gmap.merge(vog)
+    return vog, gmap
+
+
+def test_view_gain_on_global_and_virtual_maps_matches_brute_force():
+    rng = np.random.default_rng(2)
+    vog, gmap = vog_and_global(rng)
+    poses = random_views(rng, 8, spread=1.5)
+    for m in (gmap, vog):
+        gain = planner.view_gain(m, poses, SONAR, max_range_m=3.5)
+        expected = brute_gain(m, poses, SONAR, 3.5)
+        np.testing.assert_array_equal(np.c_[gain.unknown, gain.free, gain.occupied], expected)
+        assert expected[:, 2].sum() > 0 and expected[:, 1].sum() > 0
+    # at voxel centres the virtual map answers what the global map does: the same gains
+    virtual = planner.view_gain(vog, poses, SONAR, max_range_m=3.5)
+    merged = planner.view_gain(gmap, poses, SONAR, max_range_m=3.5)
+    np.testing.assert_array_equal(virtual.unknown, merged.unknown)
+
+
+def test_overlay_reads_what_adding_the_submaps_would_give():
+    rng = np.random.default_rng(3)
+    vog, _ = vog_and_global(rng, 4)
+    base = vj.GlobalMap(vog.config)
+    base.add(vog, [0, 1])
+    full = vj.GlobalMap(vog.config)
+    full.add(vog, [0, 1, 2, 3])
+    poses = random_views(rng, 8, spread=1.5)
+    overlay = planner.view_gain(planner.Overlay(base, vog, [2, 3]), poses, SONAR, max_range_m=3.5)
+    expected = planner.view_gain(full, poses, SONAR, max_range_m=3.5)
+    for field in ("unknown", "free", "occupied"):
+        np.testing.assert_array_equal(getattr(overlay, field), getattr(expected, field))
+    with pytest.raises(ValueError, match="ids"):
+        planner.Overlay(base, vog, [1, 2])
+
+
+def test_edge_gain_counts_each_voxel_once_per_edge():
+    rng = np.random.default_rng(4)
+    cfg = vj.MapConfig(voxel_size=0.2, max_range=4.0)
+    vmap = small_map(rng, cfg)
+    starts = np.array([[-0.5, -0.5, 0.2, 0.3], [0.4, 0.1, -0.3, 2.0], [0.0, 0.0, 0.0, -1.0]])
+    ends = np.array([[0.8, 0.1, 0.2, 0.9], [0.4, 0.1, 0.6, 2.0], [0.0, 0.0, 0.0, 1.0]])  # last: a turn in place
+    gain = planner.edge_gain(vmap, starts, ends, SONAR, step_m=0.25, max_range_m=3.0)
+    poses, edge = edge_views(starts, ends, SONAR.T_vehicle_sensor, 0.25, 3.0)
+    expected = brute_gain(vmap, poses, SONAR, 3.0, groups=edge)
+    np.testing.assert_array_equal(np.c_[gain.unknown, gain.free, gain.occupied], expected)
+    assert gain.rays == len(poses) * 24
+    # views: the edge's end is the last one, consecutive ones at most a step apart
+    assert np.allclose(poses[edge == 0][-1] @ np.linalg.inv(SONAR.T_vehicle_sensor), pose_from_xyz_yaw(*ends[0]))
+    steps = np.linalg.norm(np.diff(poses[edge == 0][:, :3, 3], axis=0), axis=1)
+    assert steps.max() <= 0.25 + 1e-9
+    assert np.bincount(edge)[2] >= np.ceil(2.0 * 3.0 / 0.25)  # a 2 rad turn, 0.25 m at 3 m
+    # summing the views' own gains counts shared voxels again
+    per_view = planner.view_gain(vmap, poses[edge == 0], SONAR, max_range_m=3.0)
+    assert per_view.unknown.sum() > gain.unknown[0]
+
+
+def test_view_gain_splits_across_cores_without_changing_counts(monkeypatch):
+    from vogjax.maps import parallel
+
+    rng = np.random.default_rng(5)
+    vmap = small_map(rng, vj.MapConfig(voxel_size=0.2, max_range=4.0))
+    poses = random_views(rng, 200)
+    monkeypatch.setattr(parallel, "MIN_ITEMS_PER_PART", 10**9)  # one part
+    whole = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0)
+    monkeypatch.setattr(parallel, "MIN_ITEMS_PER_PART", 16)
+    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 4)
+    split = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0)
+    np.testing.assert_array_equal(whole.unknown, split.unknown)
+    np.testing.assert_array_equal(whole.free, split.free)
+
+
+def test_view_gain_rejects_bad_input():
+    vmap = vj.VoxelMap(vj.MapConfig())
+    pose = np.eye(4)[None]
+    with pytest.raises(ValueError, match="T_world_sensor"):
+        planner.view_gain(vmap, np.ones((1, 4, 4)), SONAR)
+    with pytest.raises(ValueError, match="max_range_m"):
+        planner.view_gain(vmap, pose, SONAR, max_range_m=-1.0)
+    with pytest.raises(ValueError, match="region"):
+        planner.view_gain(vmap, pose, SONAR, region=[[1, 1, 1], [0, 0, 0]])
+    with pytest.raises(ValueError, match="map"):
+        planner.view_gain(object(), pose, SONAR)
+    with pytest.raises(ValueError, match="sensor"):
+        planner.view_gain(vmap, pose, object())
+
+
+def brute_clear(map_, start, end, box, vehicle, clearance):
+    """Every voxel of the edge's bounding box whose cube, grown by the half box, the segment
+    meets (closed slab test): none may be occupied, nor unknown away from the vehicle."""
+    s, half = map_.config.voxel_size, np.asarray(box) / 2
+    lo = np.floor((np.minimum(start, end) - half) / s).astype(int) - 1
+    hi = np.floor((np.maximum(start, end) + half) / s).astype(int) + 1
+    keys = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
+    cube_lo, cube_hi = keys * s - half, (keys + 1) * s + half
+    d = end - start
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (cube_lo - start) / d, (cube_hi - start) / d
+    flat = d == 0
+    t0 = np.where(flat, -np.inf, np.minimum(a, b)).max(axis=1).clip(min=0)
+    t1 = np.where(flat, np.inf, np.maximum(a, b)).min(axis=1).clip(max=1)
+    meets = (t0 <= t1) & np.all(~flat | ((start >= cube_lo) & (start <= cube_hi)), axis=1)
+    keys = keys[meets]
+    states = map_.state((keys + 0.5) * s)
+    centres = (keys + 0.5) * s
+    at_vehicle = np.all((keys * s <= vehicle + half) & ((keys + 1) * s >= vehicle - half), axis=1)
+    near = np.linalg.norm(centres - vehicle, axis=1) <= clearance
+    # the centre line's layer in the voxel's column, where the line passes nearest in x-y
+    flat = d[:2] @ d[:2]
+    layer_free = np.zeros(len(keys), bool)
+    if flat > 0:
+        t = np.clip((centres[:, :2] - start[:2]) @ d[:2] / flat, 0, 1)
+        layer = np.c_[keys[:, :2], np.floor((start[2] + t * d[2]) / s).astype(int)]
+        layer_free = (map_.state((layer + 0.5) * s) == vj.FREE) & (layer[:, 2] != keys[:, 2])
+    return not np.any(states == vj.OCCUPIED) and not np.any((states == vj.UNKNOWN) & ~at_vehicle & ~near
+                                                            & ~layer_free)
+
+
+def test_edges_clear_matches_brute_force():
+    rng = np.random.default_rng(6)
+    cfg = vj.MapConfig(voxel_size=0.2, max_range=6.0)
+    vmap = vj.VoxelMap(cfg)
+    # free space all around, two walls in it
+    origins = rng.uniform(-0.3, 0.3, (30, 3))
+    directions = rng.normal(size=(30 * 400, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = np.repeat(origins, 400, axis=0) + directions * 4.0
+    walls = np.c_[np.full(300, 1.7), rng.uniform(-1, 1, 300), rng.uniform(-1, 1, 300)]
+    walls2 = np.c_[rng.uniform(-2, 0, 300), np.full(300, -1.6), rng.uniform(-1, 1, 300)]
+    vmap.integrate_scans(np.zeros((1, 3)), np.r_[walls, walls2], np.zeros(600, np.int64))
+    vmap.integrate_scans(origins, points, np.repeat(np.arange(30), 400))
+    box = np.array([0.6, 0.8, 0.4])
+    vehicle = np.array([0.05, 0.1, 0.0])
+    starts = np.tile(vehicle, (60, 1))
+    starts[30:] = rng.uniform(-1.5, 1.5, (30, 3))
+    ends = starts + rng.normal(size=(60, 3)) * 1.2
+    ends[5] = starts[5]  # a turn in place
+    for clearance in (0.0, 0.9):
+        clear = planner.edges_clear(vmap, starts, ends, box, vehicle, clearance)
+        expected = [brute_clear(vmap, a, b, box, vehicle, clearance) for a, b in zip(starts, ends)]
+        np.testing.assert_array_equal(clear, expected)
+        assert 5 < np.sum(expected) < 55
+    # the virtual map of a submap holding the same scans answers the same
+    vog = vj.VogMap(cfg)
+    i = vog.add_submap(np.eye(4))
+    vog.submap(i).integrate_scans(np.zeros((1, 3)), np.r_[walls, walls2], np.zeros(600, np.int64))
+    vog.submap(i).integrate_scans(origins, points, np.repeat(np.arange(30), 400))
+    np.testing.assert_array_equal(planner.edges_clear(vog, starts, ends, box, vehicle, 0.9),
+                                  planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9))

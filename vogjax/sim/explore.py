@@ -1,0 +1,247 @@
+"""Closed-loop exploration: the planner picks where the vehicle goes while SLAM maps under it.
+
+    summary = explore("propeller", "run.h5", submaps=150)   # and run.explore.csv beside it
+
+Per planning iteration (Ho, thesis 4.3-4.5; Sodhi IV): the vehicle's estimated pose is its
+navigation corrected by the pose graph (the last finished submap's correction), the
+next-best-view planner plans on the chosen map from it, and the vehicle flies the best branch's
+first edge: MJX physics under the waypoint controller, the sonar scanning the true scene at
+5 Hz, navigation drifting. Scans go to the mapper (submaps, loop closures, the online global
+map) as they arrive and to the run file. A waypoint planned in the estimated frame is flown as
+the motion it asks for relative to where the vehicle believes it is (as a controller on the
+navigation would fly it), so drift carries into the true path.
+
+Maps the planner can use: "global", the online global map (with the submap being filled laid
+over it, `planner.Overlay`); "virtual", the virtual map (the sum over submaps); "standard",
+the navigation-only map, planned from the navigation pose (the papers' baseline).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+import vogjax
+from vogjax import scenes
+from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
+from vogjax.config.planner import PlannerConfig
+from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
+from vogjax.io.atomic import AtomicPath
+from vogjax.io.dataset import ScanBatch, DatasetWriter
+from vogjax.pipeline import Mapper
+from vogjax.planner import NbvPlanner, Overlay
+from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
+from vogjax.sim import ranging, vehicle
+from vogjax.sim.stepped_navigation import SteppedNavigation
+
+MAPS = ("global", "virtual", "standard")
+# Scans flown per compiled MJX call; a flight is cut where the waypoint is reached.
+PIECE_SCANS = 10
+CSV_FIELDS = ("iteration", "time_s", "scans", "submaps", "explored_m3", "path_m", "plan_s", "rays", "gain_m3",
+              "nodes", "samples", "x_m", "y_m", "z_m", "yaw_rad", "reached")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExploreSummary:
+    """path, csv_path: the files written; scans, submaps (finished), iterations (plans);
+    duration_s of the mission; path_m flown (true path); explored_m3: known volume of the
+    scene's region in the final global map; stopped: "submaps" (reached the number asked for),
+    "gain" (the best branch gained less than min_gain_m3), "blocked" (no collision-free edge)
+    or "scans" (max_scans reached)."""
+
+    path: Path
+    csv_path: Path
+    scans: int
+    submaps: int
+    iterations: int
+    duration_s: float
+    path_m: float
+    explored_m3: float
+    stopped: str
+
+
+def csv_path_of(out) -> Path:
+    """RUN.explore.csv beside RUN.h5."""
+    out = Path(out)
+    return out.with_name(out.stem + ".explore.csv")
+
+
+def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: int = 0,
+            planner_config: PlannerConfig | None = None, pipeline_config: PipelineConfig | None = None,
+            sensor: RangeSensor | None = None, noise: NavNoise | None = None, max_scans: int | None = None,
+            progress: bool = True, on_iteration=None) -> ExploreSummary:
+    """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
+    write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
+    planning iteration to RUN.explore.csv. sensor: default the papers' profiling sonar with
+    2 cm range noise. on_iteration(mapper, plan, row): called after each plan (benchmarks)."""
+    if map_kind not in MAPS:
+        raise ValueError(f"map_kind must be one of {', '.join(MAPS)}, got {map_kind!r}")
+    if not (isinstance(submaps, int) and submaps >= 1):
+        raise ValueError(f"submaps must be a positive integer, got {submaps!r}")
+    if max_scans is not None and not (isinstance(max_scans, int) and max_scans >= 1):
+        raise ValueError(f"max_scans must be a positive integer, got {max_scans!r}")
+    scene = scenes.load(scene_name)
+    planner_config = planner_config or PlannerConfig(seed=seed)
+    pipeline_config = pipeline_config or PipelineConfig()
+    if map_kind == "standard" and not pipeline_config.standard_map:
+        raise ValueError("map_kind 'standard' needs pipeline_config.standard_map")
+    sensor = ProfilingSonar(SonarConfig(range_noise_m=0.02)) if sensor is None else as_sensor(sensor)
+    noise = noise or pipeline_config.nav_noise
+    metadata = {"scene": scene_name, "seed": seed, "mission": "explore", "map": map_kind, **sensor.metadata(),
+                "nav_noise": noise.to_dict(), "planner": planner_config.to_dict(),
+                "pipeline": {"scans_per_submap": pipeline_config.scans_per_submap,
+                             "voxel_size": pipeline_config.map.voxel_size},
+                "vogjax_version": vogjax.__version__}
+    loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata)
+    nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=scene.region())
+    rows = []
+    stopped = "submaps"
+    with DatasetWriter(out, sensor.beams, metadata) as writer, \
+            tqdm(total=submaps, unit="submap", desc=f"exploring {scene_name}", disable=not progress) as bar:
+        loop.writer = writer
+        # nbvplanner's initial motion: a turn in place, so the first tree has a map to grow in
+        x, y, z, yaw = loop.true_state()
+        loop.fly([[x, y, z, yaw + np.pi * k / 2] for k in range(1, 5)])
+        while loop.mapper.num_submaps < submaps:
+            if max_scans is not None and loop.scans >= max_scans:
+                stopped = "scans"
+                break
+            T_plan = loop.estimate(map_kind)
+            plan = nbv.plan(loop.planning_map(map_kind), T_plan)
+            row = {"iteration": len(rows), "time_s": loop.scans / sensor.rate_hz, "scans": loop.scans,
+                   "submaps": loop.mapper.num_submaps, "explored_m3": loop.explored_m3(),
+                   "path_m": loop.path_m, "plan_s": plan.seconds, "rays": plan.rays, "gain_m3": plan.gain_m3,
+                   "nodes": plan.nodes, "samples": plan.iterations}
+            if len(plan.waypoints) == 0 or plan.gain_m3 < planner_config.min_gain_m3:
+                rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
+                stopped = "blocked" if len(plan.waypoints) == 0 else "gain"
+                if on_iteration:
+                    on_iteration(loop.mapper, plan, rows[-1])
+                break
+            goal = plan.waypoints[0]
+            # the motion the plan asks for, relative to where the vehicle believes it is
+            T_goal = loop.truth[-1] @ inverse(T_plan) @ pose_from_xyz_yaw(*goal)
+            target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
+            reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target))
+            rows.append({**row, "x_m": goal[0], "y_m": goal[1], "z_m": goal[2], "yaw_rad": goal[3],
+                         "reached": reached})
+            if on_iteration:
+                on_iteration(loop.mapper, plan, rows[-1])
+            bar.update(loop.mapper.num_submaps - bar.n)
+        loop.mapper.finish_submap()
+    _write_csv(csv_path_of(out), rows)
+    return ExploreSummary(Path(out), csv_path_of(out), loop.scans, loop.mapper.num_submaps, len(rows),
+                          loop.scans / sensor.rate_hz, loop.path_m, loop.explored_m3(), stopped)
+
+
+def _timeout_s(state: np.ndarray, target: np.ndarray, config: ControllerConfig = ControllerConfig()) -> float:
+    """Time to fly to the target at the speed limits, twice over, plus 10 s."""
+    distance = np.linalg.norm(target[:3] - state[:3])
+    turn = abs((target[3] - state[3] + np.pi) % (2 * np.pi) - np.pi)
+    return 2.0 * (distance / config.max_speed_mps + turn / config.max_yaw_rate_rps) + 10.0
+
+
+class _Loop:
+    """The simulated vehicle and its mapper: flies, scans, drifts, maps, records."""
+
+    def __init__(self, scene, sensor: RangeSensor, noise: NavNoise, seed: int, config: PipelineConfig,
+                 metadata: dict):
+        self.scene, self.sensor = scene, sensor
+        self.mapper = Mapper(config, metadata)
+        self.navigation = SteppedNavigation(noise, seed)
+        self.rng = np.random.default_rng(seed + 1)
+        self.qpos, self.qvel = vehicle.resting_state(scene.start_pose)
+        self.truth = [scene.start_pose]
+        self.nav = [scene.start_pose]
+        self.scans = 0
+        self.path_m = 0.0
+        self.writer = None
+
+    def true_state(self) -> np.ndarray:
+        T = self.truth[-1]
+        return np.r_[T[:3, 3], yaw_pitch_roll(T[:3, :3])[0]]
+
+    def estimate(self, map_kind: str) -> np.ndarray:
+        """The pose the planner plans from: navigation, corrected by the pose graph through the
+        last finished submap (navigation alone for the standard map)."""
+        T_nav = self.nav[-1]
+        k = self.mapper.num_submaps - 1
+        if map_kind == "standard" or k < 0:
+            return T_nav
+        return self.mapper.vog.pose(k) @ inverse(self.mapper.submaps[k].T_world_base_nav) @ T_nav
+
+    def planning_map(self, map_kind: str):
+        mapper = self.mapper
+        if map_kind == "standard":
+            return mapper.standard_map
+        if map_kind == "virtual":
+            return mapper.vog
+        filling = list(range(mapper.num_submaps, len(mapper.submaps)))
+        return Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map
+
+    def explored_m3(self) -> float:
+        """Known (free or occupied) volume of the scene's region in the global map."""
+        gmap = self.mapper.global_map
+        centres, values = gmap.voxels()
+        lo, hi = self.scene.region()
+        inside = np.all((centres >= lo) & (centres <= hi), axis=1)
+        known = (values <= gmap.config.log_free) | (values >= gmap.config.log_occupied)
+        return float(np.count_nonzero(inside & known) * gmap.config.voxel_size ** 3)
+
+    def fly(self, waypoints, timeout_s: float | None = None) -> bool:
+        """Fly through waypoints (W,4) in the true frame, scanning, until the last one is reached
+        (or timeout_s passes); True when reached."""
+        waypoints = np.asarray(waypoints, np.float64).reshape(-1, 4)
+        rate = self.sensor.rate_hz
+        limit = np.inf if timeout_s is None else timeout_s * rate
+        flown = 0
+        while flown < limit:
+            flight = vehicle.fly(self.qpos, self.qvel, waypoints, PIECE_SCANS, rate)
+            done = (flight.index == len(waypoints) - 1) & _near(flight.poses, waypoints[-1])
+            keep = int(np.argmax(done)) + 1 if done.any() else PIECE_SCANS
+            self._record(flight.poses[:keep])
+            self.qpos, self.qvel = flight.qpos[keep - 1], flight.qvel[keep - 1]
+            waypoints = waypoints[int(flight.index[keep - 1]):]  # each piece starts at its first
+            flown += keep
+            if done.any():
+                return True
+        return False
+
+    def _record(self, truth: np.ndarray) -> None:
+        """Scan at the true poses, drift the navigation, map and record the scans."""
+        rate = self.sensor.rate_hz
+        times = (self.scans + np.arange(len(truth))) / rate
+        nav = self.navigation.extend(truth, times)  # the run's first scan: the truth itself
+        scans = ranging.scan(self.scene.warp_mesh, truth @ self.sensor.T_vehicle_sensor, self.sensor, self.rng)
+        fields = self.sensor.dataset_fields(scans.ranges, scans.no_return)
+        # what the run file stores (float32 beams), so reprocessing it sees the same scans
+        fields = {"sonar_origin": fields["sonar_origin"].astype(np.float32),
+                  "sonar_directions": fields["sonar_directions"].astype(np.float32),
+                  "ranges": fields["ranges"].astype(np.float32), "no_return": fields["no_return"]}
+        self.writer.append(time_s=times, pose_truth=truth, pose_nav=nav, **fields)
+        self.mapper.add(ScanBatch(self.scans, times, truth, nav, **fields))
+        positions = np.concatenate([[self.truth[-1][:3, 3]], truth[:, :3, 3]])
+        self.path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+        self.truth.append(truth[-1])
+        self.nav.append(nav[-1])
+        self.scans += len(truth)
+
+
+def _near(poses: np.ndarray, target: np.ndarray, config: ControllerConfig = ControllerConfig()) -> np.ndarray:
+    """Whether each pose (S,4,4) is within the controller's tolerances of target (x, y, z, yaw)."""
+    yaw = yaw_pitch_roll(poses[:, :3, :3])[:, 0]
+    turn = np.abs((target[3] - yaw + np.pi) % (2 * np.pi) - np.pi)
+    return (np.linalg.norm(poses[:, :3, 3] - target[:3], axis=1) < config.tolerance_m) & (turn < config.tolerance_rad)
+
+
+def _write_csv(path: Path, rows: list) -> None:
+    with AtomicPath(path) as temporary:
+        with open(temporary, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
