@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -57,22 +58,22 @@ class CrmConfig(Config):
             raise ValueError("CrmConfig.bin_floor times CrmConfig.num_bins must stay below 0.5")
 
     # ---------------------------------------------------------------- the discretisation
-    @property
+    @functools.cached_property
     def bin_centres(self) -> np.ndarray:
         """(num_bins,) float32 occupancy levels m_k = k / (num_bins - 1), as the kernels compute them."""
         k = np.arange(self.num_bins, dtype=np.float32)
         return k / np.float32(self.num_bins - 1)
 
-    @property
+    @functools.cached_property
     def prior(self) -> np.ndarray:
         """(num_bins,) float32 prior distribution: uniform over the levels."""
         return np.full(self.num_bins, np.float32(1.0) / np.float32(self.num_bins), np.float32)
 
-    @property
+    @functools.cached_property
     def prior_mean(self) -> np.float32:
         return moments(self.prior, self.bin_centres)[0]
 
-    @property
+    @functools.cached_property
     def prior_variance(self) -> np.float32:
         return moments(self.prior, self.bin_centres)[1]
 

@@ -39,6 +39,7 @@ flag byte): 73 bytes at K = 16, against VoxelMap's 4.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 
@@ -77,6 +78,28 @@ class ConfidenceRaycast:
     variance_sum: np.ndarray
     variance_max: np.ndarray
     reach_probability: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class _Cones:
+    """A pass's cones: first_step (B+1,) host and device, returned (B,) int32; per cone voxel
+    (T,): its index in the voxel pool and the likelihood of its beam's reading if it caused it."""
+
+    first_step: np.ndarray
+    d_first_step: wp.array
+    returned: wp.array
+    step_voxel: wp.array
+    step_likelihood: wp.array
+
+
+_executor: concurrent.futures.ThreadPoolExecutor | None = None
+
+
+def _background() -> concurrent.futures.ThreadPoolExecutor:
+    global _executor
+    if _executor is None:
+        _executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="vogjax-crm")
+    return _executor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,14 +198,26 @@ class ConfidenceMap:
 
     def _integrate_passes(self, beams: _Beams) -> None:
         """List every cone's blocks and allocate them all at once (a vector layer is costly to
-        grow), then update the voxels pass by pass."""
+        grow), then update the voxels pass by pass. On the CPU the next pass's cones are walked
+        on a second thread while this pass's scans are applied (both only read the table)."""
         passes, keys = [], []
         for first in range(0, len(beams.scan_ends), SCANS_PER_PASS):
             self._plan(beams, first, min(first + SCANS_PER_PASS, len(beams.scan_ends)), passes, keys)
         if keys:
             self._store.ensure_blocks(wp.array(np.unique(np.concatenate(keys)), dtype=wp.int64, device=self.device))
-        for first_scan, end_scan, steps in passes:
-            self._integrate(beams, first_scan, end_scan, steps)
+        if not passes:
+            return
+        overlap = not self.device.is_cuda and len(passes) > 1
+        cones = self._walk_cones(beams, *passes[0], parts=None)
+        for i, planned in enumerate(passes):
+            ahead = None
+            if i + 1 < len(passes):
+                if overlap:
+                    ahead = _background().submit(self._walk_cones, beams, *passes[i + 1], parts=1)
+                else:
+                    ahead = self._walk_cones(beams, *passes[i + 1], parts=None)
+            self._update(beams, *planned, cones)
+            cones = ahead.result() if overlap and ahead is not None else ahead
 
     def _beam_range(self, beams: _Beams, first_scan: int, end_scan: int) -> tuple[int, int]:
         lo = 0 if first_scan == 0 else int(beams.scan_ends[first_scan - 1])
@@ -221,13 +256,14 @@ class ConfidenceMap:
             self._plan(beams, first_scan, middle, passes, keys)
             self._plan(beams, middle, end_scan, passes, keys)
             return
-        listed = np.unique(block_keys.numpy())
-        keys.append(listed[listed != hashing.EMPTY_KEY])
+        listed = block_keys.numpy()
+        keys.append(np.unique(listed[listed != EMPTY_KEY]))
         passes.append((first_scan, end_scan, steps))
 
-    def _integrate(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray) -> None:
+    def _walk_cones(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray,
+                    parts: int | None) -> "_Cones | None":
         """Scans [first_scan, end_scan), their blocks allocated: walk the cones again for each
-        voxel's slot and likelihood, then update the voxels scan by scan."""
+        voxel's slot and likelihood (in `parts` CPU threads; None: as many as worth it)."""
         lo, hi = self._beam_range(beams, first_scan, end_scan)
         count = hi - lo
         cfg, device, store = self.config, self.device, self._store
@@ -235,28 +271,35 @@ class ConfidenceMap:
         np.cumsum(steps, out=first_step[1:])
         total = int(first_step[-1])
         if total == 0:
-            return
+            return None
         resolution, inv_resolution = np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)
-        d = {
-            "starts": wp.array(beams.starts[lo:hi], dtype=wp.vec3d, device=device),
-            "directions": wp.array(beams.directions[lo:hi], dtype=wp.vec3d, device=device),
-            "lengths": wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device),
-        }
-        parts = parallel.num_parts(device, count)
-
-        # 2. each cone voxel's slot and likelihood
-        d_first = wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device)
-        d_returned = wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device)
-        d_ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
-        step_voxel = wp.empty(total, dtype=wp.int32, device=device)
-        step_likelihood = wp.empty(total, dtype=wp.float64, device=device)
+        starts = wp.array(beams.starts[lo:hi], dtype=wp.vec3d, device=device)
+        directions = wp.array(beams.directions[lo:hi], dtype=wp.vec3d, device=device)
+        lengths = wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device)
+        cones = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
+                       wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device),
+                       wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device))
+        ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
         parallel.split_launch(lambda part, a, b: wp.launch(
             confidence.fill_cone_steps, dim=b - a,
-            inputs=[d["starts"][a:b], d["directions"][a:b], d["lengths"][a:b], d_ranges[a:b], d_returned[a:b],
-                    d_first[a:b + 1], resolution, inv_resolution, np.float64(cfg.range_sigma_m),
+            inputs=[starts[a:b], directions[a:b], lengths[a:b], ranges[a:b], cones.returned[a:b],
+                    cones.d_first_step[a:b + 1], resolution, inv_resolution, np.float64(cfg.range_sigma_m),
                     np.float64(cfg.max_range), int(cfg.cause_range == "centre"), store.table_keys,
                     store.table_slots],
-            outputs=[step_voxel, step_likelihood], device=device), count, parts)
+            outputs=[cones.step_voxel, cones.step_likelihood], device=device),
+            count, parallel.num_parts(device, count) if parts is None else parts)
+        return cones
+
+    def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray,
+                cones: "_Cones | None") -> None:
+        """Apply scans [first_scan, end_scan), their cones walked, one after the other."""
+        if cones is None:
+            return
+        lo, _ = self._beam_range(beams, first_scan, end_scan)
+        cfg, device, store = self.config, self.device, self._store
+        first_step, d_first, d_returned = cones.first_step, cones.d_first_step, cones.returned
+        step_voxel, step_likelihood = cones.step_voxel, cones.step_likelihood
+        total = int(first_step[-1])
 
         # 3. the scans in order
         model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability),
