@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from vogjax.config.schema import Config, integer, non_negative, number, positive
+from vogjax.config.pipeline import PipelineConfig
+from vogjax.config.schema import Config, integer, non_negative, number, positive, section
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,7 +26,7 @@ class PlannerConfig(Config):
         fan moves at most this far at gain_range_m (thesis 4.5.4: the path-segment gain).
     gain_unknown, gain_free, gain_occupied: what one voxel of each state adds to a view's gain,
         in voxel volumes (nbvplanner counts unknown voxels only).
-    box_m: the collision box (x, y, z extents, world-aligned), swept along every edge.
+    box_x_m, box_y_m, box_z_m: the collision box (extents, world-aligned), swept along every edge.
     clearance_m: unknown voxels within this distance of the vehicle's position count as free
         (besides those in its own box): a profiling sonar at the bow never sees the water just
         around the vehicle, so without it no edge could leave the vehicle's box. Occupied voxels
@@ -70,3 +71,12 @@ class PlannerConfig(Config):
     @property
     def box_m(self) -> tuple[float, float, float]:
         return (self.box_x_m, self.box_y_m, self.box_z_m)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExploreConfig(Config):
+    """Everything `vogjax explore` reads from its settings file: [planner] sets `planner`; the
+    tables of `vogjax map` ([map], [nav_noise], [loop_closure], [pipeline]) set `pipeline`."""
+
+    pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
+    planner: PlannerConfig = section(PlannerConfig())

@@ -28,7 +28,7 @@ from tqdm import tqdm
 import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
-from vogjax.config.planner import PlannerConfig
+from vogjax.config.planner import ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath
 from vogjax.io.dataset import ScanBatch, DatasetWriter
@@ -62,6 +62,13 @@ class ExploreSummary:
     path_m: float
     explored_m3: float
     stopped: str
+
+
+def load_settings(path, seed: int) -> tuple[PlannerConfig, PipelineConfig]:
+    """The planner's and the pipeline's settings from a TOML file (None: the defaults), the
+    planner seeded with `seed`."""
+    config = ExploreConfig.from_toml(path) if path is not None else ExploreConfig()
+    return config.planner.replace(seed=seed), config.pipeline
 
 
 def csv_path_of(out) -> Path:
