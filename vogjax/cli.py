@@ -8,7 +8,7 @@ import sys
 
 # command name -> module in vogjax.commands
 COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo", "export": "export", "import": "importing",
-            "view": "view"}
+            "view": "view", "explore": "explore"}
 
 
 def main(argv=None) -> int:
