@@ -8,9 +8,9 @@ Work is enumerated per submap block: the global voxel centres inside the block's
 box are found column by column (x, y) with a z range from the box's slabs, widened by a voxel
 and then filtered exactly, so each global voxel is visited by the one block it pulls from. One
 launch covers the blocks of many submaps (a `SubmapView` each, rows = (submap, block)); sums are
-integer atomics, so their order never matters. On the CPU a launch is split across threads
-only within one submap, where no two threads write the same global voxel (CPU atomics are not
-atomic across threads).
+integer atomics, so their order never matters. On the CPU a launch is split across threads,
+each adding into sums of its own (CPU atomics are not atomic across threads), which are then
+folded into the map's: integer sums, so the same bits whatever the split.
 
 Sums are fixed point: an integer number of 2^-24 log-odds steps, so removing a submap restores
 the exact bits a map without it would hold.
@@ -19,7 +19,7 @@ the exact bits a map without it would hold.
 import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_slot, index_in_block, pack_block, unpack_block
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, index_in_block, pack_block, unpack_block
 from .submap_view import SubmapView, pull_voxel, voxel_centre
 from .traversal import same_voxel
 
@@ -52,38 +52,69 @@ def block_box(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d, resol
     return first, last
 
 
-@wp.func
-def column_range(i: int, j: int, start_k: int, block: wp.vec3i, rotation_t: wp.mat33d,
-                 translation: wp.vec3d, resolution: wp.float64) -> wp.vec2i:
-    """Global z indices of column (i, j) whose centres lie in the block's box.
+@wp.struct
+class Columns:
+    """What a thread needs to find, column after column (global j at fixed i), the global z
+    indices whose centres may lie in a submap block's box: the box in the submap frame (widened
+    by a millionth of a voxel against round-off), the submap-frame point of the current column
+    at world z = 0 and its step per column, and 1 / d(local)/d(world z) per axis (0: parallel)."""
 
-    The box is widened by a millionth of a voxel against round-off; `pulled_value` decides
-    exactly, so a superset here is harmless and a tight one saves the work.
-    """
+    lo: wp.vec3d
+    hi: wp.vec3d
+    base: wp.vec3d
+    step: wp.vec3d
+    inv_along: wp.vec3d
+
+
+@wp.func
+def columns_at(i: int, j: int, block: wp.vec3i, rotation_t: wp.mat33d, translation: wp.vec3d,
+               resolution: wp.float64) -> Columns:
+    c = Columns()
     half = wp.float64(0.5)
-    base = rotation_t * (wp.vec3d((wp.float64(i) + half) * resolution,
-                                  (wp.float64(j) + half) * resolution, wp.float64(0.0)) - translation)
-    along = wp.vec3d(rotation_t[0, 2], rotation_t[1, 2], rotation_t[2, 2])  # d(local)/d(world z)
     margin = wp.float64(1e-6) * resolution
+    c.base = rotation_t * (wp.vec3d((wp.float64(i) + half) * resolution,
+                                    (wp.float64(j) + half) * resolution, wp.float64(0.0)) - translation)
+    c.step = wp.vec3d(rotation_t[0, 1], rotation_t[1, 1], rotation_t[2, 1]) * resolution
+    for axis in range(3):
+        c.lo[axis] = wp.float64(block[axis] * 8) * resolution - margin
+        c.hi[axis] = wp.float64(block[axis] * 8 + 8) * resolution + margin
+        along = rotation_t[axis, 2]
+        c.inv_along[axis] = wp.where(wp.abs(along) < wp.float64(1e-12), wp.float64(0.0), wp.float64(1.0) / along)
+    return c
+
+
+@wp.func
+def column_range(base: wp.vec3d, c: Columns, start_k: int, inv_resolution: wp.float64) -> wp.vec2i:
+    """Global z indices of the column at `base` whose centres lie in the block's box.
+
+    A superset is harmless (`pulled_value` decides exactly; the base advances by sums and the
+    bounds use reciprocals, rounding far inside the margin), and a tight one saves the work.
+    """
     z_lo = -FAR
     z_hi = FAR
     for axis in range(3):
-        lo = wp.float64(block[axis] * 8) * resolution - margin
-        hi = wp.float64(block[axis] * 8 + 8) * resolution + margin
-        if wp.abs(along[axis]) < wp.float64(1e-12):
-            if base[axis] < lo or base[axis] > hi:
+        if c.inv_along[axis] == wp.float64(0.0):
+            if base[axis] < c.lo[axis] or base[axis] > c.hi[axis]:
                 return wp.vec2i(0, -1)
         else:
-            a = (lo - base[axis]) / along[axis]
-            b = (hi - base[axis]) / along[axis]
+            a = (c.lo[axis] - base[axis]) * c.inv_along[axis]
+            b = (c.hi[axis] - base[axis]) * c.inv_along[axis]
             z_lo = wp.max(z_lo, wp.min(a, b))
             z_hi = wp.min(z_hi, wp.max(a, b))
     if z_lo > z_hi:
         return wp.vec2i(0, -1)
     # centre (k + 0.5) s in [z_lo, z_hi]
-    first = wp.max(int(wp.ceil(z_lo / resolution - half)), start_k)
-    last = wp.min(int(wp.floor(z_hi / resolution - half)), start_k + SPAN - 1)
+    half = wp.float64(0.5)
+    first = wp.max(int(wp.ceil(z_lo * inv_resolution - half)), start_k)
+    last = wp.min(int(wp.floor(z_hi * inv_resolution - half)), start_k + SPAN - 1)
     return wp.vec2i(first, last)
+
+
+@wp.func
+def box_offset(g: wp.vec3i, first_block: wp.vec3i) -> int:
+    """Index of g's global block among the 4x4x4 blocks from first_block (a row's box)."""
+    gb = block_of(g)
+    return ((gb[0] - first_block[0]) * 4 + (gb[1] - first_block[1])) * 4 + gb[2] - first_block[2]
 
 
 @wp.func
@@ -97,8 +128,22 @@ def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
     return local_log_odds[slot * BLOCK_VOXELS + index_in_block(local)]
 
 
-# The two kernels below open with the same dozen lines; a shared func returning the column
-# measured 10-20% slower on the CPU, so they stay written out.
+@wp.func
+def row_block(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
+              row_slot: wp.array(dtype=wp.int32), row: int) -> wp.vec3i:
+    """The submap block of a row (its slot's key unpacked); x = -2^30 for a released slot."""
+    source_index = row_source[row]
+    local_slot_keys = wp.array(ptr=sources[source_index].slot_keys, shape=(sources[source_index].block_capacity,),
+                               dtype=wp.int64)
+    key = local_slot_keys[row_slot[row]]
+    if key == EMPTY_KEY:
+        return wp.vec3i(-(1 << 30), 0, 0)
+    return unpack_block(key)
+
+
+# The two kernels below share their opening; a thread takes one row (a submap block) and one
+# global x index of its box, and walks the box's columns (y) and their z ranges itself: the
+# row's set-up (view, box) is paid once per x instead of once per column.
 
 
 @wp.kernel
@@ -106,76 +151,88 @@ def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.arra
                         row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
                         inv_resolution: wp.float64, global_keys: wp.array2d(dtype=wp.int64)):
     """global_keys[row, :] = the global blocks a row's submap block contributes to (EMPTY elsewhere)."""
-    b, u, v = wp.tid()
+    b, u = wp.tid()
     row = first_row + b
+    block = row_block(sources, row_source, row_slot, row)
+    if block[0] == -(1 << 30):
+        return
     source = sources[row_source[row]]
-    slot = row_slot[row]
-    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.block_capacity,), dtype=wp.int64)
-    key = local_slot_keys[slot]
-    if key == EMPTY_KEY:
-        return
+    rotation_t, translation = source.rotation_t, source.translation
     local_log_odds = wp.array(ptr=source.log_odds, shape=(source.block_capacity * BLOCK_VOXELS,), dtype=wp.float32)
-    rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
-    block = unpack_block(key)
-    start, last = block_box(block, rotation, translation, resolution)
+    slot = row_slot[row]
+    start, last = block_box(block, source.rotation, translation, resolution)
     i = start[0] + u
-    j = start[1] + v
-    if i > last[0] or j > last[1]:
+    if i > last[0]:
         return
-    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
     first_block = block_of(start)
-    for k in range(ks[0], ks[1] + 1):
-        g = wp.vec3i(i, j, k)
-        if not wp.isnan(pulled_value(g, block, slot, rotation_t, translation, resolution,
-                                     inv_resolution, local_log_odds)):
-            gb = block_of(g)
-            offset = ((gb[0] - first_block[0]) * 4 + (gb[1] - first_block[1])) * 4 + gb[2] - first_block[2]
-            global_keys[row, offset] = pack_block(gb)
+    written = wp.uint64(0)  # the global blocks (bits: offsets) this thread found already
+    columns = columns_at(i, start[1], block, rotation_t, translation, resolution)
+    base = columns.base
+    for j in range(start[1], last[1] + 1):
+        ks = column_range(base, columns, start[2], inv_resolution)
+        base = base + columns.step
+        for k in range(ks[0], ks[1] + 1):
+            g = wp.vec3i(i, j, k)
+            offset = box_offset(g, first_block)
+            bit = wp.uint64(1) << wp.uint64(offset)
+            if (written & bit) == wp.uint64(0):
+                if not wp.isnan(pulled_value(g, block, slot, rotation_t, translation, resolution,
+                                             inv_resolution, local_log_odds)):
+                    global_keys[row, offset] = pack_block(block_of(g))
+                    written = written | bit
 
 
 @wp.kernel
 def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
                      row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
-                     inv_resolution: wp.float64, sign: int, table_keys: wp.array(dtype=wp.int64),
-                     table_slots: wp.array(dtype=wp.int32), part: int,
+                     inv_resolution: wp.float64, sign: int, global_slots: wp.array2d(dtype=wp.int32), part: int,
                      sums: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32),
                      pulls: wp.array(dtype=wp.int32)):
-    """Add (sign +1) or remove (sign -1) a row's submap block values at every voxel pulling them."""
-    b, u, v = wp.tid()
+    """Add (sign +1) or remove (sign -1) a row's submap block values at every voxel pulling them.
+    global_slots[row, offset]: the map slot of each global block collect_pull_blocks listed."""
+    b, u = wp.tid()
     row = first_row + b
+    block = row_block(sources, row_source, row_slot, row)
+    if block[0] == -(1 << 30):
+        return
     source = sources[row_source[row]]
-    slot = row_slot[row]
-    local_slot_keys = wp.array(ptr=source.slot_keys, shape=(source.block_capacity,), dtype=wp.int64)
-    key = local_slot_keys[slot]
-    if key == EMPTY_KEY:
-        return
+    rotation_t, translation = source.rotation_t, source.translation
     local_log_odds = wp.array(ptr=source.log_odds, shape=(source.block_capacity * BLOCK_VOXELS,), dtype=wp.float32)
-    rotation, rotation_t, translation = source.rotation, source.rotation_t, source.translation
-    block = unpack_block(key)
-    start, last = block_box(block, rotation, translation, resolution)
+    slot = row_slot[row]
+    start, last = block_box(block, source.rotation, translation, resolution)
     i = start[0] + u
-    j = start[1] + v
-    if i > last[0] or j > last[1]:
+    if i > last[0]:
         return
-    ks = column_range(i, j, start[2], block, rotation_t, translation, resolution)
-    global_slot = int(-1)
-    current = wp.vec3i(0, 0, 0)
+    first_block = block_of(start)
     n = int(0)
-    for k in range(ks[0], ks[1] + 1):
-        g = wp.vec3i(i, j, k)
-        value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution,
-                             local_log_odds)
-        if not wp.isnan(value):
-            gb = block_of(g)
-            if global_slot < 0 or not same_voxel(gb, current):
-                global_slot = find_slot(table_keys, table_slots, pack_block(gb))
-                current = gb
-            index = global_slot * BLOCK_VOXELS + index_in_block(g)
-            wp.atomic_add(sums, index, wp.int64(sign) * to_fixed_point(value))
-            wp.atomic_add(counts, index, sign)
-            n += 1
+    columns = columns_at(i, start[1], block, rotation_t, translation, resolution)
+    base = columns.base
+    for j in range(start[1], last[1] + 1):
+        ks = column_range(base, columns, start[2], inv_resolution)
+        base = base + columns.step
+        for k in range(ks[0], ks[1] + 1):
+            g = wp.vec3i(i, j, k)
+            value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution,
+                                 local_log_odds)
+            global_slot = global_slots[row, box_offset(g, first_block)]
+            if not wp.isnan(value) and global_slot >= 0:  # listed by collect_pull_blocks: >= 0
+                index = global_slot * BLOCK_VOXELS + index_in_block(g)
+                wp.atomic_add(sums, index, wp.int64(sign) * to_fixed_point(value))
+                wp.atomic_add(counts, index, sign)
+                n += 1
     if n > 0:
         wp.atomic_add(pulls, part, n)
+
+
+@wp.kernel
+def add_part_sums(slots: wp.array(dtype=wp.int32), first: int, part_sums: wp.array(dtype=wp.int64),
+                  part_counts: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.int64),
+                  counts: wp.array(dtype=wp.int32)):
+    """Fold a CPU thread's own sums, over the voxels of `slots`, into the map's."""
+    tid = first + wp.tid()
+    index = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
+    sums[index] = sums[index] + part_sums[index]
+    counts[index] = counts[index] + part_counts[index]
 
 
 @wp.kernel

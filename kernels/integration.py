@@ -1,14 +1,12 @@
 """Scan integration with OctoMap `insertPointCloud` semantics, batched over many scans.
 
 A pass integrates up to a few dozen scans in two launches:
-1. `mark_beams_dense` (or `mark_beams_hashed`), over rays: walk each beam once and set, per voxel
-   and scan, a "free" or "occupied" bit (two bits per scan, 32 scans per uint64 word) in the
-   scratch marks of the voxel's block. OR-ing bits gives every voxel at most one update per scan
-   with occupied winning, whatever order the rays run in. Blocks are numbered as the pass meets
-   them. The dense kernel indexes blocks by their cell in the pass's bounding box, reading the
-   number at every step (one load, no branch to mispredict on entering a block); when the box
-   is too large for that, the hashed kernel looks a block up in an open-addressing table only on
-   entering it.
+1. `mark_beams`, over rays: walk each beam once and set, per voxel and scan, a "free" or
+   "occupied" bit (two bits per scan, 32 scans per uint64 word) in the scratch marks of the
+   voxel's block. OR-ing bits gives every voxel at most one update per scan with occupied
+   winning, whatever order the rays run in. Blocks are numbered as the pass meets them, found by
+   their cell in the pass's bounding box (one load), or, when the box is too large to index,
+   in an open-addressing table.
 2. `apply_marks`, over the voxels of the blocks the pass numbered (the host allocates their map
    blocks in between): replay the scans in order per voxel, adding the hit or miss log-odds and
    clamping after each, exactly the sequence single-scan integration would apply (a voxel held
@@ -25,8 +23,7 @@ are plain read-modify-writes. `apply_marks` ORs the parts' marks of a block befo
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, pack_block
-from .traversal import (VoxelWalk, norm_like_octomap, same_voxel, segment_continues, segment_walk_begin, voxel_key,
-                        walk_step)
+from .traversal import VoxelWalk, norm_like_octomap, segment_walk_begin, voxel_key
 
 wp.set_module_options({"enable_backward": False})
 
@@ -139,102 +136,91 @@ def hashed_block(block: wp.vec3i, capacity: int, table_keys: wp.array(dtype=wp.i
 
 
 @wp.func
-def scan_bits(scan: int) -> wp.vec2ul:
-    """The free and hit bits of a scan (relative to the pass) in its mark word."""
-    free_bit = wp.uint64(1) << wp.uint64(2 * (scan & 31))
-    return wp.vec2ul(free_bit, free_bit << wp.uint64(1))
-
-
-@wp.kernel
-def mark_beams_dense(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-                     ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
-                     resolution: wp.float64, inv_resolution: wp.float64, box_lo: wp.vec3i,
-                     box_dims: wp.vec3i, capacity: int, table_index: wp.array(dtype=wp.int32),
-                     table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-                     counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
-    """Per beam: a free bit for every voxel it crosses and a hit bit for its endpoint voxel.
-    A voxel outside the box (never, but for round-off beyond the box's margin) counts in
-    counters[1] and the host reruns the pass with the hashed kernel."""
-    tid = wp.tid()
-    scan = ray_scan[tid]
-    origin = origins[scan]
-    scan = scan - first_scan
-    bits = scan_bits(scan)
-    plane = (scan >> 5) * capacity * BLOCK_VOXELS
-    end = beam_end(origin, points[tid], max_range)
-    w = walk_of_beam(origin, end, resolution, inv_resolution)
-    step, t_delta = w.step, w.t_delta
-    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
-    active, steps = bool(w.active), int(0)
-    while active:
-        cell = box_cell(voxel, box_lo, box_dims)
-        if cell < 0:
-            wp.atomic_add(counters, 1, 1)
-            return
-        c = table_index[cell]
-        if c < 0:
-            c = dense_block(block_of(voxel), cell, capacity, table_index, table_position, block_keys, counters)
-        if c >= 0:
-            wp.atomic_or(marks, plane + c * BLOCK_VOXELS + index_in_block(voxel), bits[0])
-        voxel, t_max, _t, _new_block = walk_step(voxel, step, t_max, t_delta)
-        steps += 1
-        active = segment_continues(voxel, t_max, w, steps)
-    if end[3] > 0.0:
-        v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
+def block_base(x: int, y: int, z: int, box_lo: wp.vec3i, box_dims: wp.vec3i, plane: int, capacity: int,
+               table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
+               table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+               counters: wp.array(dtype=wp.int32)) -> int:
+    """Marks index of voxel 0 of the block of voxel (x, y, z) in the scan's word plane; -1 when
+    it has no number (scratch full, or outside the dense box: counters[1] then tells the host)."""
+    v = wp.vec3i(x, y, z)
+    c = int(-1)
+    if box_dims[0] > 0:
         cell = box_cell(v, box_lo, box_dims)
         if cell < 0:
             wp.atomic_add(counters, 1, 1)
-            return
+            return -1
         c = table_index[cell]
         if c < 0:
             c = dense_block(block_of(v), cell, capacity, table_index, table_position, block_keys, counters)
-        if c >= 0:
-            wp.atomic_or(marks, plane + c * BLOCK_VOXELS + index_in_block(v), bits[1])
+    else:
+        c = hashed_block(block_of(v), capacity, table_keys, table_index, table_position, block_keys, counters)
+    return wp.where(c < 0, -1, plane + c * BLOCK_VOXELS)
 
 
 @wp.kernel
-def mark_beams_hashed(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-                      ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
-                      resolution: wp.float64, inv_resolution: wp.float64, capacity: int,
-                      table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
-                      table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-                      counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
-    """As mark_beams_dense, for passes whose box is too large to index: blocks are looked up in
-    a hash table, once on entering each."""
+def mark_beams(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
+               ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
+               resolution: wp.float64, inv_resolution: wp.float64, box_lo: wp.vec3i, box_dims: wp.vec3i,
+               capacity: int, table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
+               table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
+               counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
+    """Per beam: a free bit for every voxel it crosses and a hit bit for its endpoint voxel.
+
+    Blocks are numbered through the box cell table when box_dims > 0 (a voxel outside the box,
+    only possible if round-off carried a walk past its margin, counts in counters[1] and the
+    host reruns the pass hashed), else through the hash table. The walk is segment_walk_begin's
+    and walk_step's, written out on scalars: the block and the index in it follow each step
+    incrementally, and a block is looked up only when a step crosses into a new one.
+    """
     tid = wp.tid()
     scan = ray_scan[tid]
     origin = origins[scan]
     scan = scan - first_scan
-    bits = scan_bits(scan)
+    free_bit = wp.uint64(1) << wp.uint64(2 * (scan & 31))
     plane = (scan >> 5) * capacity * BLOCK_VOXELS
     end = beam_end(origin, points[tid], max_range)
     w = walk_of_beam(origin, end, resolution, inv_resolution)
-    step, t_delta = w.step, w.t_delta
-    base = int(-1)  # marks index of the current block's voxel 0; -1: none (scratch full)
-    current = block_of(w.voxel)
-    looked_up = bool(False)
-    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
-    active, steps = bool(w.active), int(0)
-    new_block = bool(True)
+    x, y, z = w.voxel[0], w.voxel[1], w.voxel[2]
+    tx, ty, tz = w.t_max[0], w.t_max[1], w.t_max[2]
+    dx, dy, dz = w.t_delta[0], w.t_delta[1], w.t_delta[2]
+    sx, sy, sz = w.step[0], w.step[1], w.step[2]
+    # stepping up enters a block at local coordinate 0, stepping down at 7
+    ex, ey, ez = (sx >> 1) & 7, (sy >> 1) & 7, (sz >> 1) & 7
+    active = bool(w.active)
+    steps = int(0)
+    base = int(-1)
+    if active:
+        base = block_base(x, y, z, box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
+                          block_keys, counters)
     while active:
-        if new_block:
-            current = block_of(voxel)
-            looked_up = True
-            c = hashed_block(current, capacity, table_keys, table_index, table_position, block_keys, counters)
-            base = wp.where(c < 0, -1, plane + c * BLOCK_VOXELS)
         if base >= 0:
-            wp.atomic_or(marks, base + index_in_block(voxel), bits[0])
-        voxel, t_max, _t, new_block = walk_step(voxel, step, t_max, t_delta)
+            wp.atomic_or(marks, base + (((x & 7) << 6) | ((y & 7) << 3) | (z & 7)), free_bit)
+        crossed = bool(False)
+        # walk_step's choice (OctoMap's tie-breaking), then segment_continues
+        if tx < ty and tx < tz:
+            x += sx
+            tx += dx
+            crossed = (x & 7) == ex
+        elif ty < tz:
+            y += sy
+            ty += dy
+            crossed = (y & 7) == ey
+        else:
+            z += sz
+            tz += dz
+            crossed = (z & 7) == ez
         steps += 1
-        active = segment_continues(voxel, t_max, w, steps)
+        active = ((x != w.last[0] or y != w.last[1] or z != w.last[2])
+                  and wp.min(wp.min(tx, ty), tz) <= w.length and steps <= w.max_steps)
+        if active and crossed:
+            base = block_base(x, y, z, box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
+                              block_keys, counters)
     if end[3] > 0.0:
         v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
-        b = block_of(v)
-        if not looked_up or not same_voxel(b, current):
-            c = hashed_block(b, capacity, table_keys, table_index, table_position, block_keys, counters)
-            base = wp.where(c < 0, -1, plane + c * BLOCK_VOXELS)
-        if base >= 0:
-            wp.atomic_or(marks, base + index_in_block(v), bits[1])
+        b = block_base(v[0], v[1], v[2], box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
+                       block_keys, counters)
+        if b >= 0:
+            wp.atomic_or(marks, b + index_in_block(v), free_bit << wp.uint64(1))
 
 
 @wp.func
@@ -255,8 +241,8 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
     tid = first + wp.tid()
     u = tid // BLOCK_VOXELS
     voxel = tid - u * BLOCK_VOXELS
-    i = block_slots[u] * BLOCK_VOXELS + voxel
-    value = log_odds[i]
+    i = int(0)
+    value = wp.float32(0.0)
     marked = bool(False)
     for word in range(words_per_voxel):
         m = wp.uint64(0)
@@ -269,8 +255,10 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
                     m = m | bits
                     marks[part, j] = wp.uint64(0)
         if m != wp.uint64(0):
-            if not marked:
+            if not marked:  # the map is read only for voxels the pass marked
                 marked = True
+                i = block_slots[u] * BLOCK_VOXELS + voxel
+                value = log_odds[i]
                 if wp.isnan(value):
                     value = wp.float32(0.0)
             touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order

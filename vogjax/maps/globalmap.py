@@ -222,8 +222,9 @@ class GlobalMap(BlockMap):
 
     def _contribute(self, items: list, sign: int, touched: list) -> int:
         """Add (sign +1) or remove (-1) the pulled values of (submap, pose) items; returns the
-        voxels updated. On a GPU each step is one launch over every item's blocks; on the CPU
-        items go one after another, each split across threads."""
+        voxels updated. Each step is one launch over every item's blocks (rows); on the CPU it
+        is split across threads by rows, each thread adding into sums of its own that are then
+        folded into the map's (integer sums: the same bits however the rows are split)."""
         items = [(submap, pose) for submap, pose in items if submap.num_blocks]
         if not items:
             return 0
@@ -241,35 +242,44 @@ class GlobalMap(BlockMap):
                       wp.array((np.arange(rows) - np.repeat(offsets[:-1], counts)).astype(np.int32), dtype=wp.int32,
                                device=device)]
             scales = [np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
-            groups = [(0, rows)] if device.is_cuda else list(zip(offsets[:-1], offsets[1:]))
-            parts = max(parallel.num_parts(device, int(c) * span * span) for c in counts)
+            parts = parallel.num_parts(device, rows * span)
 
             def launch_rows(launch):
-                for first, last in groups:
-                    count = int(last - first)
-                    parallel.split_launch(lambda part, lo, hi: launch(part, int(first) + lo, hi - lo), count,
-                                          parallel.num_parts(device, count * span * span))
+                parallel.split_launch(lambda part, lo, hi: launch(part, lo, hi - lo), rows, parts)
 
             # 1. the global blocks each row's block pulls into (created when adding)
             keys = wp.full((rows, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
             launch_rows(lambda part, first, n: wp.launch(
-                accumulation.collect_pull_blocks, dim=(n, span, span), inputs=[*common, first, *scales],
+                accumulation.collect_pull_blocks, dim=(n, span), inputs=[*common, first, *scales],
                 outputs=[keys], device=device))
             keys = keys.flatten()
             store = self._store
             if sign > 0:
                 store.ensure_blocks(keys)
             slots = store.find(keys)
-            # 2. add or subtract the pulled values
+            # 2. add or subtract the pulled values (threads past the first into sums of their own)
+            voxels = store.block_capacity * BLOCK_VOXELS
+            layers = [(store.layers["sum"], store.layers["count"])] + [
+                (wp.zeros(voxels, dtype=wp.int64, device=device), wp.zeros(voxels, dtype=wp.int32, device=device))
+                for _ in range(parts - 1)]
             pulls = wp.zeros(parts, dtype=wp.int32, device=device)
+            row_slots = slots.reshape((rows, accumulation.BLOCKS_PER_BOX))
             launch_rows(lambda part, first, n: wp.launch(
-                accumulation.accumulate_pulls, dim=(n, span, span),
-                inputs=[*common, first, *scales, sign, store.table_keys, store.table_slots, part],
-                outputs=[store.layers["sum"], store.layers["count"], pulls], device=device))
+                accumulation.accumulate_pulls, dim=(n, span),
+                inputs=[*common, first, *scales, sign, row_slots, part],
+                outputs=[*layers[part], pulls], device=device))
             # 3. which global blocks were touched, flagged on the device (not millions of keys read back)
             flags = wp.zeros(store.block_capacity, dtype=wp.int32, device=device)
             wp.launch(accumulation.flag_slots, dim=slots.shape[0], inputs=[slots], outputs=[flags], device=device)
-            touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
+            touched_slots = np.flatnonzero(flags.numpy()).astype(np.int32)
+            touched.append(touched_slots)
+            if parts > 1 and len(touched_slots):
+                d_touched = wp.array(touched_slots, dtype=wp.int32, device=device)
+                total = len(touched_slots) * BLOCK_VOXELS
+                parallel.split_launch(lambda part, lo, hi: [wp.launch(
+                    accumulation.add_part_sums, dim=hi - lo, inputs=[d_touched, lo, *own],
+                    outputs=[store.layers["sum"], store.layers["count"]], device=device) for own in layers[1:]],
+                    total, parallel.num_parts(device, total))
         return int(pulls.numpy().sum())
 
     def _refresh(self, touched: list, release: bool = False) -> None:
@@ -301,7 +311,8 @@ class GlobalMap(BlockMap):
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
         block_index, local = np.nonzero(layers["count"] != 0)
-        return voxel_keys(keys, block_index, local), layers["sum"][block_index, local], layers["count"][block_index, local]
+        return (voxel_keys(keys, block_index, local), layers["sum"][block_index, local],
+                layers["count"][block_index, local])
 
     def save(self, path) -> None:
         """One file: config, applied poses and revisions, sums and counts."""

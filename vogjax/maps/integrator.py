@@ -192,15 +192,13 @@ def _mark(config: MapConfig, batch: Beams, scratch: Scratch, first: int, lo: int
     device = scratch.device
     scalars = [first, np.float64(config.max_range), np.float64(config.voxel_size),
                np.float64(1.0 / config.voxel_size)]
-    if box is None:
-        kernel, tables = integration.mark_beams_hashed, (scratch.table_keys, scratch.table_index)
-    else:
-        kernel, tables = integration.mark_beams_dense, (scratch.table_index,)
-        scalars += [wp.vec3i(*box[0]), wp.vec3i(*box[1])]
-    rows = (*tables, scratch.table_position, scratch.block_keys, scratch.counters, scratch.marks)
+    box_lo, box_dims = box if box is not None else ((0, 0, 0), (0, 0, 0))
+    scalars += [wp.vec3i(*box_lo), wp.vec3i(*box_dims)]
+    rows = (scratch.table_keys, scratch.table_index, scratch.table_position, scratch.block_keys, scratch.counters,
+            scratch.marks)
 
     def launch(part: int, a: int, b: int) -> None:
-        wp.launch(kernel, dim=b - a,
+        wp.launch(integration.mark_beams, dim=b - a,
                   inputs=[batch.origins, batch.points[lo + a:lo + b], batch.ray_scan[lo + a:lo + b], *scalars,
                           capacity],
                   outputs=[r[part] for r in rows], device=device)
