@@ -7,7 +7,7 @@ Pose names follow the frames: T_world_submap maps submap coordinates to world co
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 RIGID_TOLERANCE = 1e-6
 
@@ -200,3 +200,17 @@ def rotations_from_quaternions(quaternions: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotation matrices of quaternions (..., 4) (w, x, y, z), normalised first."""
     q = np.asarray(quaternions, dtype=np.float64)
     return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*q.shape[:-1], 3, 3)
+
+
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, query_times: np.ndarray) -> np.ndarray:
+    """Poses (N,4,4) at increasing times (N,), interpolated at query times (M,) within their
+    span: positions linearly, rotations by slerp."""
+    t = np.asarray(times, dtype=np.float64)
+    q = np.asarray(query_times, dtype=np.float64)
+    if len(t) == 1:
+        return np.repeat(poses, len(q), axis=0)
+    out = np.tile(np.eye(4), (len(q), 1, 1))
+    out[:, :3, :3] = Slerp(t, Rotation.from_matrix(poses[:, :3, :3]))(q).as_matrix()
+    for axis in range(3):
+        out[:, axis, 3] = np.interp(q, t, poses[:, axis, 3])
+    return out

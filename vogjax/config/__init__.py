@@ -5,6 +5,7 @@
 """
 
 from vogjax.config.maps import MapConfig, logodds
+from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.config.pipeline import PRESETS, JobConfig, PipelineConfig, ReportConfig, TimingConfig
 from vogjax.config.schema import Config, Rule
 from vogjax.config.sensing import NavNoise, SonarConfig
@@ -12,5 +13,5 @@ from vogjax.config.sim import ControllerConfig
 from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig
 
 __all__ = ["Config", "ControllerConfig", "CorrelativeConfig", "IcpConfig", "JobConfig", "LoopClosureConfig",
-           "MapConfig", "NavNoise", "PRESETS", "PipelineConfig", "ReportConfig", "Rule", "SonarConfig", "TimingConfig",
+           "MapConfig", "NavNoise", "PRESETS", "PipelineConfig", "PointCloudConfig", "ReportConfig", "Rule", "SonarConfig", "TimingConfig",
            "logodds"]

@@ -25,6 +25,7 @@ from vogjax.io.atomic import AtomicPath
 MAGIC = b"VOGJAXMP"
 FORMAT_VERSION = 1
 _PREFIX = struct.Struct("<8sIQ")
+MAX_HEADER_BYTES = 1 << 26
 
 
 def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
@@ -38,6 +39,28 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
         f.write(_PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)))
         f.write(header)
         f.write(payload)
+
+
+def map_kind(path) -> str:
+    """The kind a map file's header names ("VoxelMap", "GlobalMap", ...), reading only the
+    header; ValueError if it is no vogjax map file (the whole file is checked when loaded)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            prefix = f.read(_PREFIX.size)
+            if len(prefix) < _PREFIX.size:
+                raise ValueError(f"path {str(path)!r} is truncated or not a vogjax map file")
+            magic, _, header_bytes = _PREFIX.unpack(prefix)
+            if magic != MAGIC:
+                raise ValueError(f"path {str(path)!r} is not a vogjax map file")
+            header = f.read(min(header_bytes, MAX_HEADER_BYTES))
+    except OSError as error:
+        raise ValueError(f"path {str(path)!r} cannot be read: {error.strerror}") from None
+    try:
+        kind = json.loads(header)["kind"]
+    except (ValueError, KeyError, TypeError):
+        raise ValueError(f"path {str(path)!r} has a damaged header") from None
+    return str(kind)
 
 
 def read_map_file(path, kind: str) -> tuple[dict, dict]:

@@ -38,10 +38,10 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from vogjax.config.point_cloud import PointCloudConfig
-from vogjax.geometry import inverse, rigid_poses
+from vogjax.geometry import interpolate_poses, inverse, rigid_poses
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import MAX_RANGE_M, DatasetWriter
 from vogjax.sensors.point_cloud import PointCloudSensor
@@ -309,22 +309,10 @@ class Odometry:
 
     def at(self, stamps_ns: np.ndarray) -> np.ndarray:
         """(M,4,4) poses at stamps within the span: positions linear, rotations slerped."""
-        return interpolate_poses(self.stamps_ns, self.poses, np.asarray(stamps_ns, dtype=np.int64))
-
-
-def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
-    """Poses (N,4,4) at increasing stamps (N,) ns, interpolated at query stamps (M,) in their
-    span: positions linearly, rotations by slerp (SciPy)."""
-    start = stamps_ns[0]
-    t = (stamps_ns - start).astype(np.float64) * 1e-9
-    q = (query_ns - start).astype(np.float64) * 1e-9
-    if len(t) == 1:
-        return np.repeat(poses, len(q), axis=0)
-    out = np.tile(np.eye(4), (len(q), 1, 1))
-    out[:, :3, :3] = Slerp(t, Rotation.from_matrix(poses[:, :3, :3]))(q).as_matrix()
-    for axis in range(3):
-        out[:, axis, 3] = np.interp(q, t, poses[:, axis, 3])
-    return out
+        # relative nanoseconds to seconds: stamps since 1970 would lose microseconds as floats
+        start = self.stamps_ns[0]
+        return interpolate_poses((self.stamps_ns - start) * 1e-9, self.poses,
+                                 (np.asarray(stamps_ns, dtype=np.int64) - start) * 1e-9)
 
 
 def read_odometry(reader, connections, topic: str) -> Odometry:

@@ -9,10 +9,7 @@ voxel centres with log-odds or occupancy probabilities (`VoxelSet.from_log_odds`
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import struct
-from pathlib import Path
 
 import numpy as np
 
@@ -142,31 +139,6 @@ def _thresholds(occupied: float, free: float) -> tuple[np.float32, np.float32]:
     return logodds(occupied), logodds(free)
 
 
-_PREFIX = struct.Struct("<8sIQ")  # the map file's documented prefix: magic, version, header length
-
-
-def map_kind(path) -> str:
-    """The kind a .vog file's header names ("VoxelMap", "GlobalMap", ...); ValueError if the
-    file is no vogjax map file (the whole file is checked when it is loaded)."""
-    path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            prefix = f.read(_PREFIX.size)
-            if len(prefix) < _PREFIX.size:
-                raise ValueError(f"path {str(path)!r} is truncated or not a vogjax map file")
-            magic, _, header_bytes = _PREFIX.unpack(prefix)
-            if magic != mapfile.MAGIC:
-                raise ValueError(f"path {str(path)!r} is not a vogjax map file")
-            header = f.read(min(header_bytes, 1 << 26))
-    except OSError as error:
-        raise ValueError(f"path {str(path)!r} cannot be read: {error.strerror}") from None
-    try:
-        kind = json.loads(header)["kind"]
-    except (ValueError, KeyError, TypeError):
-        raise ValueError(f"path {str(path)!r} has a damaged header") from None
-    return str(kind)
-
-
 def load_map(path, device=None):
     """The map a .vog file holds, as the class its header names (VoxelMap, GlobalMap or
     ConfidenceMap)."""
@@ -174,7 +146,7 @@ def load_map(path, device=None):
     from vogjax.maps.confidence import ConfidenceMap
 
     kinds = {"VoxelMap": VoxelMap, "GlobalMap": GlobalMap, "ConfidenceMap": ConfidenceMap}
-    kind = map_kind(path)
+    kind = mapfile.map_kind(path)
     if kind not in kinds:
         raise ValueError(f"path {str(path)!r} holds a {kind!r}; this command reads {', '.join(kinds)}")
     return kinds[kind].load(path, device)

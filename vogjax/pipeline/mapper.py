@@ -32,6 +32,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from vogjax import sensors
 from vogjax.config import PipelineConfig
 from vogjax.geometry import inverse, pose_deltas
 from vogjax.io.dataset import ScanBatch
@@ -48,6 +49,8 @@ class Mapper:
         if not isinstance(config, PipelineConfig):
             raise ValueError(f"config must be a PipelineConfig, got {type(config).__name__}")
         self.metadata = dict(metadata or {})
+        # a beam without a return clears free space as far as the sensor reaches (and the map allows)
+        self.reach_m = min(config.map.max_range, sensors.from_metadata(self.metadata).max_range_m)
         self.vog = VogMap(config.map)
         self.truth_vog = VogMap(config.map)  # the same submaps from true poses, when the run has them
         self.global_map = GlobalMap(config.map)
@@ -78,7 +81,7 @@ class Mapper:
         # 1. the standard map: every scan at its navigation pose, in one batch
         if self.standard_map is not None:
             start = time.perf_counter()
-            origins, endpoints = batch.world(batch.pose_nav, cfg.map.max_range)
+            origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
             self.standard_map.integrate_scans(origins, endpoints.reshape(-1, 3),
                                               np.repeat(np.arange(len(batch)), endpoints.shape[1]))
             self.timings["standard_map"].append(time.perf_counter() - start)
@@ -188,7 +191,7 @@ class Mapper:
         self.submaps.append(SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]),
                                          base, truth))
         i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
-        origins, endpoints = scans.world(inverse(base) @ scans.pose_nav, self.config.map.max_range)
+        origins, endpoints = scans.world(inverse(base) @ scans.pose_nav, self.reach_m)
         self.vog.submap(i).integrate_scans(origins, endpoints.reshape(-1, 3),
                                            np.repeat(np.arange(len(scans)), endpoints.shape[1]))
         self.timings["integration"].append(time.perf_counter() - start)
@@ -197,7 +200,7 @@ class Mapper:
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
             j = self.truth_vog.add_submap(truth)
-            origins, endpoints = scans.world(inverse(truth) @ scans.pose_truth, self.config.map.max_range)
+            origins, endpoints = scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
             self.truth_vog.submap(j).integrate_scans(origins, endpoints.reshape(-1, 3),
                                                      np.repeat(np.arange(len(scans)), endpoints.shape[1]))
             self.timings["truth_maps"].append(time.perf_counter() - start)

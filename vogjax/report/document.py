@@ -32,7 +32,10 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         timing_s["reapplied_per_submap"] = float(np.mean(curves.reapplied))
     empty = dict.fromkeys(("online", "virtual", "full_merge", "standard"))
     return {
-        "run": str(run_path), "scene": result.metadata.get("scene"), "scans": result.scans,
+        "run": str(run_path), "scene": result.metadata.get("scene"),
+        "ground_truth": ("scene" if metrics else
+                         "none: the run names no built-in scene, so AUC, RMSE and agreement are skipped"),
+        "scans": result.scans,
         "duration_s": duration_s, "submaps": result.vog.num_submaps,
         "auc": metrics.get("auc", empty),
         "auc_vs_reference": metrics.get("auc_vs_reference", {}),

@@ -2,8 +2,9 @@
 
     reports = vj.report.map_runs(["run.h5"], "out", vj.config.JobConfig.from_toml("settings.toml"))
 
-Per run, in DIR/<run name>/: global_map.vog, trajectories.csv, report.json and figures
-(top_view.png, trajectory.png, roc.png, timing.png). Inputs, settings and the output folder are
+Per run, in DIR/<run name>/: global_map.vog, trajectories.csv, loop_closures.csv, TUM
+trajectories (navigation.tum, optimized.tum, truth.tum), report.json and figures (top_view.png,
+trajectory.png, roc.png, timing.png). Inputs, settings and the output folder are
 checked before any work starts; a run's folder appears only once every file in it is written.
 """
 
@@ -69,6 +70,8 @@ def _evaluate_and_write(result, path: Path, pipeline_s: float, config: JobConfig
     # 1. the map and the trajectories
     result.global_map.save(folder / "global_map.vog")
     files.save_trajectories(result, folder / "trajectories.csv")
+    files.save_loop_closures(result, folder / "loop_closures.csv")
+    files.save_tum_trajectories(result, folder)
     # 2. figures
     centres, log_odds = result.global_map.voxels()
     label = f"{path.stem}: {result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"

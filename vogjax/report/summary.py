@@ -26,4 +26,7 @@ def summary_table(reports: list[dict]) -> str:
                      fmt(query.get("global") and query["global"] * 1e3, ".1f"),
                      fmt(t["real_time_factor"], ".0f")))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    return "\n".join("  ".join(cell.rjust(w) for cell, w in zip(row, widths)) for row in rows)
+    lines = ["  ".join(cell.rjust(w) for cell, w in zip(row, widths)) for row in rows]
+    lines += [f"{Path(r['run']).stem}: no ground truth (no built-in scene): AUC and RMSE skipped"
+              for r in reports if r.get("ground_truth", "scene") != "scene"]
+    return "\n".join(lines)

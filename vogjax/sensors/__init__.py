@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from vogjax.config import SonarConfig
+from vogjax.config import PointCloudConfig, SonarConfig
 from vogjax.sensors.base import RangeSensor, world_rays
+from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
 
-KINDS = {ProfilingSonar.kind: (ProfilingSonar, SonarConfig)}
+KINDS = {ProfilingSonar.kind: (ProfilingSonar, SonarConfig), PointCloudSensor.kind: (PointCloudSensor, PointCloudConfig)}
 
 
 def from_metadata(metadata: dict) -> RangeSensor:
@@ -41,4 +42,5 @@ def as_sensor(sensor) -> RangeSensor:
     raise ValueError(f"sensor must be a vogjax.sensors.RangeSensor or a SonarConfig, got {type(sensor).__name__}")
 
 
-__all__ = ["KINDS", "T_VEHICLE_SONAR", "ProfilingSonar", "RangeSensor", "as_sensor", "from_metadata", "world_rays"]
+__all__ = ["KINDS", "T_VEHICLE_SONAR", "PointCloudSensor", "ProfilingSonar", "RangeSensor", "as_sensor", "from_metadata",
+           "world_rays"]
