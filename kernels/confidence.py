@@ -293,12 +293,9 @@ def sort_keys_of_steps(first: int, step_voxel: wp.array(dtype=wp.int32), keys: w
 def for_bins(num_bins: int) -> types.SimpleNamespace:
     """The kernels over distributions of `num_bins` bins (one compiled module per bin count)."""
     K = int(num_bins)
+    module = f"vogjax.kernels.confidence_bins_{K}"  # one module (one compile) per bin count
     Bins = wp.types.vector(length=K, dtype=wp.float32)
     last = float(K - 1)
-
-    @wp.func
-    def level(k: int) -> wp.float32:
-        return wp.float32(k) / wp.float32(last)
 
     LEVELS = Bins(*[float(np.float32(k) / np.float32(last)) for k in range(K)])
     ONES = Bins(*([1.0] * K))
@@ -334,7 +331,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         mean[voxel] = mv[0]
         variance[voxel] = mv[1]
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module=module)
     def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
                            returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
                            step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
@@ -377,7 +374,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 normalise(bins, v, floor, mean, variance)
                 pending[v] = wp.uint8(0)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module=module)
     def apply_sorted_factors(keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), count: int,
                              step_factor: wp.array(dtype=wp.vec2f), floor: wp.float32, bins: wp.array(dtype=Bins),
                              mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
@@ -396,7 +393,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             j += 1
         normalise(bins, v, floor, mean, variance)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module=module)
     def compute_moments(observed: wp.array(dtype=wp.uint8), bins: wp.array(dtype=Bins),
                         mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
         """Mean and variance of observed voxels (a loaded map), NaN elsewhere."""
@@ -409,7 +406,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         mean[tid] = mv[0]
         variance[tid] = mv[1]
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module=module)
     def lookup_bins(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
                     table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
                     bins: wp.array(dtype=Bins), prior: Bins, values: wp.array(dtype=Bins)):

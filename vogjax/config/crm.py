@@ -25,11 +25,13 @@ class CrmConfig(Config):
                           paper's Eq. 18: solid cells, as in its 2D experiment)
     num_bins:             points of the discretised distribution of a voxel's occupancy level m,
                           at m_k = k / (num_bins - 1): both ends included, so a voxel can be
-                          certainly free (m = 0) or certainly occupied (m = 1). 16 is the
-                          measured knee of error against memory (benchmarks/bench_crm.py --bins)
+                          certainly free (m = 0) or certainly occupied (m = 1). 16: means within
+                          0.014 of a 64-bin filter's at 73 bytes per voxel (benchmarks/bench_crm.py)
     spurious_probability: chance that a return is spurious (uniform over (0, max_range), caused by
-                          nothing in the map); 0 is the paper's model. It floors every update, so
-                          one outlier cannot make a voxel certain
+                          nothing in the map); 0 is the paper's model. Above 0 it tempers every
+                          update, but with the uniform prior (bounce probability 0.5 per unknown
+                          voxel) long readings through unexplored space then look spurious and the
+                          map stops growing into it: raise it only for maps of known free space
     cone_sigmas:          voxels up to this many range_sigma_m past a return are candidate causes
                           of it; farther ones could cause it with a probability below
                           Q(cone_sigmas) and are neither causes nor updated

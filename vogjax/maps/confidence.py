@@ -9,11 +9,14 @@ Decisions the paper leaves open, made here (each one tested):
 
 - **Discretisation.** The distribution lives on `num_bins` levels m_k = k/(K-1), both ends
   included (a voxel can be certainly free or certainly full; a midpoint grid would floor the
-  error of a free voxel at 1/(2K)). K = 16 by default: in the paper's 2D experiment the map
-  error drops steeply up to 16 levels and barely below (benchmarks/bench_crm.py --bins).
+  error of a free voxel at 1/(2K)). K = 16 by default: on sonar scans of the tank its means lie
+  within 0.014 on average of a 64-bin filter's (8 bins: 0.027, 32 bins: 0.005) at 73 bytes per
+  voxel (41, 137); benchmarks/bench_crm.py measures the trade-off.
 - **Prior.** Uniform over the levels: mean 0.5, variance (K+1)/(12(K-1)). A never-observed
   voxel answers exactly these, and a beam meets it with bounce probability 0.5 (the paper's
-  random worlds are half full).
+  random worlds are half full). A long reading through unexplored space is then improbable
+  under any single cause, which is why `spurious_probability` defaults to 0 (the paper's
+  model): above 0, such readings read as spurious and the map stops growing into the unknown.
 - **Sensor model.** The range of a cause voxel is spread evenly over the beam's chord through
   it (for sigma much larger than a voxel this is the paper's N(||G_c - x||, R)); a reading past
   `max_range` is "no return", explained by the cause at infinity or by a voxel whose noisy
