@@ -158,3 +158,11 @@ def test_raycast_against_a_brute_force_walk():
         expected = _raycast_reference(crm, origins[i].astype(np.float64), unit[i], 1.7)
         for name, value in expected.items():
             np.testing.assert_allclose(getattr(result, name)[i], value, rtol=1e-5, atol=1e-6, err_msg=name)
+
+
+def test_empty_scans_change_nothing():
+    crm = ConfidenceMap(SMALL, "cpu")
+    crm.integrate_scans(np.zeros((2, 3)), np.zeros((0, 3)), np.zeros(0, np.int32))
+    crm.integrate_scan(np.zeros(3), np.zeros((0, 3)))
+    assert len(crm.voxels()[0]) == 0 and crm.num_blocks == 0
+    assert crm.raycast(np.zeros((0, 3)), np.zeros((0, 3)), 1.0).hit.shape == (0,)
