@@ -304,7 +304,7 @@ class ConfidenceMap:
         step_voxel, step_likelihood = cones.step_voxel, cones.step_likelihood
         total = int(first_step[-1])
 
-        # 3. the scans in order
+        # the scans one after the other: on the CPU in one launch, on CUDA a few launches per scan
         model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability),
                  np.float64(1.0 / cfg.max_range)]
         layers = store.layers
