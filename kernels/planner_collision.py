@@ -3,8 +3,9 @@
 A voxel is in the swept box when its cube meets the box at some point of the segment, i.e. when
 the segment meets the voxel's cube grown by the box's half extents (closed intervals: touching
 counts). Threads run over (edge, voxel column in x-y); a column walks z through the edge's
-bounding box. OCCUPIED voxels are unsafe. UNKNOWN ones are unsafe unless they meet the box at
-the vehicle's position, or their centre lies within the clearance radius of it, or (on an edge
+bounding box. Voxels that meet the box at the vehicle's position are free (it is there).
+OCCUPIED voxels are unsafe. UNKNOWN ones are unsafe unless their centre lies within the
+clearance radius of the vehicle's position or (on an edge
 that moves in x-y) the voxel of their column at the height of the edge's centre line there is
 FREE: a sonar fan sees along the layer it travels in, and the box's thin top and bottom slabs
 take that layer's state.
@@ -91,8 +92,8 @@ def count_unsafe_voxels(first_edge: int, starts: wp.array(dtype=wp.vec3d), ends:
         voxel = wp.vec3i(voxel[0], voxel[1], first_voxels[e][2] + k)
         lo = wp.vec3d(wp.float64(voxel[0]) * s, wp.float64(voxel[1]) * s, wp.float64(voxel[2]) * s)
         hi = wp.vec3d(lo[0] + s, lo[1] + s, lo[2] + s)
-        if not segment_meets_box(start, end, lo - half, hi + half):
-            continue
+        if not segment_meets_box(start, end, lo - half, hi + half) or boxes_meet(lo, hi, vehicle_lo, vehicle_hi):
+            continue  # outside the swept box, or where the vehicle is (water, whatever the map says)
         here = block_of(voxel)
         if not looked_up or here[2] != block[2]:
             slot = store_slot(m, voxel)
@@ -104,7 +105,7 @@ def count_unsafe_voxels(first_edge: int, starts: wp.array(dtype=wp.vec3d), ends:
             return
         if state == UNKNOWN:
             centre = voxel_centre(voxel, s)
-            if not (boxes_meet(lo, hi, vehicle_lo, vehicle_hi) or wp.length(centre - vehicle) <= clearance
+            if not (wp.length(centre - vehicle) <= clearance
                     or centre_layer_free(m, start, end, voxel, centre, candidates, first, last)):
                 wp.atomic_add(unsafe, e, 1)
                 return

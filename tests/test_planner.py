@@ -215,8 +215,8 @@ def brute_clear(map_, start, end, box, vehicle, clearance):
         t = np.clip((centres[:, :2] - start[:2]) @ d[:2] / flat, 0, 1)
         layer = np.c_[keys[:, :2], np.floor((start[2] + t * d[2]) / s).astype(int)]
         layer_free = (map_.state((layer + 0.5) * s) == vj.FREE) & (layer[:, 2] != keys[:, 2])
-    return not np.any(states == vj.OCCUPIED) and not np.any((states == vj.UNKNOWN) & ~at_vehicle & ~near
-                                                            & ~layer_free)
+    return not np.any((states == vj.OCCUPIED) & ~at_vehicle) and not np.any((states == vj.UNKNOWN) & ~at_vehicle
+                                                                         & ~near & ~layer_free)
 
 
 def test_edges_clear_matches_brute_force():
@@ -250,3 +250,114 @@ def test_edges_clear_matches_brute_force():
     vog.submap(i).integrate_scans(origins, points, np.repeat(np.arange(30), 400))
     np.testing.assert_array_equal(planner.edges_clear(vog, starts, ends, box, vehicle, 0.9),
                                   planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9))
+
+
+def room_map(rng, walls=True):
+    """Free water observed all around the origin (0.2 m voxels), with two walls in it."""
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=0.2, max_range=6.0))
+    origins = rng.uniform(-0.3, 0.3, (30, 3))
+    directions = rng.normal(size=(30 * 600, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    if walls:
+        wall = np.c_[np.full(400, 1.9), rng.uniform(-1.5, 0.5, 400), rng.uniform(-1, 1, 400)]
+        vmap.integrate_scans(np.zeros((1, 3)), wall, np.zeros(400, np.int64))
+    vmap.integrate_scans(origins, np.repeat(origins, 600, axis=0) + directions * 3.5, np.repeat(np.arange(30), 600))
+    return vmap
+
+
+BOUNDS = np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]])
+SMALL = planner.PlannerConfig(edge_length_m=1.0, max_nodes=8, tolerance_nodes=24, gain_range_m=3.0, gain_step_m=0.2,
+                              clearance_m=0.6, max_heading_change_rad=1.0, seed=5)
+
+
+def node_gains(vmap, states, parents, config, sensor):
+    """Every node's branch gain, recomputed edge by edge with edge_gain and the discount."""
+    gains, distances = np.zeros(len(states)), np.zeros(len(states))
+    for n in range(1, len(states)):
+        p = parents[n]
+        distances[n] = distances[p] + np.linalg.norm(states[n, :3] - states[p, :3])
+        g = planner.edge_gain(vmap, states[p][None], states[n][None], sensor, config.gain_step_m, config.gain_range_m)
+        gains[n] = gains[p] + planner.discounted(g.unknown_m3[0], distances[n], config.discount)
+    return gains
+
+
+def test_plan_grows_a_valid_tree_whose_best_branch_is_returned():
+    rng = np.random.default_rng(7)
+    vmap = room_map(rng)
+    T = pose_from_xyz_yaw(0.1, -0.2, 0.1, 0.4)
+    plan = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    states, parents = plan.tree_states, plan.tree_parents
+    assert plan.nodes == len(states) - 1 >= SMALL.max_nodes and plan.rays > 0 and plan.seconds > 0
+    np.testing.assert_allclose(states[0], [0.1, -0.2, 0.1, 0.4], atol=1e-12)
+    lo, hi = BOUNDS[0] + np.array(SMALL.box_m) / 2, BOUNDS[1] - np.array(SMALL.box_m) / 2
+    for n in range(1, len(states)):
+        p = parents[n]
+        assert 0 <= p < n
+        assert np.linalg.norm(states[n, :3] - states[p, :3]) <= SMALL.edge_length_m + 1e-9
+        assert abs((states[n, 3] - states[p, 3] + np.pi) % (2 * np.pi) - np.pi) <= SMALL.max_heading_change_rad + 1e-9
+        assert np.all((states[n, :3] >= lo - 1e-9) & (states[n, :3] <= hi + 1e-9))
+        assert brute_clear(vmap, states[p, :3], states[n, :3], SMALL.box_m, states[0, :3], SMALL.clearance_m)
+    gains = node_gains(vmap, states, parents, SMALL, SONAR)
+    assert plan.gain_m3 == pytest.approx(gains.max(), rel=1e-9) and plan.gain_m3 > 0
+    best, branch = int(np.argmax(gains)), []
+    while best > 0:
+        branch.append(states[best])
+        best = parents[best]
+    np.testing.assert_array_equal(plan.waypoints, np.array(branch[::-1]))
+    # the same seed plans the same tree
+    again = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    np.testing.assert_array_equal(again.tree_states, states)
+
+
+def test_receding_horizon_and_tolerance():
+    rng = np.random.default_rng(8)
+    vmap = room_map(rng, walls=False)
+    config = SMALL.replace(clearance_m=0.0)
+    nbv = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR)
+    first = nbv.plan(vmap, pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0))
+    assert len(first.waypoints) >= 2
+    # flown to the first node: the next tree starts with the rest of the best branch
+    second = nbv.plan(vmap, pose_from_xyz_yaw(*first.waypoints[0]))
+    rest = first.waypoints[1:]
+    np.testing.assert_allclose(second.tree_states[1:1 + len(rest)], rest)
+    np.testing.assert_array_equal(second.tree_parents[1:1 + len(rest)], np.arange(len(rest)))
+    # nothing unknown in reach: no gain, so the tree grows on to N_tol
+    region = np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])  # known free water only
+    flat = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR, region=region).plan(
+        vmap, pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0))
+    assert flat.gain_m3 == 0 and flat.nodes >= config.tolerance_nodes
+
+
+def test_risk_hook_discounts_every_edge():
+    rng = np.random.default_rng(9)
+    vmap = room_map(rng)
+    T = pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0)
+    plain = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    seen = []
+
+    def risk(starts, ends):
+        seen.append(len(starts))
+        return np.full(len(starts), 0.5)
+
+    risky = planner.NbvPlanner(SMALL.replace(risk_weight=2.0), bounds=BOUNDS, sensor=SONAR, risk=risk).plan(vmap, T)
+    np.testing.assert_array_equal(risky.tree_states, plain.tree_states)
+    assert risky.gain_m3 == pytest.approx(plain.gain_m3 * np.exp(-1.0)) and sum(seen) == plain.nodes
+    with pytest.raises(ValueError, match="risk"):
+        planner.NbvPlanner(SMALL.replace(risk_weight=1.0), bounds=BOUNDS)
+    with pytest.raises(ValueError, match="risk"):
+        planner.NbvPlanner(SMALL.replace(risk_weight=1.0), bounds=BOUNDS, sensor=SONAR,
+                           risk=lambda s, e: -np.ones(len(s))).plan(vmap, T)
+
+
+def test_planner_rejects_bad_input():
+    with pytest.raises(ValueError, match="bounds"):
+        planner.NbvPlanner(SMALL)
+    with pytest.raises(ValueError, match="bounds"):
+        planner.NbvPlanner(SMALL, bounds=[[0, 0, 0], [0.5, 3, 3]])
+    with pytest.raises(ValueError, match="tolerance_nodes"):
+        planner.PlannerConfig(max_nodes=20, tolerance_nodes=10)
+    nbv = planner.NbvPlanner(SMALL, bounds=BOUNDS)
+    with pytest.raises(ValueError, match="T_world_vehicle"):
+        nbv.plan(vj.VoxelMap(), np.full((4, 4), np.nan))
+    with pytest.raises(ValueError, match="map"):
+        nbv.plan("map", np.eye(4))

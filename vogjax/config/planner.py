@@ -35,7 +35,8 @@ class PlannerConfig(Config):
         (constrained sampling, thesis 4.5.3; 90 degrees in its Fig. 4.14).
     vertical_fraction: share of samples drawn along z at the vehicle's x, y (the rest in the
         x-y plane at the vehicle's depth), thesis 4.5.3.
-    min_gain_m3: exploration is done when the best branch gains less than this (m^3).
+    min_gain_m3: exploration is done when the best branch gains no more than this (m^3; 0: the
+        tree grew to N_tol and found nothing to see, the papers' criterion).
     risk_weight: weight of a collision-risk cost per edge (the planner's `risk` hook, e.g. a
         confidence-rich map's cost): an edge's gain is also multiplied by exp(-risk_weight *
         risk). 0 disables it; > 0 needs a `risk` callable.
@@ -58,7 +59,7 @@ class PlannerConfig(Config):
     clearance_m: float = non_negative(1.5)
     max_heading_change_rad: float = number(1.5707963267948966, low=0.0, high=3.141592653589793)
     vertical_fraction: float = number(0.25, low=0.0, high=1.0)
-    min_gain_m3: float = non_negative(0.05)
+    min_gain_m3: float = non_negative(0.0)
     risk_weight: float = non_negative(0.0)
     seed: int = integer(0, low=0)
 

@@ -1,8 +1,8 @@
 """Collision checks of edges: the vehicle's box swept along each edge, against the map.
 
-OCCUPIED and UNKNOWN voxels are unsafe (Bircher et al., Ho), with three exceptions for unknown
-voxels, all forced by what a profiling sonar at the bow can see:
-- those that meet the box at the vehicle's own position (it is there: that water is free);
+OCCUPIED and UNKNOWN voxels are unsafe (Bircher et al., Ho), except in the box at the vehicle's
+own position (it is there: that is water, whatever a drifted map says), and for unknown voxels
+two more exceptions, both forced by what a profiling sonar at the bow can see:
 - those within `clearance_m` of it: the sonar sees nothing within its blind distance of itself
   nor behind its fan, so the water right around the vehicle stays unknown;
 - on an edge that moves in x-y, those whose column is FREE at the height of the edge's centre

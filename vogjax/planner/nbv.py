@@ -14,8 +14,9 @@ of the parent's. An edge enters the tree only if the collision box swept along i
 the map. The tree stops at N_max nodes once its best branch gains something, else at N_tol.
 The vehicle flies the best branch's first edge; the rest seeds the next tree.
 
-Trees grow in rounds of N_max samples (each attached to the nearest node of the tree before
-the round), so each round's collision checks and gains are one launch each.
+Trees grow in rounds, each of as many samples as half the tree's nodes (one, then one, two,
+three, ...; at most N_max), each attached to the nearest node of the tree before the round: a
+round's collision checks and gains are one launch each, and branches still get deep.
 """
 
 from __future__ import annotations
@@ -105,19 +106,19 @@ class NbvPlanner:
                     break
                 if iterations >= cfg.tolerance_nodes * cfg.attempts_per_node:
                     break
-                rays += self._grow(source, tree, self._samples(tree, root), root, chain=False)
-                iterations += cfg.max_nodes
+                count = min(cfg.max_nodes, (len(tree.states) + 1) // 2)
+                rays += self._grow(source, tree, self._samples(root, count), root, chain=False)
+                iterations += count
         branch = tree.branch(int(np.argmax(tree.gains)))
         self.memory = branch[1:]
         return Plan(branch, float(tree.gains.max()), len(tree.states) - 1, iterations, rays,
                     time.perf_counter() - start_s, tree.states.copy(), tree.parents.copy())
 
     # ---------------------------------------------------------------- sampling
-    def _samples(self, tree: "_Tree", root: np.ndarray) -> np.ndarray:
-        """N_max targets (x, y, z, yaw-offset): in the x-y plane at the vehicle's depth, or along
-        z at its x, y (thesis 4.5.3); yaw offsets within the heading bound."""
+    def _samples(self, root: np.ndarray, count: int) -> np.ndarray:
+        """`count` targets (x, y, z, yaw offset): in the x-y plane at the vehicle's depth, or
+        along z at its x, y (thesis 4.5.3); yaw offsets within the heading bound."""
         cfg, lo, hi = self.config, *self.sample_box
-        count = cfg.max_nodes
         targets = np.empty((count, 4))
         vertical = self.rng.random(count) < cfg.vertical_fraction
         targets[:, :2] = np.where(vertical[:, None], root[:2], self.rng.uniform(lo[:2], hi[:2], (count, 2)))

@@ -50,7 +50,7 @@ class ExploreSummary:
     """path, csv_path: the files written; scans, submaps (finished), iterations (plans);
     duration_s of the mission; path_m flown (true path); explored_m3: known volume of the
     scene's region in the final global map; stopped: "submaps" (reached the number asked for),
-    "gain" (the best branch gained less than min_gain_m3), "blocked" (no collision-free edge)
+    "gain" (the best branch gained no more than min_gain_m3), "blocked" (no collision-free edge)
     or "scans" (max_scans reached)."""
 
     path: Path
@@ -123,7 +123,7 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
                    "submaps": loop.mapper.num_submaps, "explored_m3": loop.explored_m3(),
                    "path_m": loop.path_m, "plan_s": plan.seconds, "rays": plan.rays, "gain_m3": plan.gain_m3,
                    "nodes": plan.nodes, "samples": plan.iterations}
-            if len(plan.waypoints) == 0 or plan.gain_m3 < planner_config.min_gain_m3:
+            if len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3:
                 rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
                 stopped = "blocked" if len(plan.waypoints) == 0 else "gain"
                 if on_iteration:
