@@ -1,7 +1,8 @@
 """vogjax: GPU/JAX-accelerated batch occupancy mapping for SLAM-corrected robots."""
 
-from vogjax.config import MapConfig, NavNoise, PipelineConfig, SonarConfig
-from vogjax.maps import FREE, OCCUPIED, UNKNOWN, GlobalMap, RaycastResult, Submap, UpdateReport, VogMap, VoxelMap
+from vogjax.config import CrmConfig, MapConfig, NavNoise, PipelineConfig, SonarConfig
+from vogjax.maps import (FREE, OCCUPIED, UNKNOWN, ConfidenceMap, GlobalMap, RaycastResult, Submap, UpdateReport, VogMap,
+                         VoxelMap)
 
 __version__ = "0.1.0"
 
@@ -21,6 +22,8 @@ __all__ = [
     "FREE",
     "OCCUPIED",
     "UNKNOWN",
+    "ConfidenceMap",
+    "CrmConfig",
     "GlobalMap",
     "MapConfig",
     "NavNoise",

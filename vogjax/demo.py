@@ -15,7 +15,7 @@ def run(out: Path, scene: str = "propeller", laps: int = 2, progress: bool = Tru
     out.mkdir(parents=True, exist_ok=True)
     # 1. simulate the survey: MJX vehicle, sonar with 2 cm range noise, drifting navigation
     run_path = out / f"{scene}.h5"
-    summary = simulate_run(scene, run_path, laps=laps, sensor=SonarConfig(range_noise_m=0.02),
+    summary = simulate_run(scene, run_path, laps=laps, sensor=SonarConfig(range_noise_m=0.02), overwrite=True,
                            progress=progress)
     print(f"simulated {summary.scans} scans ({summary.duration_s:.0f} s of survey) of the {scene} scene")
     # 2. map it: submaps, loop closures, iSAM2, the online global map; evaluate and draw

@@ -19,6 +19,8 @@ def add_parser(commands) -> None:
     mapping.add_argument("--address", default=None,
                          help="with --workers: an existing Ray cluster (e.g. ray://head:10001, or auto); default: a "
                               "local one")
+    mapping.add_argument("--crm", action="store_true",
+                         help="also build a confidence-rich map of each run ([pipeline] confidence_map = true)")
     mapping.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -28,6 +30,8 @@ def run(args) -> None:
 
     base = JobConfig.preset(args.preset)
     config = JobConfig.from_toml(args.config, base) if args.config else base
+    if args.crm:
+        config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))
     if args.workers is None and args.address is None:
         reports = report.map_runs(args.runs, args.out, config, progress=not args.quiet)
         print(report.summary_table(reports))

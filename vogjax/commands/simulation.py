@@ -19,6 +19,7 @@ def add_parser(commands) -> None:
     sim.add_argument("--scans", type=int, default=None, help="number of scans (default: enough for the laps)")
     sim.add_argument("--seed", type=int, default=0, help="seed of the navigation and range noise")
     sim.add_argument("--range-noise", type=float, default=0.02, help="sonar range noise, metres")
+    sim.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
 
 
 def run(args) -> None:
@@ -26,6 +27,6 @@ def run(args) -> None:
     from vogjax.sim import simulate_run
 
     summary = simulate_run(args.scene, args.out, laps=args.laps, seed=args.seed, num_scans=args.scans,
-                           sensor=SonarConfig(range_noise_m=args.range_noise))
+                           sensor=SonarConfig(range_noise_m=args.range_noise), overwrite=args.overwrite)
     print(f"wrote {summary.path}: {summary.scans} scans, {summary.duration_s:.0f} s of survey, "
           f"{summary.returns:.0%} of beams returned")

@@ -4,6 +4,7 @@
     vj.config.JobConfig.from_toml("settings.toml")
 """
 
+from vogjax.config.crm import CrmConfig
 from vogjax.config.maps import MapConfig, logodds
 from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.config.pipeline import PRESETS, JobConfig, PipelineConfig, ReportConfig, TimingConfig
@@ -12,6 +13,6 @@ from vogjax.config.sensing import NavNoise, SonarConfig
 from vogjax.config.sim import ControllerConfig
 from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig
 
-__all__ = ["Config", "ControllerConfig", "CorrelativeConfig", "IcpConfig", "JobConfig", "LoopClosureConfig",
+__all__ = ["Config", "ControllerConfig", "CorrelativeConfig", "CrmConfig", "IcpConfig", "JobConfig", "LoopClosureConfig",
            "MapConfig", "NavNoise", "PRESETS", "PipelineConfig", "PointCloudConfig", "ReportConfig", "Rule", "SonarConfig", "TimingConfig",
            "logodds"]

@@ -10,6 +10,11 @@ import numpy as np
 from vogjax.config.schema import Config, number, positive, probability
 
 
+# A beam crosses at most this many voxels: integration's scratch grows with it (4096 voxels at
+# 0.1 m: 410 m, beyond any sonar or most lidars).
+MAX_RANGE_VOXELS = 4096
+
+
 def logodds(probability: float) -> np.float32:
     """Log-odds of a probability, rounded to float32 the way OctoMap stores it (+-inf at 1 and 0:
     clamping at those probabilities clamps nothing)."""
@@ -56,6 +61,10 @@ class MapConfig(Config):
             raise ValueError("MapConfig.free_threshold must not exceed MapConfig.occupied_threshold")
         if not self.clamp_min < self.clamp_max:
             raise ValueError("MapConfig.clamp_min must lie below MapConfig.clamp_max")
+        if self.max_range > MAX_RANGE_VOXELS * self.voxel_size:
+            raise ValueError(f"MapConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
+                             f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
+                             f"integration allocates per beam for every block a beam may cross, got {self.max_range!r}")
 
     # Log-odds forms, float32 like the stored values.
     @property

@@ -30,7 +30,8 @@ class PipelineConfig(Config):
     accumulated since its base pose would exceed max_xy_variance_m2 / max_yaw_variance_rad2.
     eps_*: Algorithm 1's thresholds (GlobalMap.update_poses).
     batch_scans: scans read and integrated per step. standard_map: also build the
-    navigation-only map (the no-SLAM baseline)."""
+    navigation-only map (the no-SLAM baseline); confidence_map: and a confidence-rich map of
+    the same scans (`vj.ConfidenceMap`, about six times the standard map's integration time)."""
 
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
@@ -44,6 +45,7 @@ class PipelineConfig(Config):
     eps_cov: float | str = number("auto", low=0, options=("auto",))
     batch_scans: int = integer(200, low=1)
     standard_map: bool = flag(True)
+    confidence_map: bool = flag(False)
 
     @classmethod
     def paper(cls, **changes) -> "PipelineConfig":

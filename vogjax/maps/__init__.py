@@ -2,13 +2,15 @@
 
 - `VoxelMap`: OctoMap's update rule, batched integration, queries, files;
 - `Submap` and `VogMap`: submaps hung off pose-graph nodes, queried as their sum (virtual map);
-- `GlobalMap`: the one map planners query, kept equal to a full merge by undo/redo.
+- `GlobalMap`: the one map planners query, kept equal to a full merge by undo/redo;
+- `ConfidenceMap`: a distribution over the occupancy level per voxel (Agha-mohammadi).
 """
 
+from vogjax.maps.confidence import ConfidenceMap, ConfidenceRaycast
 from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN, BlockMap, RaycastResult
 from vogjax.maps.globalmap import GlobalMap, UpdateReport
 from vogjax.maps.submaps import Submap, VogMap
 from vogjax.maps.voxelmap import VoxelMap
 
-__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "BlockMap", "GlobalMap", "RaycastResult", "Submap", "UpdateReport",
+__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "BlockMap", "ConfidenceMap", "ConfidenceRaycast", "GlobalMap", "RaycastResult", "Submap", "UpdateReport",
            "VogMap", "VoxelMap"]

@@ -10,5 +10,6 @@ from vogjax.config import PipelineConfig
 from vogjax.pipeline.mapper import Mapper
 from vogjax.pipeline.result import Result, SubmapRecord
 from vogjax.pipeline.run import run
+from vogjax.pipeline.warmup import warm_up
 
-__all__ = ["Mapper", "PipelineConfig", "Result", "SubmapRecord", "run"]
+__all__ = ["Mapper", "PipelineConfig", "Result", "SubmapRecord", "run", "warm_up"]

@@ -33,10 +33,10 @@ from collections import defaultdict
 import numpy as np
 
 from vogjax import sensors
-from vogjax.config import PipelineConfig
+from vogjax.config import CrmConfig, PipelineConfig
 from vogjax.geometry import inverse, pose_deltas
 from vogjax.io.dataset import ScanBatch
-from vogjax.maps import GlobalMap, VogMap, VoxelMap
+from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
@@ -55,6 +55,7 @@ class Mapper:
         self.truth_vog = VogMap(config.map)  # the same submaps from true poses, when the run has them
         self.global_map = GlobalMap(config.map)
         self.standard_map = VoxelMap(config.map) if config.standard_map else None
+        self.confidence_map = self._confidence_map() if config.confidence_map else None
         self.graph: PoseGraph | None = None
         self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure)
         self.cutter = SubmapCutter(config)
@@ -85,6 +86,12 @@ class Mapper:
             self.standard_map.integrate_scans(origins, endpoints.reshape(-1, 3),
                                               np.repeat(np.arange(len(batch)), endpoints.shape[1]))
             self.timings["standard_map"].append(time.perf_counter() - start)
+        if self.confidence_map is not None:
+            start = time.perf_counter()
+            origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
+            self.confidence_map.integrate_scans(origins, endpoints.reshape(-1, 3),
+                                                np.repeat(np.arange(len(batch)), endpoints.shape[1]))
+            self.timings["confidence_map"].append(time.perf_counter() - start)
         # 2. cut into submaps, holding each one's scans until it is complete
         first = 0
         while first < len(batch):
@@ -174,13 +181,22 @@ class Mapper:
             self._probe()
         has_truth = all(t is not None for t in self._scan_truth)
         return Result(config=self.config, global_map=self.global_map, vog=self.vog,
-                      standard_map=self.standard_map, submaps=tuple(self.submaps),
+                      standard_map=self.standard_map, confidence_map=self.confidence_map,
+                      submaps=tuple(self.submaps),
                       optimized=self.vog.poses(), loop_closures=tuple(self.accepted),
                       rejected=tuple(self.rejected), timings=dict(self.timings), metadata=self.metadata,
                       scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
                       scan_navigation=_stack(self._scan_nav),
                       scan_truth=_stack(self._scan_truth) if has_truth else None,
                       truth_vog=self.truth_vog if has_truth else None, probes=tuple(self.probes))
+
+    def _confidence_map(self) -> ConfidenceMap:
+        """A confidence-rich map beside the standard one: the same voxels and reach; range noise
+        from the sensor, at least half a voxel (the sensor model's spread over a voxel)."""
+        cfg = self.config.map
+        noise = sensors.from_metadata(self.metadata).range_noise_m
+        return ConfidenceMap(CrmConfig(voxel_size=cfg.voxel_size, max_range=self.reach_m,
+                                       range_sigma_m=max(noise, cfg.voxel_size / 2)))
 
     def _integrate_submap(self, scans: ScanBatch) -> None:
         """The complete submap: its base at the middle scan, every scan integrated in that frame."""

@@ -9,7 +9,7 @@ import numpy as np
 
 from vogjax.config import PipelineConfig
 from vogjax.geometry import inverse, log_se3
-from vogjax.maps import GlobalMap, VogMap, VoxelMap
+from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.slam import LoopClosure, Rejection
 
 
@@ -30,7 +30,8 @@ class SubmapRecord:
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Result:
     """The maps (`global_map` kept online, `vog` the virtual map at the optimised poses,
-    `standard_map` from navigation poses or None), one `SubmapRecord` per submap, the optimised
+    `standard_map` from navigation poses or None, `confidence_map` the same scans in a
+    confidence-rich map or None), one `SubmapRecord` per submap, the optimised
     base poses (N,4,4), loop closures by verdict, per-step `timings` (step -> seconds per
     submap or per batch; "reapplied" and "closures" count per submap), every scan's time (S,),
     navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None) and the
@@ -40,6 +41,7 @@ class Result:
     global_map: GlobalMap
     vog: VogMap
     standard_map: VoxelMap | None
+    confidence_map: ConfidenceMap | None
     submaps: tuple[SubmapRecord, ...]
     optimized: np.ndarray
     loop_closures: tuple[LoopClosure, ...]

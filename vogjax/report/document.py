@@ -39,6 +39,7 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         "duration_s": duration_s, "submaps": result.vog.num_submaps,
         "auc": metrics.get("auc", empty),
         "auc_vs_reference": metrics.get("auc_vs_reference", {}),
+        "confidence_map": metrics.get("confidence_map", {}),
         "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),
         "agreement": metrics.get("agreement"),
         **result.metrics,

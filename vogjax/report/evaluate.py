@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.maps import OCCUPIED, UNKNOWN
+from vogjax.maps.confidence_cost import inconsistency
 from vogjax.report.metrics import misclassified, reconstruction_rmse, roc
 from vogjax.scenes import FREE
 from vogjax.scenes import OCCUPIED as TRUE_OCCUPIED
@@ -38,6 +39,18 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     if result.truth_merge is not None:
         maps["true_pose"] = result.truth_merge
     curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()}
+    confidence = {}
+    if result.confidence_map is not None:  # Agha-mohammadi's map beside the standard one
+        crm = result.confidence_map
+        mean, variance = crm.mean(centres), crm.variance(centres)
+        curves["confidence"] = roc(mean, occupied)
+        truth_level = occupied.astype(np.float64)
+        confidence = {"mean_error": float(np.mean(np.abs(mean - truth_level))),
+                      "inconsistency_per_voxel": inconsistency(mean, variance, truth_level) / len(centres)}
+        if "standard" in maps:
+            p = maps["standard"].probability(centres).astype(np.float64)
+            confidence["standard_mean_error"] = float(np.mean(np.abs(p - truth_level)))
+            confidence["standard_inconsistency_per_voxel"] = inconsistency(p, p * (1 - p), truth_level) / len(centres)
     # against the map this sensor gives from true poses (as the thesis registers against a
     # true-odometry reconstruction): the discretisation of the surface cancels out
     vs_reference = {}
@@ -59,6 +72,7 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     if "standard" in maps:
         rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
     metrics = {"auc": {name: c.auc for name, c in curves.items()}, "auc_vs_reference": vs_reference, "rmse_m": rmse,
+               "confidence_map": confidence,
                "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
                "evaluated_voxels": int(len(centres))}
     return metrics, curves

@@ -51,24 +51,28 @@ def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = Tru
 
 
 def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> dict:
+    warm_up_s = pipeline.warm_up(config.pipeline)  # compilation kept out of the timings
     with Dataset(path) as ds:
         start = time.perf_counter()
         result = pipeline.run(ds, config.pipeline, progress)
         pipeline_s = time.perf_counter() - start
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with AtomicPath(out_dir, folder=True) as folder:
-        return _evaluate_and_write(result, path, pipeline_s, config, folder, progress)
+        return _evaluate_and_write(result, path, pipeline_s, warm_up_s, config, folder, progress)
 
 
-def _evaluate_and_write(result, path: Path, pipeline_s: float, config: JobConfig, folder: Path,
-                        progress: bool) -> dict:
+def _evaluate_and_write(result, path: Path, pipeline_s: float, warm_up_s: float, config: JobConfig,
+                        folder: Path, progress: bool) -> dict:
     name = result.metadata.get("scene")
     scene = scenes.load(name) if name in scenes.NAMES else None
     metrics, roc = evaluate_run(result, scene, config.report.surface_points) if scene else ({}, {})
     curves = timing.curves(result)
     report = document.build(result, path, metrics, curves, pipeline_s, config)
+    report["timing_s"]["warm_up"] = warm_up_s
     # 1. the map and the trajectories
     result.global_map.save(folder / "global_map.vog")
+    if result.confidence_map is not None:
+        result.confidence_map.save(folder / "confidence_map.vog")
     files.save_trajectories(result, folder / "trajectories.csv")
     files.save_loop_closures(result, folder / "loop_closures.csv")
     files.save_tum_trajectories(result, folder)

@@ -13,6 +13,7 @@ from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise
 from vogjax.sensors import RangeSensor, as_sensor, ProfilingSonar
 from vogjax.geometry import wrap_angle, yaw_pitch_roll
+from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import DatasetWriter
 from vogjax.sim import navigation, ranging, vehicle
 
@@ -42,7 +43,7 @@ def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
 
 def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, num_scans: int | None = None,
                  sensor: RangeSensor | None = None, noise: NavNoise | None = None,
-                 progress: bool = True) -> RunSummary:
+                 progress: bool = True, overwrite: bool = False) -> RunSummary:
     """Simulate the default survey of a built-in scene and write it to `out` (HDF5).
 
     laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);

@@ -19,6 +19,8 @@ from vogjax.geometry import rigid_poses, wrap_angle
 from vogjax.slam import factors
 
 PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
+MIN_VARIANCE, MAX_VARIANCE = 1e-12, 1e12
+MAX_DURATION_S = 1e7  # four months between two base poses
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -63,8 +65,14 @@ def _covariance(name: str, covariance, size: int) -> np.ndarray:
         raise ValueError(f"{name} must be a finite ({size}, {size}) matrix")
     if np.abs(covariance - covariance.T).max() > 1e-9 * max(np.abs(covariance).max(), 1e-300):
         raise ValueError(f"{name} must be symmetric")
-    if np.linalg.eigvalsh(covariance).min() <= 0:
+    eigenvalues = np.linalg.eigvalsh(covariance)
+    if eigenvalues.min() <= 0:
         raise ValueError(f"{name} must be positive definite")
+    # GTSAM inverts it: sigmas below a micrometre (or microradian) or beyond a megametre
+    # overflow or lose every digit in the information matrix
+    if eigenvalues.min() < MIN_VARIANCE or eigenvalues.max() > MAX_VARIANCE:
+        raise ValueError(f"{name} must have variances in [{MIN_VARIANCE:g}, {MAX_VARIANCE:g}] (sigmas from a "
+                         f"micrometre to a megametre), got eigenvalues {eigenvalues.min():.3g} .. {eigenvalues.max():.3g}")
     return covariance
 
 
@@ -78,7 +86,14 @@ class PoseGraph:
     def __init__(self, noise: NavNoise | None = None, prior_pose=None, prior_sigmas=PRIOR_SIGMAS):
         self.noise = noise or NavNoise()
         self.prior_pose = rigid_poses("prior_pose", np.eye(4) if prior_pose is None else prior_pose)[0]
-        self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(prior_sigmas, float))
+        try:
+            sigmas = np.asarray(prior_sigmas, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("prior_sigmas must be six positive numbers (rad, rad, rad, m, m, m)") from None
+        if sigmas.shape != (6,) or not np.all(np.isfinite(sigmas)) or \
+                not np.all((sigmas**2 >= MIN_VARIANCE) & (sigmas**2 <= MAX_VARIANCE)):
+            raise ValueError(f"prior_sigmas must be six sigmas in [1e-6, 1e6] (rad, rad, rad, m, m, m), got {prior_sigmas!r}")
+        self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
         self._isam = gtsam.ISAM2(gtsam.ISAM2Params())
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
@@ -94,8 +109,9 @@ class PoseGraph:
         """A new node at the navigation pose; `duration_s`: time since the previous base pose."""
         T = rigid_poses("T_world_submap_nav", T_world_submap_nav)[0]
         i = self.num_submaps
-        if i > 0 and not (np.isfinite(duration_s) and duration_s > 0):
-            raise ValueError(f"duration_s must be positive, got {duration_s!r}")
+        if i > 0 and not (isinstance(duration_s, (int, float, np.integer, np.floating)) and not isinstance(duration_s, bool)
+                          and np.isfinite(duration_s) and 0 < duration_s <= MAX_DURATION_S):
+            raise ValueError(f"duration_s must be a positive number of seconds up to {MAX_DURATION_S:g}, got {duration_s!r}")
         if i == 0:
             self._pending.add(gtsam.PriorFactorPose3(0, _pose3(self.prior_pose), self._prior_noise))
             self.factors.append(("prior", (0,)))

@@ -18,6 +18,10 @@ from scipy import fft, ndimage
 from vogjax.config import CorrelativeConfig
 from vogjax.geometry import rigid_poses, rotation_from_ypr
 
+# Bounds on one search: its grid (float32, plus its FFT) and the yaw steps it correlates.
+MAX_GRID_CELLS = 5e7
+MAX_YAW_STEPS = 2001
+
 
 @dataclasses.dataclass(frozen=True)
 class CorrelativeMatch:
@@ -64,6 +68,12 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     lo[2] = min(target[:, 2].min(), moved[:, 2].min()) - res
     hi[2] = max(target[:, 2].max(), moved[:, 2].max()) + res
     shape = np.ceil((hi - lo) / res).astype(int) + 1
+    steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
+    cells = float(np.prod(shape.astype(np.float64)))
+    if cells > MAX_GRID_CELLS or 2 * steps + 1 > MAX_YAW_STEPS:
+        raise ValueError(f"radius_m ({radius_m:g} m) and yaw_radius_rad ({yaw_radius_rad:g}) ask for a search grid of "
+                         f"{cells:.3g} cells x {2 * steps + 1} yaw steps at {res:g} m; at most {MAX_GRID_CELLS:.0e} "
+                         f"cells and {MAX_YAW_STEPS} yaw steps (a coarser resolution_m or a smaller radius)")
     field = np.zeros(shape, np.float32)
     cells = np.floor((target - lo) / res).astype(int)
     field[cells[:, 0], cells[:, 1], cells[:, 2]] = 1.0
@@ -71,7 +81,6 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
         field = ndimage.gaussian_filter(field, (config.blur_voxels, config.blur_voxels, config.blur_voxels))
         field /= max(float(field.max()), 1e-12)
     field_spectrum = fft.rfft2(field, axes=(0, 1), workers=-1)
-    steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
     best = (-np.inf, None, None, None)
     for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
         rotation = rotation_from_ypr(yaw)
