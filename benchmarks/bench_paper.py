@@ -23,9 +23,8 @@ import numpy as np  # noqa: E402
 
 from vogjax import scenes  # noqa: E402
 from vogjax.config import PipelineConfig, SonarConfig  # noqa: E402
-from vogjax.geometry import confidence_volume, inverse, pose_deltas  # noqa: E402
+from vogjax.geometry import confidence_volume, pose_deltas  # noqa: E402
 from vogjax.io.dataset import Dataset  # noqa: E402
-from vogjax.maps import GlobalMap  # noqa: E402
 from vogjax.pipeline import Mapper, warm_up  # noqa: E402
 from vogjax.report import evaluate_run, misclassified, roc  # noqa: E402
 from vogjax.report.timing import curves as timing_curves  # noqa: E402

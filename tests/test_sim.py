@@ -179,3 +179,20 @@ def test_bad_simulation_arguments(tmp_path):
     with pytest.raises(ValueError, match="beams"):
         vj.SonarConfig(beams=0)
     assert not list(tmp_path.iterdir())
+
+
+def test_simulate_checks_its_output_before_any_work(tmp_path, capsys):
+    existing = tmp_path / "run.h5"
+    existing.write_bytes(b"an earlier run")
+    with pytest.raises(ValueError, match="exists"):
+        simulate_run("boxes", existing, num_scans=5, progress=False)
+    assert existing.read_bytes() == b"an earlier run"
+    with pytest.raises(ValueError, match="not a folder"):  # its folder is a file
+        simulate_run("boxes", existing / "run.h5", num_scans=5, progress=False)
+    (tmp_path / "folder.h5").mkdir()
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["simulate", "--scene", "boxes", "--scans", "5", "--out", str(tmp_path / "folder.h5")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "folder.h5" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.h5", "run.h5"]  # no debris

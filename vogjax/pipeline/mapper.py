@@ -75,7 +75,6 @@ class Mapper:
 
     def add(self, batch: ScanBatch) -> None:
         """Integrate a batch of consecutive scans; finish every submap it completes."""
-        cfg = self.config
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)

@@ -48,7 +48,12 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
 
     laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);
     num_scans: scans recorded (default: enough for the laps; the run ends 5 s after the last
-    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar."""
+    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar;
+    overwrite: replace an existing `out` (else that is an error, raised before any work)."""
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise ValueError(f"out {str(out)!r} exists (pass overwrite=True, or --overwrite, to replace it)")
+    check_writable(out)
     sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
     noise = noise or NavNoise()
     if laps is not None and not (isinstance(laps, int) and 1 <= laps <= MAX_LAPS):
