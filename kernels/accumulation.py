@@ -8,9 +8,8 @@ Work is enumerated per submap block: the global voxel centres inside the block's
 box are found column by column (x, y) with a z range from the box's slabs, widened by a voxel
 and then filtered exactly, so each global voxel is visited by the one block it pulls from. One
 launch covers the blocks of many submaps (a `SubmapView` each, rows = (submap, block)); sums are
-integer atomics, so their order never matters. On the CPU a launch is split across threads,
-each adding into sums of its own (CPU atomics are not atomic across threads), which are then
-folded into the map's: integer sums, so the same bits whatever the split.
+integer atomics, so their order never matters. On the CPU, where atomics are not atomic across
+threads, a launch is split across threads by rows that write to disjoint global blocks.
 
 Sums are fixed point: an integer number of 2^-24 log-odds steps, so removing a submap restores
 the exact bits a map without it would hold.
@@ -19,7 +18,7 @@ the exact bits a map without it would hold.
 import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, index_in_block, pack_block, unpack_block
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, index_in_block, observed, pack_block, unpack_block
 from .submap_view import SubmapView, pull_voxel, voxel_centre
 from .traversal import same_voxel
 
@@ -29,6 +28,7 @@ wp.set_module_options({"enable_backward": False})
 COLUMN_SPAN = 18
 # ... which meet at most 4 global blocks per axis.
 BLOCKS_PER_BOX = 64
+BLOCKS_PER_BOX_C = wp.constant(BLOCKS_PER_BOX)
 SPAN = wp.constant(COLUMN_SPAN)
 FAR = wp.constant(wp.float64(1.0e300))
 
@@ -149,8 +149,9 @@ def row_block(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp
 @wp.kernel
 def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
                         row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
-                        inv_resolution: wp.float64, global_keys: wp.array2d(dtype=wp.int64)):
-    """global_keys[row, :] = the global blocks a row's submap block contributes to (EMPTY elsewhere)."""
+                        inv_resolution: wp.float64, row_masks: wp.array(dtype=wp.uint64)):
+    """row_masks[row] |= the global blocks a row's submap block contributes to: bit `offset`
+    (box_offset) of each among the 4x4x4 blocks of the row's box."""
     b, u = wp.tid()
     row = first_row + b
     block = row_block(sources, row_source, row_slot, row)
@@ -176,20 +177,58 @@ def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.arra
             offset = box_offset(g, first_block)
             bit = wp.uint64(1) << wp.uint64(offset)
             if (written & bit) == wp.uint64(0):
-                if not wp.isnan(pulled_value(g, block, slot, rotation_t, translation, resolution,
+                if observed(pulled_value(g, block, slot, rotation_t, translation, resolution,
                                              inv_resolution, local_log_odds)):
-                    global_keys[row, offset] = pack_block(block_of(g))
                     written = written | bit
+    if written != wp.uint64(0):
+        wp.atomic_or(row_masks, row, written)
+
+
+@wp.kernel
+def row_spans(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
+              row_slot: wp.array(dtype=wp.int32), resolution: wp.float64, spans: wp.array(dtype=wp.vec4i)):
+    """The global blocks a row may write to, as x and y block ranges (lowest, highest)."""
+    row = wp.tid()
+    block = row_block(sources, row_source, row_slot, row)
+    if block[0] == -(1 << 30):
+        spans[row] = wp.vec4i(0, 0, 0, 0)
+        return
+    source = sources[row_source[row]]
+    start, last = block_box(block, source.rotation, source.translation, resolution)
+    spans[row] = wp.vec4i(start[0] >> 3, last[0] >> 3, start[1] >> 3, last[1] >> 3)
+
+
+@wp.kernel
+def list_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
+                     row_slot: wp.array(dtype=wp.int32), resolution: wp.float64,
+                     row_masks: wp.array(dtype=wp.uint64), row_start: wp.array(dtype=wp.int32),
+                     keys: wp.array(dtype=wp.int64)):
+    """The packed keys of every row's global blocks, row after row, by offset within a row: the
+    block of bit b of row r is keys[row_start[r] + (set bits of row_masks[r] below b)]."""
+    row = wp.tid()
+    mask = row_masks[row]
+    if mask == wp.uint64(0):
+        return
+    block = row_block(sources, row_source, row_slot, row)
+    source = sources[row_source[row]]
+    start, _last = block_box(block, source.rotation, source.translation, resolution)
+    first_block = block_of(start)
+    n = row_start[row]
+    for offset in range(BLOCKS_PER_BOX_C):
+        if (mask >> wp.uint64(offset)) & wp.uint64(1) != wp.uint64(0):
+            keys[n] = pack_block(first_block + wp.vec3i(offset >> 4, (offset >> 2) & 3, offset & 3))
+            n += 1
 
 
 @wp.kernel
 def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
                      row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
-                     inv_resolution: wp.float64, sign: int, global_slots: wp.array2d(dtype=wp.int32), part: int,
+                     inv_resolution: wp.float64, sign: int, row_masks: wp.array(dtype=wp.uint64),
+                     row_start: wp.array(dtype=wp.int32), global_slots: wp.array(dtype=wp.int32), part: int,
                      sums: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32),
                      pulls: wp.array(dtype=wp.int32)):
     """Add (sign +1) or remove (sign -1) a row's submap block values at every voxel pulling them.
-    global_slots[row, offset]: the map slot of each global block collect_pull_blocks listed."""
+    global_slots: the map slot of each key of list_pull_blocks."""
     b, u = wp.tid()
     row = first_row + b
     block = row_block(sources, row_source, row_slot, row)
@@ -204,6 +243,8 @@ def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(d
     if i > last[0]:
         return
     first_block = block_of(start)
+    mask = row_masks[row]
+    first_key = row_start[row]
     n = int(0)
     columns = columns_at(i, start[1], block, rotation_t, translation, resolution)
     base = columns.base
@@ -214,25 +255,16 @@ def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(d
             g = wp.vec3i(i, j, k)
             value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution,
                                  local_log_odds)
-            global_slot = global_slots[row, box_offset(g, first_block)]
-            if not wp.isnan(value) and global_slot >= 0:  # listed by collect_pull_blocks: >= 0
-                index = global_slot * BLOCK_VOXELS + index_in_block(g)
-                wp.atomic_add(sums, index, wp.int64(sign) * to_fixed_point(value))
-                wp.atomic_add(counts, index, sign)
-                n += 1
+            if observed(value):
+                below = mask & ((wp.uint64(1) << wp.uint64(box_offset(g, first_block))) - wp.uint64(1))
+                global_slot = global_slots[first_key + wp.bit_count(below)]
+                if global_slot >= 0:  # always: the block was listed, and created or found
+                    index = global_slot * BLOCK_VOXELS + index_in_block(g)
+                    wp.atomic_add(sums, index, wp.int64(sign) * to_fixed_point(value))
+                    wp.atomic_add(counts, index, sign)
+                    n += 1
     if n > 0:
         wp.atomic_add(pulls, part, n)
-
-
-@wp.kernel
-def add_part_sums(slots: wp.array(dtype=wp.int32), first: int, part_sums: wp.array(dtype=wp.int64),
-                  part_counts: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.int64),
-                  counts: wp.array(dtype=wp.int32)):
-    """Fold a CPU thread's own sums, over the voxels of `slots`, into the map's."""
-    tid = first + wp.tid()
-    index = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
-    sums[index] = sums[index] + part_sums[index]
-    counts[index] = counts[index] + part_counts[index]
 
 
 @wp.kernel

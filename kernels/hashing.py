@@ -23,6 +23,13 @@ FIELD_MASK = wp.constant(wp.int64((1 << 21) - 1))
 
 
 @wp.func
+def observed(value: wp.float32) -> bool:
+    """False for NaN, the value of a voxel nobody observed. (wp.isnan is a call into Warp's
+    runtime on the CPU, not inlined: in an inner loop it costs more than the loop's work.)"""
+    return value == value
+
+
+@wp.func
 def block_of(voxel: wp.vec3i) -> wp.vec3i:
     # Arithmetic shift floors negative keys too.
     return wp.vec3i(voxel[0] >> 3, voxel[1] >> 3, voxel[2] >> 3)
@@ -107,10 +114,15 @@ MAX_INSERT_PROBES = wp.constant(128)
 @wp.kernel
 def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
                 new_positions: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
-    """Insert packed keys; list where new ones landed (counters[0]); counters[1] += failures."""
+    """Insert packed keys; list where new ones landed (counters[0]); counters[1] += failures.
+    Once an insertion has failed (the table is too full), the rest fail at once: the host grows
+    the table and inserts again, rather than every key probing a full table."""
     tid = wp.tid()
     key = keys[tid]
     if key == EMPTY_KEY:
+        return
+    if counters[1] > 0:
+        wp.atomic_add(counters, 1, 1)
         return
     capacity = table_keys.shape[0]
     i = first_probe(key, capacity)

@@ -22,7 +22,7 @@ are plain read-modify-writes. `apply_marks` ORs the parts' marks of a block befo
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, pack_block
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, observed, pack_block
 from .traversal import VoxelWalk, norm_like_octomap, segment_walk_begin, voxel_key
 
 wp.set_module_options({"enable_backward": False})
@@ -259,7 +259,7 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
                 marked = True
                 i = block_slots[u] * BLOCK_VOXELS + voxel
                 value = log_odds[i]
-                if wp.isnan(value):
+                if not observed(value):
                     value = wp.float32(0.0)
             touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order
             hits = (m >> wp.uint64(1)) & PAIR_MASK  # occupied wins over free within a scan

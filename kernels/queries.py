@@ -5,7 +5,7 @@ Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer 
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, VOXEL_KEY_LIMIT_C, block_of, find_voxel_slot, grid_slot, index_in_block
+from .hashing import BLOCK_VOXELS, VOXEL_KEY_LIMIT_C, block_of, find_voxel_slot, grid_slot, index_in_block, observed
 from .integration import walk_of_beam
 from .traversal import (VoxelWalk, l1_distance, ray_box_span, ray_entry, ray_key_range, ray_voxel_at,
                         ray_voxels_until, ray_walk_begin, ray_walk_resume, segment_continues, voxel_key, walk_step)
@@ -22,7 +22,7 @@ def value_in_slot(slot: int, voxel: wp.vec3i, log_odds: wp.array(dtype=wp.float3
 
 @wp.func
 def known_or_zero(value: wp.float32) -> wp.float32:
-    return wp.where(wp.isnan(value), wp.float32(0.0), value)
+    return wp.where(observed(value), value, wp.float32(0.0))
 
 
 @wp.kernel

@@ -10,7 +10,7 @@ import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
 from .submap_view import SubmapView, submap_value, voxel_centre
-from .hashing import VOXEL_KEY_LIMIT_C
+from .hashing import VOXEL_KEY_LIMIT_C, observed
 from .traversal import (FAR, l1_distance, ray_entry, ray_key_range, ray_voxel_at, ray_voxels_until, ray_walk_begin,
                         ray_walk_resume, walk_step)
 
@@ -28,7 +28,7 @@ def sum_at_points(points: wp.array(dtype=wp.vec3d), first: int, views: wp.array(
     q, i = wp.tid()
     q = q + first
     value = submap_value(views[i], points[q], inv_resolution)
-    if not wp.isnan(value):
+    if observed(value):
         wp.atomic_add(sums, q, to_fixed_point(value))
         wp.atomic_add(counts, q, 1)
 
@@ -141,7 +141,7 @@ def cast_virtual_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
             span = spans[k]
             if t_exit >= span[0] and t_entry <= span[1]:
                 value = submap_value(views[candidates[k]], centre, inv_resolution)
-                if not wp.isnan(value):
+                if observed(value):
                     total += to_fixed_point(value)
                     count += 1
         value = from_fixed_point(total, count, clamp_min, clamp_max)

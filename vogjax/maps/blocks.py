@@ -162,8 +162,10 @@ class BlockStore:
                           outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
                 self.num_blocks += fresh
                 self.version += 1
-            if failed or 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
-                self._reserve_table(self.live_blocks + max(failed, self.live_blocks // 2))
+            if failed:  # insertions stopped at a full table: four times the room, then again
+                self._reserve_table(max(self.live_blocks + self.live_blocks // 2, 2 * self.table_capacity))
+            elif 2 * (self.live_blocks + self.tombstones) > self.table_capacity:
+                self._reserve_table(self.live_blocks + self.live_blocks // 2)
             if not failed:
                 return
 

@@ -25,7 +25,6 @@ from vogjax.config.schema import check_setting
 from vogjax.geometry import confidence_volume, pose_deltas
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation
-from vogjax.kernels.hashing import EMPTY_KEY
 from vogjax.maps.submaps import VogMap
 from vogjax.maps.views import submap_views
 
@@ -223,8 +222,8 @@ class GlobalMap(BlockMap):
     def _contribute(self, items: list, sign: int, touched: list) -> int:
         """Add (sign +1) or remove (-1) the pulled values of (submap, pose) items; returns the
         voxels updated. Each step is one launch over every item's blocks (rows); on the CPU it
-        is split across threads by rows, each thread adding into sums of its own that are then
-        folded into the map's (integer sums: the same bits however the rows are split)."""
+        is split across threads, the sums by rows whose global blocks no other thread touches
+        (integer sums: the same bits whatever the order)."""
         items = [(submap, pose) for submap, pose in items if submap.num_blocks]
         if not items:
             return 0
@@ -237,49 +236,55 @@ class GlobalMap(BlockMap):
             counts = np.array([submap.store.num_blocks for submap, _ in items])
             offsets = np.concatenate([[0], np.cumsum(counts)])
             rows = int(offsets[-1])
-            common = [submap_views([submap for submap, _ in items], np.stack([pose for _, pose in items]), device),
-                      wp.array(np.repeat(np.arange(len(items), dtype=np.int32), counts), dtype=wp.int32, device=device),
-                      wp.array((np.arange(rows) - np.repeat(offsets[:-1], counts)).astype(np.int32), dtype=wp.int32,
-                               device=device)]
+            views = submap_views([submap for submap, _ in items], np.stack([pose for _, pose in items]), device)
+            row_source = np.repeat(np.arange(len(items), dtype=np.int32), counts)
+            row_slot = (np.arange(rows) - np.repeat(offsets[:-1], counts)).astype(np.int32)
             scales = [np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
             parts = parallel.num_parts(device, rows * span)
+            phases = [[(0, rows)]]
+            if parts > 1:
+                # CPU threads have no atomics between them: order the rows so that each thread
+                # of a phase writes to global blocks no other one touches
+                spans = wp.empty(rows, dtype=wp.vec4i, device=device)
+                wp.launch(accumulation.row_spans, dim=rows,
+                          inputs=[views, *(wp.array(a, dtype=wp.int32, device=device) for a in (row_source, row_slot)),
+                                  scales[0]], outputs=[spans], device=device)
+                order, phases = parallel.disjoint_order(spans.numpy().reshape(rows, 2, 2), parts)
+                row_source, row_slot = row_source[order], row_slot[order]
+            common = [views, wp.array(row_source, dtype=wp.int32, device=device),
+                      wp.array(row_slot, dtype=wp.int32, device=device)]
 
             def launch_rows(launch):
                 parallel.split_launch(lambda part, lo, hi: launch(part, lo, hi - lo), rows, parts)
 
-            # 1. the global blocks each row's block pulls into (created when adding)
-            keys = wp.full((rows, accumulation.BLOCKS_PER_BOX), EMPTY_KEY, dtype=wp.int64, device=device)
+            # 1. the global blocks each row's block pulls into (created when adding): a mask of
+            # its 64 candidates per row, then their keys listed compactly
+            row_masks = wp.zeros(rows, dtype=wp.uint64, device=device)
             launch_rows(lambda part, first, n: wp.launch(
                 accumulation.collect_pull_blocks, dim=(n, span), inputs=[*common, first, *scales],
-                outputs=[keys], device=device))
-            keys = keys.flatten()
+                outputs=[row_masks], device=device))
+            per_row = np.bitwise_count(row_masks.numpy()).astype(np.int64)
+            row_start = np.zeros(rows, np.int32)
+            np.cumsum(per_row[:-1], out=row_start[1:])
+            d_row_start = wp.array(row_start, dtype=wp.int32, device=device)
+            keys = wp.empty(int(per_row.sum()), dtype=wp.int64, device=device)
+            wp.launch(accumulation.list_pull_blocks, dim=rows, inputs=[*common, scales[0], row_masks, d_row_start],
+                      outputs=[keys], device=device)
             store = self._store
             if sign > 0:
                 store.ensure_blocks(keys)
             slots = store.find(keys)
-            # 2. add or subtract the pulled values (threads past the first into sums of their own)
-            voxels = store.block_capacity * BLOCK_VOXELS
-            layers = [(store.layers["sum"], store.layers["count"])] + [
-                (wp.zeros(voxels, dtype=wp.int64, device=device), wp.zeros(voxels, dtype=wp.int32, device=device))
-                for _ in range(parts - 1)]
-            pulls = wp.zeros(parts, dtype=wp.int32, device=device)
-            row_slots = slots.reshape((rows, accumulation.BLOCKS_PER_BOX))
-            launch_rows(lambda part, first, n: wp.launch(
-                accumulation.accumulate_pulls, dim=(n, span),
-                inputs=[*common, first, *scales, sign, row_slots, part],
-                outputs=[*layers[part], pulls], device=device))
+            # 2. add or subtract the pulled values, phase after phase
+            pulls = wp.zeros(max(len(phase) for phase in phases), dtype=wp.int32, device=device)
+            for phase in phases:
+                parallel.launch_ranges(lambda part, lo, hi: wp.launch(
+                    accumulation.accumulate_pulls, dim=(hi - lo, span),
+                    inputs=[*common, lo, *scales, sign, row_masks, d_row_start, slots, part],
+                    outputs=[store.layers["sum"], store.layers["count"], pulls], device=device), phase)
             # 3. which global blocks were touched, flagged on the device (not millions of keys read back)
             flags = wp.zeros(store.block_capacity, dtype=wp.int32, device=device)
             wp.launch(accumulation.flag_slots, dim=slots.shape[0], inputs=[slots], outputs=[flags], device=device)
-            touched_slots = np.flatnonzero(flags.numpy()).astype(np.int32)
-            touched.append(touched_slots)
-            if parts > 1 and len(touched_slots):
-                d_touched = wp.array(touched_slots, dtype=wp.int32, device=device)
-                total = len(touched_slots) * BLOCK_VOXELS
-                parallel.split_launch(lambda part, lo, hi: [wp.launch(
-                    accumulation.add_part_sums, dim=hi - lo, inputs=[d_touched, lo, *own],
-                    outputs=[store.layers["sum"], store.layers["count"]], device=device) for own in layers[1:]],
-                    total, parallel.num_parts(device, total))
+            touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
         return int(pulls.numpy().sum())
 
     def _refresh(self, touched: list, release: bool = False) -> None:

@@ -41,3 +41,46 @@ def split_launch(launch, count: int, parts: int) -> None:
                for part, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))]
     for future in futures:
         future.result()
+
+
+def launch_ranges(launch, ranges: list) -> None:
+    """Call launch(part, lo, hi) for each (lo, hi) of `ranges`, concurrently."""
+    global _executor
+    ranges = [(part, int(lo), int(hi)) for part, (lo, hi) in enumerate(ranges) if hi > lo]
+    if len(ranges) <= 1:
+        for part, lo, hi in ranges:
+            launch(part, lo, hi)
+        return
+    if _executor is None:
+        _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
+    futures = [_executor.submit(launch, part, lo, hi) for part, lo, hi in ranges]
+    for future in futures:
+        future.result()
+
+
+def disjoint_order(spans: np.ndarray, parts: int) -> tuple[np.ndarray, list]:
+    """Order items writing to the blocks spans[i] (lo, hi per axis: (N,2,2) for x and y) so that
+    threads can write without atomics: returns (order (N,), phases), each phase a list of
+    ranges of `order` run concurrently, the phases one after another. Phase 1 splits the items
+    by x quantiles, keeping those that straddle a cut; phase 2 splits those by y; the few that
+    straddle both cuts form the last phase, run by one thread."""
+    index = np.arange(len(spans))
+    order, phases = [], []
+    for axis in range(2):
+        lo, hi = spans[index, axis, 0], spans[index, axis, 1]
+        cuts = np.quantile((lo + hi) / 2, np.arange(1, parts) / parts).astype(np.int64) if len(index) else []
+        edges = np.concatenate([[np.iinfo(np.int64).min], cuts, [np.iinfo(np.int64).max]])
+        part = np.searchsorted(edges, lo, side="right") - 1  # the part holding each item's lowest block
+        inside = hi < edges[part + 1]
+        ranges, start = [], len(np.concatenate(order)) if order else 0
+        for p in range(parts):
+            members = index[inside & (part == p)]
+            order.append(members)
+            ranges.append((start, start + len(members)))
+            start += len(members)
+        phases.append(ranges)
+        index = index[~inside]
+    order.append(index)
+    total = len(spans) - len(index)
+    phases.append([(total, len(spans))])
+    return np.concatenate(order).astype(np.int64), phases
