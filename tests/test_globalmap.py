@@ -305,3 +305,40 @@ def test_changed_submap_cannot_be_undone():
     vog.set_poses([0], random_pose(rng)[None])
     with pytest.raises(ValueError, match="changed since"):
         gmap.update_poses(vog)
+
+
+def test_update_with_another_vog_is_refused_and_changes_nothing():
+    rng = np.random.default_rng(9)
+    vog = random_vog(rng, 3, scans=1, beams=20)
+    gmap = vj.GlobalMap(vog.config)
+    gmap.merge(vog)
+    before = gmap.sums()
+    # the same ids and revisions, other submaps: undoing them would corrupt the counts
+    impostor = random_vog(np.random.default_rng(9), 3, scans=1, beams=20)
+    impostor.set_poses([0], random_pose(rng)[None])
+    with pytest.raises(ValueError, match="vog holds other submaps"):
+        gmap.update_poses(impostor, eps_rot=0.0, eps_trans=0.0)
+    assert all(np.array_equal(a, b) for a, b in zip(before, gmap.sums()))
+
+
+def test_eps_move_reapplies_only_submaps_whose_voxels_moved_that_far():
+    rng = np.random.default_rng(10)
+    vog = random_vog(rng, 4, scans=1, beams=20)
+    gmap = vj.GlobalMap(vog.config)
+    gmap.merge(vog)
+    poses = vog.poses()
+    poses[1, :3, 3] += [0.01, 0.0, 0.0]  # every voxel 1 cm: below 5 cm
+    lo, hi = vog.submap(2).bounds()
+    lever = np.abs(np.stack([lo, hi])).max()
+    turn = 0.08 / lever  # a small turn, but its farthest corner travels more than 5 cm
+    poses[2, :3, :3] = poses[2, :3, :3] @ np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0],
+                                                     [0, 0, 1.0]])
+    vog.set_poses(np.arange(4), poses)
+    report = gmap.update_poses(vog, eps_rot=0.0, eps_trans=0.0, eps_move_m=0.05)
+    assert report.moved == (2,) and report.reapplied == (2,)
+    # what the map holds is a merge at the poses last applied
+    expected = vj.GlobalMap(vog.config)
+    applied = vog.poses()
+    applied[1] = gmap.applied_pose(1)
+    expected.merge(vog.view(poses=applied))
+    assert as_dict(expected) == as_dict(gmap)

@@ -18,6 +18,7 @@ SETTINGS = """
 eps_rot = 0
 eps_trans = 0
 eps_cov = 0
+eps_move_m = 0
 
 [timing]
 rays = 2000
@@ -45,7 +46,8 @@ def mapped(boxes_run, tmp_path_factory):
 
 
 def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
-    config = JobConfig.from_document({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0}}).pipeline
+    config = JobConfig.from_document({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0,
+                                                   "eps_move_m": 0}}).pipeline
     result = pipeline.run(boxes_run, config, progress=False)
     assert len(result.loop_closures) >= 3
     # closures agree with the true relative poses, in the directions they constrain, far

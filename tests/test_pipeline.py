@@ -17,7 +17,7 @@ def boxes_run(tmp_path_factory):
 
 
 def test_pipeline_keeps_the_online_map_equal_to_a_full_merge(boxes_run, tmp_path):
-    config = pipeline.PipelineConfig(scans_per_submap=60, batch_scans=90, eps_rot=0.0, eps_trans=0.0,
+    config = pipeline.PipelineConfig(scans_per_submap=60, batch_scans=90, eps_rot=0.0, eps_trans=0.0, eps_move_m=0.0,
                                      eps_cov=0.0)
     result = pipeline.run(boxes_run, config, progress=False)
     # 400 scans cut every 60: six full submaps and a last one of 40, across batch boundaries
@@ -46,7 +46,7 @@ def test_run_evaluation_against_ground_truth(boxes_run):
     from vogjax import report as vj_eval
     from vogjax import scenes
 
-    config = pipeline.PipelineConfig(scans_per_submap=80, eps_rot=0.0, eps_trans=0.0, eps_cov=0.0)
+    config = pipeline.PipelineConfig(scans_per_submap=80, eps_rot=0.0, eps_trans=0.0, eps_cov=0.0, eps_move_m=0.0)
     result = pipeline.run(boxes_run, config, progress=False)
     metrics, curves = vj_eval.evaluate_run(result, scenes.load("boxes"), surface_points=20_000)
     auc = metrics["auc"]

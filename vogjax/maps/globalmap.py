@@ -35,12 +35,14 @@ _SYMMETRY_TOLERANCE = 1e-9
 
 @dataclasses.dataclass(frozen=True)
 class Applied:
-    """A submap as the global map holds it: the pose it was added at, its revision then, and
-    the 95% x-y-yaw confidence volume of that pose (inf: not known)."""
+    """A submap as the global map holds it: the pose it was added at, its revision then, the
+    95% x-y-yaw confidence volume of that pose (inf: not known) and the submap's uid (None when
+    loaded from a file: the submap objects are not)."""
 
     pose: np.ndarray
     revision: int
     volume: float = math.inf
+    uid: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,12 +122,15 @@ class GlobalMap(BlockMap):
         return pulls
 
     def update_poses(self, vog: VogMap, marginals=None, eps_rot: float = PipelineConfig.eps_rot,
-                     eps_trans: float = PipelineConfig.eps_trans, eps_cov=PipelineConfig.eps_cov) -> UpdateReport:
+                     eps_trans: float = PipelineConfig.eps_trans, eps_cov=PipelineConfig.eps_cov,
+                     eps_move_m: float = 0.0) -> UpdateReport:
         """Sodhi et al. Algorithm 1: re-apply the submaps that moved and are uncertain.
 
         S1: applied submaps whose current pose differs from the applied one by a rotation angle
         above `eps_rot` (rad) or a translation above `eps_trans` (m), both from the SE(3) log of
-        the relative pose. S2: submaps whose marginal covariance (`marginals`, (N,6,6) for all
+        the relative pose, and (when `eps_move_m` > 0) that move some corner of their observed
+        box by more than `eps_move_m` (m): what moves a submap's voxels, rotation included,
+        measured where they are. S2: submaps whose marginal covariance (`marginals`, (N,6,6) for all
         N submaps, GTSAM tangent order: rotation then translation) has a 95% x-y-yaw confidence
         ellipsoid larger than `eps_cov` now, or had when the submap was last applied; "auto"
         takes the largest current volume among submaps 0-9, as the paper does. A row of NaN
@@ -138,8 +143,14 @@ class GlobalMap(BlockMap):
         """
         start = time.perf_counter()
         self._check_vog(vog)
-        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_cov", eps_cov)):
+        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_cov", eps_cov),
+                            ("eps_move_m", eps_move_m)):
             check_setting(PipelineConfig, name, value)
+        others = [i for i in self.applied_ids if i >= vog.num_submaps or
+                  self._applied[i].uid not in (None, vog.submap(i).uid)]
+        if others:
+            raise ValueError(f"vog holds other submaps than this global map was built from (ids {others[:5]}): "
+                             "update a global map with the VogMap it was merged or added from")
         volumes = self._volumes(vog, marginals)
         threshold = self._threshold(volumes, eps_cov)
         uncertain = None if volumes is None else set()
@@ -155,7 +166,11 @@ class GlobalMap(BlockMap):
             angle, shift = pose_deltas(old, new)
             # An unchanged pose never moves, whatever round-off the SE(3) log leaves.
             changed = np.any(old != new, axis=(1, 2))
-            moved = tuple(ids[changed & ((angle > eps_rot) | (shift > eps_trans))].tolist())
+            displaced = np.ones(len(ids), bool)
+            if eps_move_m > 0:
+                displaced = np.array([_largest_displacement(vog.submap(i).bounds(), T_old, T_new) > eps_move_m
+                                      for i, T_old, T_new in zip(ids.tolist(), old, new)])
+            moved = tuple(ids[changed & displaced & ((angle > eps_rot) | (shift > eps_trans))].tolist())
         reapply = [i for i in moved if uncertain is None or i in uncertain]
         stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
         if stale:
@@ -215,7 +230,7 @@ class GlobalMap(BlockMap):
         ids = [int(i) for i in ids]
         pulls = self._contribute([(vog.submap(i), vog.pose(i)) for i in ids], +1, touched)
         for i in ids:
-            self._applied[i] = Applied(vog.pose(i), vog.submap(i).revision,
+            self._applied[i] = Applied(vog.pose(i), vog.submap(i).revision, uid=vog.submap(i).uid, volume=
                                        math.inf if volumes is None else float(volumes[i]))
         return pulls
 
@@ -350,3 +365,13 @@ class GlobalMap(BlockMap):
         gmap._applied = applied
         gmap._refresh([np.arange(keys.shape[0], dtype=np.int32)])
         return gmap
+
+
+def _largest_displacement(box, T_old: np.ndarray, T_new: np.ndarray) -> float:
+    """How far the farthest corner of a submap-frame box moves from T_old to T_new (0 for None)."""
+    if box is None:
+        return 0.0
+    lo, hi = box
+    corners = np.array([[(lo, hi)[m & 1][0], (lo, hi)[(m >> 1) & 1][1], (lo, hi)[(m >> 2) & 1][2]] for m in range(8)])
+    moved = corners @ (T_new[:3, :3] - T_old[:3, :3]).T + (T_new[:3, 3] - T_old[:3, 3])
+    return float(np.linalg.norm(moved, axis=1).max())

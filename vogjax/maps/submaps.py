@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 
 import numpy as np
@@ -21,11 +22,17 @@ from vogjax.validation import float_array
 from vogjax.maps.voxelmap import VoxelMap
 
 
+_SUBMAP_UIDS = itertools.count(1)
+
+
 class Submap(VoxelMap):
-    """A VoxelMap in the frame of its base pose (the pose lives in the VogMap that owns it)."""
+    """A VoxelMap in the frame of its base pose (the pose lives in the VogMap that owns it).
+    `uid` tells this submap from any other, so a global map can refuse to undo a contribution
+    of a different submap that happens to sit at the same id."""
 
     def __init__(self, config: MapConfig, device):
         super().__init__(config, device)
+        self.uid = next(_SUBMAP_UIDS)
         self._derived_revision = -1
         self._bounds = None
         self._occupied = None

@@ -155,7 +155,8 @@ class Mapper:
         self.timings["virtual_update"].append(time.perf_counter() - start)
         # e. undo/redo what moved in the global map, then add the new submap
         start = time.perf_counter()
-        report = self.global_map.update_poses(self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov)
+        report = self.global_map.update_poses(self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov,
+                                              cfg.eps_move_m)
         self.timings["undo_redo"].append(time.perf_counter() - start)
         self.timings["reapplied"].append(len(report.reapplied))
         start = time.perf_counter()
