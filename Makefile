@@ -26,6 +26,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_slam.py --out benchmarks/results
 	$(PY) benchmarks/bench_sim.py --out benchmarks/results
 	$(PY) benchmarks/bench_pipeline.py --out benchmarks/results
+	$(PY) benchmarks/bench_crm.py --out benchmarks/results
+	$(PY) benchmarks/bench_explore.py --out benchmarks/results
+	$(PY) benchmarks/bench_paper.py --out benchmarks/results
 
 clean:
 	rm -rf $(VENV) .cache demo_out
