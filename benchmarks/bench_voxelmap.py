@@ -1,13 +1,18 @@
 """VoxelMap vs OctoMap, side by side in one run: integration rays/s, the 100k-ray planner
 workload, and memory for the same map. Writes JSON (and prints a table).
 
-    python benchmarks/bench_voxelmap.py --out benchmarks/results [--scans 2000]
+Each repeat times vogjax and then OctoMap on the same input, back to back, so a machine shared
+with other work slows both alike; the JSON keeps every run, the median of each side, and the
+median and range of the per-repeat ratios ("speedup" is the median ratio).
+
+    python benchmarks/bench_voxelmap.py --out benchmarks/results [--scans 2000] [--repeats 5]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from pathlib import Path
@@ -17,18 +22,16 @@ import octomap
 import warp as wp
 
 import vogjax as vj
-from vogjax.scenes import analytic
+from vogjax.maps import parallel
 from vogjax.report.timing import planner_rays
+from vogjax.scenes import analytic
 
 
-def best_of(repeats, fn):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        wp.synchronize()
-        times.append(time.perf_counter() - start)
-    return min(times)
+def seconds(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    wp.synchronize()
+    return time.perf_counter() - start
 
 
 def octomap_tree(cfg):
@@ -41,19 +44,43 @@ def octomap_tree(cfg):
     return tree
 
 
+def paired(repeats: int, ours, theirs) -> dict:
+    """Time ours() then theirs() `repeats` times; medians, every run and the ratios."""
+    runs = [(seconds(ours), seconds(theirs)) for _ in range(repeats)]
+    a, b = np.array(runs).T
+    ratio = b / a
+    return {"vogjax_s": float(np.median(a)), "octomap_s": float(np.median(b)),
+            "vogjax_runs_s": a.tolist(), "octomap_runs_s": b.tolist(),
+            "speedup": float(np.median(ratio)), "speedup_range": [float(ratio.min()), float(ratio.max())]}
+
+
+def one_thread(fn):
+    """fn with every launch on one CPU thread (the per-core figure)."""
+    def run():
+        old = parallel.MIN_ITEMS_PER_PART
+        parallel.MIN_ITEMS_PER_PART = 1 << 62
+        try:
+            fn()
+        finally:
+            parallel.MIN_ITEMS_PER_PART = old
+    return run
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     parser.add_argument("--scans", type=int, default=2000)
     parser.add_argument("--rays", type=int, default=100_000)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--device", default=None)
     args = parser.parse_args()
     cfg = vj.MapConfig()
     sweep = analytic.orbit_sweep(analytic.pier(), args.scans)
     num_rays = sweep.points.shape[0]
-    per_scan = np.split(sweep.points, args.scans)
+    per_scan = np.split(sweep.points.astype(np.float64), args.scans)
+    origins64 = sweep.origins.astype(np.float64)
 
-    # Integration: a fresh map per repeat; the first run also compiles kernels, so warm up.
+    # The first run also compiles kernels: warm up.
     warm = vj.VoxelMap(cfg, device=args.device)
     warm.integrate_scans(sweep.origins[:70], sweep.points[: 70 * 96], sweep.scan_index[: 70 * 96])
     warm.raycast(np.zeros((10, 3)), np.ones((10, 3)), 1.0)
@@ -63,43 +90,37 @@ def main():
         holder["map"] = vj.VoxelMap(cfg, device=args.device)
         holder["map"].integrate_scans(sweep.origins, sweep.points, sweep.scan_index)
 
-    t_vog = best_of(3, vog_integrate)
-    vmap = holder["map"]
-
     def octo_integrate():
         holder["tree"] = octomap_tree(cfg)
-        for origin, points in zip(sweep.origins.astype(np.float64), per_scan):
-            holder["tree"].insertPointCloud(points.astype(np.float64), origin, maxrange=cfg.max_range)
+        for origin, points in zip(origins64, per_scan):
+            holder["tree"].insertPointCloud(points, origin, maxrange=cfg.max_range)
 
-    t_octo = best_of(1, octo_integrate)
-    tree = holder["tree"]
+    integration = {"rays": num_rays, **paired(args.repeats, vog_integrate, octo_integrate)}
+    integration["vogjax_rays_per_s"] = num_rays / integration["vogjax_s"]
+    integration["octomap_rays_per_s"] = num_rays / integration["octomap_s"]
+    vmap, tree = holder["map"], holder["tree"]
 
     # Planner workload: rays of at most 4 m from observed free space.
     origins, directions = planner_rays(vmap, args.rays, np.random.default_rng(0))
     length = 4.0
-    t_vog_rays = best_of(5, lambda: vmap.raycast(origins, directions, length))
     end = np.zeros(3)
 
     def octo_rays():
         for o, d in zip(origins, directions):
             tree.castRay(o, d, end, ignoreUnknownCells=True, maxRange=length)
 
-    t_octo_rays = best_of(1, octo_rays)
+    raycast = {"rays": args.rays, "max_range_m": length,
+               **paired(args.repeats, lambda: vmap.raycast(origins, directions, length), octo_rays)}
+    if not vmap.device.is_cuda:  # per core: both sides on one thread
+        integration["one_thread"] = paired(max(1, args.repeats // 2), one_thread(vog_integrate), octo_integrate)
+        raycast["one_thread"] = paired(max(1, args.repeats // 2),
+                                       one_thread(lambda: vmap.raycast(origins, directions, length)), octo_rays)
 
     result = {
         "machine": {"device": str(vmap.device), "cpu": platform.processor() or platform.machine(),
-                    "python": platform.python_version(), "warp": wp.__version__},
+                    "cores": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__},
         "scene": "analytic pier, orbit sweep", "scans": args.scans, "beams_per_scan": 96,
-        "integration": {
-            "rays": num_rays,
-            "vogjax_s": t_vog, "octomap_s": t_octo,
-            "vogjax_rays_per_s": num_rays / t_vog, "octomap_rays_per_s": num_rays / t_octo,
-            "speedup": t_octo / t_vog,
-        },
-        "raycast": {
-            "rays": args.rays, "max_range_m": length,
-            "vogjax_s": t_vog_rays, "octomap_s": t_octo_rays, "speedup": t_octo_rays / t_vog_rays,
-        },
+        "repeats": args.repeats, "integration": integration, "raycast": raycast,
         "memory": {
             "vogjax_bytes": vmap.memory_bytes(), "octomap_bytes": int(tree.memoryUsage()),
             "ratio": vmap.memory_bytes() / tree.memoryUsage(),
@@ -110,11 +131,15 @@ def main():
     path = args.out / f"voxelmap_{vmap.device.alias.split(':')[0]}.json"
     path.write_text(json.dumps(result, indent=2))
     i, r, m = result["integration"], result["raycast"], result["memory"]
-    print(f"device {vmap.device}: {args.scans} scans x 96 beams")
+    print(f"device {vmap.device}: {args.scans} scans x 96 beams, {args.repeats} paired repeats (medians)")
     print(f"integration  vogjax {i['vogjax_rays_per_s']:12,.0f} rays/s  octomap "
-          f"{i['octomap_rays_per_s']:10,.0f} rays/s  speedup {i['speedup']:.1f}x")
+          f"{i['octomap_rays_per_s']:10,.0f} rays/s  speedup {i['speedup']:.1f}x "
+          f"({i['speedup_range'][0]:.1f}-{i['speedup_range'][1]:.1f})")
     print(f"100k rays    vogjax {r['vogjax_s'] * 1e3:9.1f} ms       octomap {r['octomap_s'] * 1e3:9.1f} ms"
-          f"       speedup {r['speedup']:.1f}x")
+          f"       speedup {r['speedup']:.1f}x ({r['speedup_range'][0]:.1f}-{r['speedup_range'][1]:.1f})")
+    for name, part in (("integration", i), ("100k rays", r)):
+        if "one_thread" in part:
+            print(f"{name:12s} one thread: speedup {part['one_thread']['speedup']:.1f}x")
     print(f"memory       vogjax {m['vogjax_bytes'] / 2**20:9.1f} MiB      octomap "
           f"{m['octomap_bytes'] / 2**20:9.1f} MiB      ratio {m['ratio']:.2f}")
     print(f"wrote {path}")

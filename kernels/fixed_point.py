@@ -7,6 +7,7 @@ wp.set_module_options({"enable_backward": False})
 
 FIXED_POINT_SCALE = 16777216.0  # 2^24 steps per unit of log-odds
 SCALE = wp.constant(wp.float64(FIXED_POINT_SCALE))
+INV_SCALE = wp.constant(wp.float64(1.0 / FIXED_POINT_SCALE))  # a power of two: exact, as dividing
 
 
 @wp.func
@@ -20,4 +21,4 @@ def from_fixed_point(total: wp.int64, count: wp.int32, clamp_min: wp.float32,
     """Clamped log-odds of a fixed-point sum; NaN where no submap contributes."""
     if count == 0:
         return wp.nan
-    return wp.clamp(wp.float32(wp.float64(total) / SCALE), clamp_min, clamp_max)
+    return wp.clamp(wp.float32(wp.float64(total) * INV_SCALE), clamp_min, clamp_max)

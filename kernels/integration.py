@@ -23,7 +23,7 @@ are plain read-modify-writes. `apply_marks` ORs the parts' marks of a block befo
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, observed, pack_block
-from .traversal import VoxelWalk, norm_like_octomap, segment_walk_begin, voxel_key
+from .traversal import VoxelWalk, norm_like_octomap, segment_continues, segment_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -221,6 +221,25 @@ def mark_beams(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3
                        block_keys, counters)
         if b >= 0:
             wp.atomic_or(marks, b + index_in_block(v), free_bit << wp.uint64(1))
+
+
+@wp.kernel
+def count_beam_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
+                      ray_scan: wp.array(dtype=wp.int32), max_range: wp.float64, resolution: wp.float64,
+                      inv_resolution: wp.float64, counts: wp.array(dtype=wp.int32)):
+    """Voxels each beam marks (the free ones it crosses, plus its endpoint if a hit), by the
+    plain walk of traversal.py: the work integration cannot avoid, for profiles."""
+    tid = wp.tid()
+    origin = origins[ray_scan[tid]]
+    end = beam_end(origin, points[tid], max_range)
+    w = walk_of_beam(origin, end, resolution, inv_resolution)
+    voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
+    active, steps = bool(w.active), int(0)
+    while active:
+        voxel, t_max, _t, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+        active = segment_continues(voxel, t_max, w, steps)
+    counts[tid] = steps + wp.where(end[3] > 0.0, 1, 0)
 
 
 @wp.func
