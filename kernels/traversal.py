@@ -134,6 +134,18 @@ def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64
 
 
 @wp.func
+def unit_direction(d: wp.vec3d) -> wp.vec3d:
+    """A nonzero finite direction scaled to unit length; one whose squared length would
+    overflow or underflow is first divided by its largest |component| (blockmap.unit_directions
+    on the host)."""
+    squared = wp.dot(d, d)
+    if not (squared > wp.float64(1e-300) and squared < wp.float64(1e300)):
+        d = d / wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2]))
+        squared = wp.dot(d, d)
+    return d / wp.sqrt(squared)
+
+
+@wp.func
 def ray_walk_resume(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
                     resolution: wp.float64) -> wp.vec3d:
     """t_max of a ray walk (from `origin` along unit `direction`) that has reached `voxel`:

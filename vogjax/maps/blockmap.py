@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 
 import numpy as np
 import warp as wp
@@ -50,6 +51,9 @@ class BlockMap:
         self.device = devices.resolve(device)
         self._store = BlockStore(self.device, {"log_odds": (wp.float32, math.nan), **layers})
         self._lock = ReadWriteLock()
+        self._values_revision = 0  # counts writes of log-odds, for the ray-cast state cache
+        self._states = None  # (key, uint32 array): voxel states packed for ray casts
+        self._states_lock = threading.Lock()
 
     @property
     def store(self) -> BlockStore:
@@ -59,6 +63,25 @@ class BlockMap:
     def reading(self):
         """Context manager holding the map's read lock: no update runs while it is held."""
         return self._lock.reading()
+
+    def _values_changed(self) -> None:
+        """Call (under the write lock) after writing log-odds: the ray-cast states go stale."""
+        self._values_revision += 1
+
+    def _ray_states(self) -> wp.array:
+        """The voxel states packed two bits each (queries.classify_blocks), rebuilt after the
+        log-odds changed; call under the read lock (concurrent readers share one build)."""
+        store = self._store
+        key = (self._values_revision, store.version, store.block_capacity)
+        with self._states_lock:
+            if self._states is None or self._states[0] != key or self._states[1][0] is not store:
+                states = wp.zeros(store.block_capacity * 32, dtype=wp.uint32, device=self.device)
+                if store.num_blocks:
+                    wp.launch(queries.classify_blocks, dim=store.num_blocks * 32,
+                              inputs=[store.layers["log_odds"], self.config.log_occupied, self.config.log_free],
+                              outputs=[states], device=self.device)
+                self._states = (key, (store, states))
+            return self._states[1][1]
 
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
         check_extent(self.config, origins=origins, points=points)
@@ -98,19 +121,20 @@ class BlockMap:
         """First OCCUPIED voxel along each ray, within `max_range` (float or (R,)) metres.
 
         origins (R,3) inside the key range, directions (R,3) (any nonzero length; normalised
-        here). Any range is accepted: stretches of unknown space outside the map's box are
-        counted without walking them, so a ray costs at most about the voxels of the map it
-        crosses; voxels outside the key range (`hashing.VOXEL_KEY_LIMIT` voxels from the
-        origin per axis) are not counted.
+        in the kernel, as `unit_directions` does). Any range is accepted: stretches of unknown
+        space outside the map's box are counted without walking them, so a ray costs at most
+        about the voxels of the map it crosses; voxels outside the key range
+        (`hashing.VOXEL_KEY_LIMIT` voxels from the origin per axis) are not counted.
         """
-        origins, directions, ranges = ray_arguments(origins, directions, max_range)
+        origins, directions, ranges = ray_arguments(origins, directions, max_range, normalise=False)
         check_extent(self.config, origins=origins)
         count = origins.shape[0]
         device = self.device
+        # on the CPU, Warp arrays over the NumPy ones (no copies)
         d = {
-            "origins": wp.array(origins, dtype=wp.vec3d, device=device),
-            "directions": wp.array(directions, dtype=wp.vec3d, device=device),
-            "ranges": wp.array(ranges, dtype=wp.float64, device=device),
+            "origins": wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
+            "directions": wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
+            "ranges": wp.array(ranges, dtype=wp.float64, device=device, copy=False),
         }
         out = {
             "hit": wp.empty(count, dtype=wp.bool, device=device),
@@ -124,14 +148,14 @@ class BlockMap:
             wp.launch(queries.cast_rays, dim=hi - lo,
                       inputs=[d["origins"][lo:hi], d["directions"][lo:hi], d["ranges"][lo:hi],
                               np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
-                              store.table_keys, store.table_slots, *grid_inputs, store.layers["log_odds"],
-                              cfg.log_occupied, cfg.log_free],
+                              store.table_keys, store.table_slots, *grid_inputs, states],
                       outputs=[a[lo:hi] for a in out.values()], device=device)
 
         with self._lock.reading():
             store = self._store
             grid = store.grid()
             grid_inputs = [wp.vec3i(*grid.lo), wp.vec3i(*grid.hi), wp.vec3i(*grid.dims), grid.cells]
+            states = self._ray_states()
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
@@ -169,8 +193,10 @@ class BlockMap:
         return self._store.num_blocks
 
     def memory_bytes(self) -> int:
-        """Bytes of device memory the map holds (table, block pool, per-block scratch)."""
-        return self._store.memory_bytes()
+        """Bytes of device memory the map holds (table, block pool, per-block scratch, the
+        ray-cast caches)."""
+        states = self._states
+        return self._store.memory_bytes() + (states[1][1].capacity if states else 0)
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(voxel_size={self.config.voxel_size}, blocks={self.num_blocks}, "
@@ -190,21 +216,33 @@ def classify(values: np.ndarray, config: MapConfig) -> np.ndarray:
     return state
 
 
-def ray_arguments(origins, directions, max_range):
-    """Validated rays: origins (R,3), unit directions (R,3), ranges (R,), all float64."""
+def ray_arguments(origins, directions, max_range, normalise: bool = True):
+    """Validated rays: origins (R,3), unit directions (R,3) (nonzero ones as given, when not
+    `normalise`), ranges (R,), all float64."""
     origins = float_array("origins", origins, (-1, 3), np.float64)
     directions = float_array("directions", directions, (origins.shape[0], 3), np.float64)
-    return origins, unit_directions(directions), positive_range("max_range", max_range, origins.shape[0])
+    ranges = positive_range("max_range", max_range, origins.shape[0])
+    if not normalise:
+        if not np.all(directions.any(axis=1)):
+            raise ValueError("directions must be nonzero")
+        return origins, directions, ranges
+    return origins, unit_directions(directions), ranges
 
 
 def unit_directions(directions: np.ndarray) -> np.ndarray:
-    """(R,3) finite float64 directions scaled to unit length. Each row is first divided by its
-    largest |component|, so neither huge (1e200) nor tiny (1e-320) ones overflow or vanish."""
-    scale = np.abs(directions).max(axis=1, initial=0.0)
-    if np.any(scale == 0):
-        raise ValueError("directions must be nonzero")
-    scaled = directions / scale[:, None]
-    return scaled / np.linalg.norm(scaled, axis=1)[:, None]
+    """(R,3) finite float64 directions scaled to unit length. Rows whose squared length would
+    overflow or underflow (components near 1e+-154 and beyond) are first divided by their
+    largest |component|, so neither huge (1e200) nor tiny (1e-320) directions break."""
+    squared = np.einsum("ij,ij->i", directions, directions)
+    extreme = ~((squared > 1e-300) & (squared < 1e300))
+    if np.any(extreme):
+        directions = directions.copy()
+        scale = np.abs(directions[extreme]).max(axis=1)
+        if np.any(scale == 0):
+            raise ValueError("directions must be nonzero")
+        directions[extreme] /= scale[:, None]
+        squared[extreme] = np.einsum("ij,ij->i", directions[extreme], directions[extreme])
+    return directions / np.sqrt(squared)[:, None]
 
 
 def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:

@@ -304,6 +304,7 @@ class GlobalMap(BlockMap):
 
     def _refresh(self, touched: list, release: bool = False) -> None:
         """Recompute the queryable log-odds of touched blocks; release those no submap uses."""
+        self._values_changed()
         if not touched:
             return
         slots = np.unique(np.concatenate(touched)).astype(np.int32)

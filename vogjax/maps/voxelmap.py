@@ -61,6 +61,7 @@ class VoxelMap(BlockMap):
         with self._lock.writing():
             integrator.integrate(self._store, self.config, batch, per_pass, MARK_BUDGET_BYTES)
             self.revision += 1
+            self._values_changed()
 
     # ---------------------------------------------------------------- files
     def save(self, path) -> None:
