@@ -3,7 +3,8 @@ planner workload and full merges, with the machine's limits beside them. Writes 
 
 Kernel times: on the CPU a launch runs on the calling thread, so the thread's CPU time around
 it is the kernel's (summed over the threads of a split launch); on CUDA, Warp's activity timing
-(wp.timing_begin) gives the device times. Host steps: wall time of the named functions (they
+(wp.timing_begin) gives the device times. Totals: wall time, and the process's CPU time (the
+work done, whatever else shares the machine). Host steps: wall time of the named functions (they
 include the kernels they launch). Limits: the copy bandwidth of this machine's memory, and the
 plain voxel walk alone (count_beam_voxels), the work integration cannot avoid.
 
@@ -98,23 +99,25 @@ class Profile:
 
     def run(self, fn, repeats: int, hooks: list) -> dict:
         """Median wall, and per-kernel/host-step medians over `repeats` runs of fn."""
-        walls, kernels, host = [], [], []
+        walls, cpus, kernels, host = [], [], [], []
         for _ in range(repeats):
             self.kernels.clear()
             self.host.clear()
             with self.active(hooks):
                 if self.device.is_cuda:
                     self.wp.timing_begin(cuda_filter=self.wp.TIMING_KERNEL)
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), time.process_time()
                 fn()
                 self.wp.synchronize()
                 walls.append(time.perf_counter() - start)
+                cpus.append(time.process_time() - cpu)
                 if self.device.is_cuda:
                     for r in self.wp.timing_end():  # elapsed in milliseconds
                         self.kernels[r.name][1] += r.elapsed / 1e3
             kernels.append({k: tuple(v) for k, v in self.kernels.items()})
             host.append({k: tuple(v) for k, v in self.host.items()})
-        return {"wall_s": float(np.median(walls)), "wall_runs_s": walls,
+        # process CPU time (all threads): the work done, whatever else shares the machine
+        return {"wall_s": float(np.median(walls)), "wall_runs_s": walls, "cpu_s": float(np.median(cpus)),
                 "kernels": _medians(kernels, "cpu_s" if not self.device.is_cuda else "device_s"),
                 "host": _medians(host, "wall_s")}
 
@@ -336,7 +339,7 @@ def _print(result: dict) -> None:
     for section in ("integration", "raycast", "merge_pier", "merge_dense"):
         s = result[section]
         one = f", one thread {s['one_thread_wall_s'] * 1e3:.1f} ms" if "one_thread_wall_s" in s else ""
-        print(f"{section}: {s['wall_s'] * 1e3:.1f} ms{one}")
+        print(f"{section}: {s['wall_s'] * 1e3:.1f} ms (CPU {s['cpu_s'] * 1e3:.1f} ms){one}")
         for name, k in sorted(s["kernels"].items(), key=lambda kv: -list(kv[1].values())[1]):
             print(f"    kernel {name:28s} {list(k.values())[1] * 1e3:9.2f} ms  ({k['calls']} launches)")
         for name, h in sorted(s["host"].items(), key=lambda kv: -kv[1]["wall_s"]):
