@@ -142,13 +142,19 @@ def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def assign_slots(new_positions: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32),
+def assign_slots(new_positions: wp.array(dtype=wp.int32), reused: wp.array(dtype=wp.int32), fresh_from: int,
                  table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
                  slot_keys: wp.array(dtype=wp.int64)):
+    """Give the tid-th new key slot reused[tid], or past them fresh_from + (tid - len(reused))."""
     tid = wp.tid()
     position = new_positions[tid]
-    table_slots[position] = slots[tid]
-    slot_keys[slots[tid]] = table_keys[position]
+    slot = int(0)
+    if tid < reused.shape[0]:
+        slot = reused[tid]
+    else:
+        slot = fresh_from + tid - reused.shape[0]
+    table_slots[position] = slot
+    slot_keys[slot] = table_keys[position]
 
 
 @wp.kernel

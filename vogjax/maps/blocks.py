@@ -93,6 +93,8 @@ class BlockStore:
         self.layers = {name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
                        for name, (dtype, fill) in self.layer_specs.items()}
         self.version = 0  # counts changes to the set of blocks (BlockGrid follows it)
+        self._new_positions = wp.empty(0, dtype=wp.int32, device=device)  # ensure_blocks' scratch
+        self._counters = wp.zeros(2, dtype=wp.int32, device=device)
         self._grid: tuple | None = None  # (version, BlockGrid)
         self._grid_lock = threading.Lock()
 
@@ -144,21 +146,21 @@ class BlockStore:
         """Allocate a block for every packed key in `keys` (EMPTY_KEY entries are skipped)."""
         if keys.shape[0] == 0:
             return
-        new_positions = wp.empty(keys.shape[0], dtype=wp.int32, device=self.device)
+        if self._new_positions.shape[0] < keys.shape[0]:
+            self._new_positions = wp.empty(keys.shape[0] + keys.shape[0] // 2, dtype=wp.int32, device=self.device)
         while True:
-            counters = wp.zeros(2, dtype=wp.int32, device=self.device)
+            self._counters.zero_()
             wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
-                      outputs=[self.table_keys, new_positions, counters], device=self.device)
-            new_blocks, failed = (int(c) for c in counters.numpy())
+                      outputs=[self.table_keys, self._new_positions, self._counters], device=self.device)
+            new_blocks, failed = (int(c) for c in self._counters.numpy())
             if new_blocks:
                 reused = self.free_slots[:new_blocks]
                 del self.free_slots[:new_blocks]
                 fresh = new_blocks - len(reused)
                 self._reserve_blocks(self.num_blocks + fresh)
-                slots = np.concatenate([np.asarray(reused, np.int32),
-                                        np.arange(self.num_blocks, self.num_blocks + fresh, dtype=np.int32)])
                 wp.launch(hashing.assign_slots, dim=new_blocks,
-                          inputs=[new_positions, wp.array(slots, dtype=wp.int32, device=self.device)],
+                          inputs=[self._new_positions, wp.array(np.asarray(reused, np.int32), dtype=wp.int32,
+                                                                device=self.device), self.num_blocks],
                           outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
                 self.num_blocks += fresh
                 self.version += 1
