@@ -296,7 +296,8 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned():
         assert np.linalg.norm(states[n, :3] - states[p, :3]) <= SMALL.edge_length_m + 1e-9
         assert abs((states[n, 3] - states[p, 3] + np.pi) % (2 * np.pi) - np.pi) <= SMALL.max_heading_change_rad + 1e-9
         assert np.all((states[n, :3] >= lo - 1e-9) & (states[n, :3] <= hi + 1e-9))
-        assert brute_clear(vmap, states[p, :3], states[n, :3], SMALL.box_m, states[0, :3], SMALL.clearance_m)
+        assert brute_clear(vmap, states[p, :3], states[n, :3], np.array(SMALL.box_m) + 2 * SMALL.margin_m,
+                           states[0, :3], SMALL.clearance_m)
     gains = node_gains(vmap, states, parents, SMALL, SONAR)
     assert plan.gain_m3 == pytest.approx(gains.max(), rel=1e-9) and plan.gain_m3 > 0
     best, branch = int(np.argmax(gains)), []

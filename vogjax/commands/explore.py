@@ -18,8 +18,9 @@ def add_parser(commands) -> None:
                               "map, or the navigation-only standard map (the papers' baseline)")
     explore.add_argument("--seed", type=int, default=0, help="seed of the planner, navigation and range noise")
     explore.add_argument("--config", type=Path, default=None,
-                         help="TOML settings: [planner] (PlannerConfig) and the tables of `vogjax map` "
-                              "([map], [nav_noise], [loop_closure], [pipeline])")
+                         help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
+                              "the scene) and the tables of `vogjax map` ([map], [nav_noise], [loop_closure], "
+                              "[pipeline])")
     explore.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -28,7 +29,7 @@ def run(args) -> None:
 
     if args.seed < 0:
         raise ValueError(f"--seed must be non-negative, got {args.seed}")
-    planner_config, pipeline_config = load_settings(args.config, args.seed)
+    planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed)
     summary = explore(args.scene, args.out, args.submaps, map_kind=args.map, seed=args.seed,
                       planner_config=planner_config, pipeline_config=pipeline_config, progress=not args.quiet)
     print(f"wrote {summary.path} and {summary.csv_path}: {summary.scans} scans, {summary.submaps} submaps, "

@@ -27,6 +27,9 @@ class PlannerConfig(Config):
     gain_unknown, gain_free, gain_occupied: what one voxel of each state adds to a view's gain,
         in voxel volumes (nbvplanner counts unknown voxels only).
     box_x_m, box_y_m, box_z_m: the collision box (extents, world-aligned), swept along every edge.
+    margin_m: the box is grown by this much on every side for collision checks: the vehicle's
+        estimate drifts from older parts of the map between loop closures (the papers use none;
+        without it the tank's walls get grazed).
     clearance_m: unknown voxels within this distance of the vehicle's position count as free
         (besides those in its own box): a profiling sonar at the bow never sees the water just
         around the vehicle, so without it no edge could leave the vehicle's box. Occupied voxels
@@ -56,6 +59,7 @@ class PlannerConfig(Config):
     box_x_m: float = positive(1.0)
     box_y_m: float = positive(1.0)
     box_z_m: float = positive(0.5)
+    margin_m: float = non_negative(0.25)
     clearance_m: float = non_negative(1.5)
     max_heading_change_rad: float = number(1.5707963267948966, low=0.0, high=3.141592653589793)
     vertical_fraction: float = number(0.25, low=0.0, high=1.0)

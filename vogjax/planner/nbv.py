@@ -149,7 +149,8 @@ class NbvPlanner:
         if chain:
             ok &= (scale >= 1.0) & (np.abs(wrap_angle(ends[:, 3] - starts[:, 3])) <= cfg.max_heading_change_rad + 1e-9)
             ok = np.cumprod(ok).astype(bool)
-        ok[ok] = clear_edges(source, starts[ok, :3], ends[ok, :3], np.array(cfg.box_m), root[:3], cfg.clearance_m)
+        box = np.array(cfg.box_m) + 2 * cfg.margin_m
+        ok[ok] = clear_edges(source, starts[ok, :3], ends[ok, :3], box, root[:3], cfg.clearance_m)
         if chain:
             ok = np.cumprod(ok).astype(bool)
         if not ok.any():

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -64,11 +65,24 @@ class ExploreSummary:
     stopped: str
 
 
-def load_settings(path, seed: int) -> tuple[PlannerConfig, PipelineConfig]:
-    """The planner's and the pipeline's settings from a TOML file (None: the defaults), the
-    planner seeded with `seed`."""
+# The papers' planner settings per scene: Ho's tank (thesis Table 4.4: 1 m edges, the sensor's
+# 5.63 m range, no discount); every other scene takes Table 4.2's (PlannerConfig's defaults).
+SCENE_PLANNERS = {"tank": {"edge_length_m": 1.0, "gain_range_m": 5.63, "discount": 0.0}}
+
+
+def scene_planner(scene_name: str, seed: int = 0) -> PlannerConfig:
+    """The planner settings the papers used for a scene, seeded with `seed`."""
+    return PlannerConfig(seed=seed, **SCENE_PLANNERS.get(scene_name, {}))
+
+
+def load_settings(path, scene_name: str, seed: int) -> tuple[PlannerConfig, PipelineConfig]:
+    """The planner's and the pipeline's settings: the scene's (`scene_planner`) and
+    PipelineConfig's defaults, under what a TOML file (None: none) sets; the planner seeded
+    with `seed`."""
     config = ExploreConfig.from_toml(path) if path is not None else ExploreConfig()
-    return config.planner.replace(seed=seed), config.pipeline
+    given = tomllib.loads(Path(path).read_text()).get("planner", {}) if path is not None else {}
+    changes = {key: getattr(config.planner, key) for key in given}  # checked by from_toml
+    return scene_planner(scene_name, seed).replace(**{**changes, "seed": seed}), config.pipeline
 
 
 def csv_path_of(out) -> Path:
@@ -83,8 +97,8 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
             progress: bool = True, on_iteration=None) -> ExploreSummary:
     """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
     write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
-    planning iteration to RUN.explore.csv. sensor: default the papers' profiling sonar with
-    2 cm range noise. on_iteration(mapper, plan, row): called after each plan (benchmarks)."""
+    planning iteration to RUN.explore.csv. planner_config: default the papers' settings for the
+    scene (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise. on_iteration(mapper, plan, row): called after each plan (benchmarks)."""
     if map_kind not in MAPS:
         raise ValueError(f"map_kind must be one of {', '.join(MAPS)}, got {map_kind!r}")
     if not (isinstance(submaps, int) and submaps >= 1):
@@ -92,7 +106,7 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
     if max_scans is not None and not (isinstance(max_scans, int) and max_scans >= 1):
         raise ValueError(f"max_scans must be a positive integer, got {max_scans!r}")
     scene = scenes.load(scene_name)
-    planner_config = planner_config or PlannerConfig(seed=seed)
+    planner_config = planner_config or scene_planner(scene_name, seed)
     pipeline_config = pipeline_config or PipelineConfig()
     if map_kind == "standard" and not pipeline_config.standard_map:
         raise ValueError("map_kind 'standard' needs pipeline_config.standard_map")

@@ -1,0 +1,262 @@
+"""Closed-loop exploration with the next-best-view planner, reproducing the papers' figures.
+
+1. rmse (Ho thesis Table 4.3, IROS Table II): the propeller explored with Table 4.2's
+   parameters (0.095 m voxels, 100 scans per submap, 2 m edges, lambda 0.5, N_max 15, planner
+   range 5 m, 1 x 1 x 0.5 m box), `--runs` runs per arm: the planner on the standard
+   (navigation-only) map, and on the online global map with loop closures. Reconstruction RMSE
+   after registration of the standard map, of the virtual map at navigation poses (without loop
+   closures) and of the online global map (with loop closures). Every run is also checked for
+   collisions of the true path's box with the true mesh.
+2. timing (Sodhi Fig. 8 with the planner's own queries): in the first global-map run, every
+   `--timing-every` submaps, the same planning iteration on the online global map and on the
+   virtual map side by side (a fresh planner, same seed), and the median time per gain ray of a
+   fixed batch of views on each.
+3. volume: explored volume (known voxels of the scene's region, from the true poses) against
+   mission time and path length for every exploration run, and for the scripted survey of
+   `vogjax simulate` over as many scans.
+
+    python benchmarks/bench_explore.py --out benchmarks/results [--submaps 156] [--runs 2]
+
+Writes explore_<device>.json and explore_rmse.png, explore_timing.png, explore_volume.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import vogjax as vj  # noqa: E402
+from vogjax import planner, scenes  # noqa: E402
+from vogjax.config.planner import PlannerConfig  # noqa: E402
+from vogjax.io.dataset import Dataset  # noqa: E402
+from vogjax.report.metrics import reconstruction_rmse  # noqa: E402
+from vogjax.sim import simulate_run  # noqa: E402
+from vogjax.sim.explore import explore  # noqa: E402
+
+BOX_M = np.array(PlannerConfig().box_m)
+
+
+def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
+    """Ho's propeller parameters (thesis Table 4.2): the planner's defaults, OctoMap resolution
+    0.095 m, 100 scans per submap."""
+    return PlannerConfig(seed=seed), vj.PipelineConfig(map=vj.MapConfig(voxel_size=0.095), scans_per_submap=100)
+
+
+def occupied_centres(block_map) -> np.ndarray:
+    centres, values = block_map.voxels()
+    return centres[values >= block_map.config.log_occupied]
+
+
+def box_hits(scene, truth: np.ndarray) -> int:
+    """Scans whose collision box (around the true pose) holds a point of the true surface."""
+    surface = scene.surface_points(400_000)
+    lo, hi = surface.min(axis=0) - BOX_M, surface.max(axis=0) + BOX_M
+    near = truth[np.all((truth[:, :3, 3] >= lo) & (truth[:, :3, 3] <= hi), axis=1)]
+    return int(sum(np.any(np.all(np.abs(surface - p[:3, 3]) <= BOX_M / 2, axis=1)) for p in near))
+
+
+def explored_curve(path: Path, scene, voxel_size: float, every: int = 100) -> dict:
+    """Known volume of the scene's region and of its exploration box in a map built from the
+    run's true poses, every `every` scans, with mission time and true path length."""
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=voxel_size))
+    region, bounds = scene.region(), scene.bounds
+    out = {"scans": [], "time_s": [], "path_m": [], "region_m3": [], "bounds_m3": []}
+    path_m, last = 0.0, None
+    with Dataset(path) as run:
+        for batch in run.batches(every):
+            origins, ends = batch.world(batch.pose_truth, vmap.config.max_range)
+            vmap.integrate_scans(origins, ends.reshape(-1, 3), np.repeat(np.arange(len(batch)), ends.shape[1]))
+            positions = batch.pose_truth[:, :3, 3] if last is None else np.vstack([last, batch.pose_truth[:, :3, 3]])
+            path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+            last = batch.pose_truth[-1, :3, 3]
+            centres, values = vmap.voxels()
+            known = (values <= vmap.config.log_free) | (values >= vmap.config.log_occupied)
+            for key, (lo, hi) in (("region_m3", region), ("bounds_m3", bounds)):
+                inside = np.all((centres >= lo) & (centres <= hi), axis=1)
+                out[key].append(float(np.count_nonzero(known & inside) * voxel_size**3))
+            out["scans"].append(batch.first + len(batch))
+            out["time_s"].append(float(batch.time_s[-1]))
+            out["path_m"].append(path_m)
+    return out
+
+
+class TimingProbe:
+    """on_iteration hook: every `every` submaps, plan on the global and the virtual map side by
+    side and time a fixed batch of gain views on each."""
+
+    def __init__(self, config: PlannerConfig, scene, sensor, every: int, views: int = 200):
+        self.config, self.scene, self.sensor, self.every, self.views = config, scene, sensor, every, views
+        self.rows = []
+        self.next = every
+
+    def __call__(self, mapper, plan, row) -> None:
+        if mapper.num_submaps < self.next:
+            return
+        self.next = mapper.num_submaps + self.every
+        filling = list(range(mapper.num_submaps, len(mapper.submaps)))
+        maps = {"global": planner.Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map,
+                "virtual": mapper.vog}
+        T = vj.geometry.pose_from_xyz_yaw(*plan.tree_states[0])  # where this iteration planned from
+        rng = np.random.default_rng(mapper.num_submaps)
+        lo, hi = self.scene.bounds[0] + BOX_M / 2, self.scene.bounds[1] - BOX_M / 2
+        views = np.array([vj.geometry.pose_from_xyz_yaw(*rng.uniform(lo, hi), rng.uniform(-np.pi, np.pi))
+                          for _ in range(self.views)]) @ self.sensor.T_vehicle_sensor
+        entry = {"submaps": mapper.num_submaps}
+        for name, m in maps.items():
+            nbv = planner.NbvPlanner(self.config, bounds=self.scene.bounds, sensor=self.sensor,
+                                     region=self.scene.region())
+            result = nbv.plan(m, T)
+            per_ray = []
+            for _ in range(3):
+                start = time.perf_counter()
+                gain = planner.view_gain(m, views, self.sensor, max_range_m=self.config.gain_range_m,
+                                         region=self.scene.region())
+                per_ray.append((time.perf_counter() - start) / gain.rays)
+            entry[name] = {"plan_s": result.seconds, "plan_rays": result.rays, "nodes": result.nodes,
+                           "ray_s": float(np.median(per_ray)), "gain_rays": gain.rays}
+        print(f"  timing at {entry['submaps']} submaps: plan {entry['global']['plan_s']:.2f} s global, "
+              f"{entry['virtual']['plan_s']:.2f} s virtual", flush=True)
+        self.rows.append(entry)
+
+
+def run_arm(arm: str, seed: int, submaps: int, folder: Path, scene_name: str, probe=None) -> dict:
+    config, pipeline = table_4_2(seed)
+    kept = {}
+
+    def hook(mapper, plan, row):
+        kept["mapper"] = mapper
+        if probe is not None:
+            probe(mapper, plan, row)
+
+    out = folder / f"{arm}_{seed}.h5"
+    start = time.perf_counter()
+    summary = explore(scene_name, out, submaps, map_kind=arm, seed=seed, planner_config=config,
+                      pipeline_config=pipeline, on_iteration=hook)
+    seconds = time.perf_counter() - start
+    result = kept["mapper"].result()
+    scene = scenes.load(scene_name)
+    surface = scene.surface_points(50_000)
+    rmse = {"standard": reconstruction_rmse(occupied_centres(result.standard_map), surface),
+            "without_loop_closures": reconstruction_rmse(occupied_centres(result.navigation_merge), surface),
+            "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
+    with Dataset(out) as run:
+        truth = run.read(0, len(run)).pose_truth
+    rows = list(np.genfromtxt(summary.csv_path, delimiter=",", names=True))
+    plan_s = np.array([r["plan_s"] for r in rows])
+    return {"arm": arm, "seed": seed, "scans": summary.scans, "submaps": summary.submaps,
+            "iterations": summary.iterations, "stopped": summary.stopped, "path_m": summary.path_m,
+            "duration_s": summary.duration_s, "wall_s": seconds, "rmse_m": rmse,
+            "trajectory_rmse_m": result.metrics["trajectory_rmse_m"],
+            "loop_closures": result.metrics["loop_closures"]["accepted"],
+            "collisions": box_hits(scene, truth), "plan_s_median": float(np.median(plan_s)),
+            "plan_s_p90": float(np.percentile(plan_s, 90)),
+            "rays_median": float(np.median([r["rays"] for r in rows])),
+            "csv": {name: [float(r[name]) for r in rows] for name in ("time_s", "submaps", "explored_m3", "path_m",
+                                                                       "plan_s", "rays")},
+            "explored": explored_curve(out, scene, 0.095)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    parser.add_argument("--scene", default="propeller")
+    parser.add_argument("--submaps", type=int, default=156, help="submaps per run (Table 4.2: 156)")
+    parser.add_argument("--runs", type=int, default=2, help="runs per arm")
+    parser.add_argument("--arms", default="standard,global", help="maps the planner plans on")
+    parser.add_argument("--timing-every", type=int, default=15, help="submaps between timing probes (0: none)")
+    parser.add_argument("--keep", type=Path, default=None, help="keep the run files in this folder")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    scene = scenes.load(args.scene)
+    device = vj.devices.resolve(None)
+    sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.02))
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = args.keep or Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        runs, probe = [], None
+        for seed in range(args.runs):
+            for arm in args.arms.split(","):
+                probe_here = None
+                if arm == "global" and seed == 0 and args.timing_every > 0:
+                    probe = probe_here = TimingProbe(table_4_2(0)[0], scene, sonar, args.timing_every)
+                print(f"exploring: {arm} map, seed {seed}", flush=True)
+                runs.append(run_arm(arm, seed, args.submaps, folder, args.scene, probe_here))
+                r = runs[-1]
+                print(f"  {r['scans']} scans, {r['submaps']} submaps, stopped: {r['stopped']}, RMSE {r['rmse_m']}, "
+                      f"collisions {r['collisions']}, plan {r['plan_s_median']:.2f} s median", flush=True)
+        scans = max(r["scans"] for r in runs)
+        survey_path = folder / "survey.h5"
+        simulate_run(args.scene, survey_path, num_scans=scans, sensor=sonar, progress=False)
+        survey = explored_curve(survey_path, scene, 0.095)
+    report = {"machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": str(device)},
+              "scene": args.scene, "submaps": args.submaps, "runs": runs, "survey": survey,
+              "timing": probe.rows if probe else [], "planner": PlannerConfig().to_dict()}
+    path = args.out / f"explore_{'cuda' if device.is_cuda else 'cpu'}.json"
+    path.write_text(json.dumps(report, indent=1))
+    plot(report, args.out)
+    print(f"wrote {path}")
+
+
+def plot(report: dict, folder: Path) -> None:
+    runs = report["runs"]
+    # 1. RMSE per run: the standard arm's standard map, the global arm's maps without and with LC
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    labels, values = [], []
+    for r in runs:
+        keys = ("standard",) if r["arm"] == "standard" else ("without_loop_closures", "with_loop_closures")
+        for key in keys:
+            labels.append(f"{r['arm']} map run {r['seed'] + 1}\n{key.replace('_', ' ')}")
+            values.append(r["rmse_m"][key])
+    ax.bar(range(len(values)), values, color=["tab:red" if "standard\n" in lab or lab.endswith("standard")
+                                               else "tab:orange" if "without" in lab else "tab:blue" for lab in labels])
+    ax.set_xticks(range(len(values)), labels, fontsize=6)
+    ax.set_ylabel("reconstruction RMSE [m]")
+    ax.set_title("Propeller explored by the planner (Ho Table 4.3)")
+    fig.tight_layout()
+    fig.savefig(folder / "explore_rmse.png", dpi=120)
+    plt.close(fig)
+    # 2. timing against submaps, global vs virtual (Sodhi Fig. 8, with the planner's queries)
+    if report["timing"]:
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
+        n = [t["submaps"] for t in report["timing"]]
+        for name, colour in (("global", "tab:blue"), ("virtual", "tab:orange")):
+            axes[0].plot(n, [t[name]["ray_s"] * 1e6 for t in report["timing"]], "o-", color=colour, label=name)
+            axes[1].plot(n, [t[name]["plan_s"] for t in report["timing"]], "o-", color=colour, label=name)
+        axes[0].set_ylabel("median time per gain ray [us]")
+        axes[1].set_ylabel("planning iteration [s]")
+        for ax in axes:
+            ax.set_xlabel("submaps")
+            ax.legend()
+        fig.suptitle(f"Planner queries, global vs virtual map ({report['machine']['device']})")
+        fig.tight_layout()
+        fig.savefig(folder / "explore_timing.png", dpi=120)
+        plt.close(fig)
+    # 3. explored volume against time and against path length
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
+    for r in runs:
+        e = r["explored"]
+        style = "-" if r["arm"] == "global" else "--"
+        for ax, x in zip(axes, ("time_s", "path_m")):
+            ax.plot(e[x], e["region_m3"], style, label=f"planner, {r['arm']} map, seed {r['seed']}")
+    for ax, x in zip(axes, ("time_s", "path_m")):
+        ax.plot(report["survey"][x], report["survey"]["region_m3"], "k-", lw=2, label="scripted survey")
+        ax.set_xlabel({"time_s": "mission time [s]", "path_m": "path length [m]"}[x])
+        ax.set_ylabel("explored volume of the scene [m^3]")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(folder / "explore_volume.png", dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
