@@ -78,19 +78,14 @@ class Mapper:
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
-        # 1. the standard map: every scan at its navigation pose, in one batch
-        if self.standard_map is not None:
-            start = time.perf_counter()
-            origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
-            self.standard_map.integrate_scans(origins, endpoints.reshape(-1, 3),
-                                              np.repeat(np.arange(len(batch)), endpoints.shape[1]))
-            self.timings["standard_map"].append(time.perf_counter() - start)
-        if self.confidence_map is not None:
-            start = time.perf_counter()
-            origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
-            self.confidence_map.integrate_scans(origins, endpoints.reshape(-1, 3),
-                                                np.repeat(np.arange(len(batch)), endpoints.shape[1]))
-            self.timings["confidence_map"].append(time.perf_counter() - start)
+        # 1. the maps without SLAM: every scan at its navigation pose, in one batch
+        origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
+        for name, whole_map in (("standard_map", self.standard_map), ("confidence_map", self.confidence_map)):
+            if whole_map is not None:
+                start = time.perf_counter()
+                whole_map.integrate_scans(origins, endpoints.reshape(-1, 3),
+                                          np.repeat(np.arange(len(batch)), endpoints.shape[1]))
+                self.timings[name].append(time.perf_counter() - start)
         # 2. cut into submaps, holding each one's scans until it is complete
         first = 0
         while first < len(batch):

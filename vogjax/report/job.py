@@ -24,15 +24,7 @@ from vogjax.report.evaluate import evaluate_run
 
 def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True) -> list[dict]:
     """Map each run in `paths` into out/<run name>/; returns the reports."""
-    config = config or JobConfig()
-    if not isinstance(config, JobConfig):
-        raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
-    paths = [Path(p) for p in paths]
-    if not paths:
-        raise ValueError("paths must name at least one run file")
-    names = [p.stem for p in paths]
-    if len(set(names)) != len(names):
-        raise ValueError(f"paths: two runs would share an output folder: {names}")
+    config, paths = check_job(paths, config)
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
             if len(ds) == 0:
@@ -42,6 +34,21 @@ def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True)
     for path in paths:
         check_writable(out / path.stem, folder=True)
     return [_map_into(path, out / path.stem, config, progress) for path in paths]
+
+
+def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
+    """The job's settings and run paths, checked: a JobConfig, at least one run, no two runs
+    writing the same output folder."""
+    config = config or JobConfig()
+    if not isinstance(config, JobConfig):
+        raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ValueError("paths must name at least one run file")
+    names = [p.stem for p in paths]
+    if len(set(names)) != len(names):
+        raise ValueError(f"paths: two runs would share an output folder: {names}")
+    return config, paths
 
 
 def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from vogjax.config import JobConfig
 from vogjax.io.atomic import check_writable
+from vogjax.report.job import check_job
 
 WORKER_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 # forwarded from this process when set, so workers find the same caches and devices
@@ -53,17 +54,9 @@ def map_runs_parallel(paths, out, config: JobConfig | None = None, workers: int 
                       progress: bool = False) -> list[Outcome]:
     """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
     `address` is None, else the cluster there); the outcomes in the order of `paths`."""
-    config = config or JobConfig()
-    if not isinstance(config, JobConfig):
-        raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be a positive integer, got {workers!r}")
-    paths = [Path(p) for p in paths]
-    if not paths:
-        raise ValueError("paths must name at least one run file")
-    names = [p.stem for p in paths]
-    if len(set(names)) != len(names):
-        raise ValueError(f"paths: two runs would share an output folder: {names}")
+    config, paths = check_job(paths, config)
     for path in paths:
         if not path.is_file():
             raise ValueError(f"path {str(path)!r} does not exist")
