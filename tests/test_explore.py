@@ -63,7 +63,8 @@ def test_explore_boxes_never_hits_the_scene_and_reprocesses_to_the_same_map(tmp_
                      "--config", str(settings), "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "stopped: submaps" in printed
-    rows = list(csv.DictReader(open(tmp_path / "boxes.explore.csv")))
+    with open(tmp_path / "boxes.explore.csv") as f:
+        rows = list(csv.DictReader(f))
     assert list(rows[0]) == list(CSV_FIELDS) and len(rows) >= 3
     assert all(float(r["plan_s"]) > 0 and int(r["rays"]) > 0 for r in rows)
     scene = scenes.load("boxes")

@@ -41,7 +41,7 @@ def brute_gain(map_, poses, sensor, max_range, region=None, groups=None):
     for pose, group in zip(poses, groups):
         for d in directions:
             direction = pose[:3, :3] @ d
-            keys, entries, exits = ray_voxels(pose[:3, 3], direction, max_range, s)
+            keys, _, exits = ray_voxels(pose[:3, 3], direction, max_range, s)
             states = map_.state((keys + 0.5) * s)
             for key, state, t_exit in zip(keys, states, exits):
                 centre = (key + 0.5) * s

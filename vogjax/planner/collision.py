@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vogjax.kernels import hashing, planner_collision as kernels
+from vogjax.kernels import hashing
+from vogjax.kernels import planner_collision as kernels
 from vogjax.maps import parallel
 from vogjax.planner.source import Source, opened
 from vogjax.validation import float_array, within_key_range

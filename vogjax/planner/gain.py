@@ -17,7 +17,6 @@ import dataclasses
 import math
 
 import numpy as np
-import warp as wp
 
 from vogjax.geometry import rigid_poses, rotation_from_ypr
 from vogjax.planner.seen import group_counts

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vogjax.kernels import hashing, view_gain as kernels
+from vogjax.kernels import hashing
+from vogjax.kernels import view_gain as kernels
 from vogjax.maps import parallel
 from vogjax.planner.source import Source
 from vogjax.sensors import RangeSensor
@@ -88,7 +89,8 @@ def _launch(source: Source, poses, groups, anchors, directions, min_range, max_r
         v0, v1 = int(view_ranges[g0]), int(view_ranges[g1])
         parts = _parts(view_ranges, g0, g1, parallel.num_parts(device, (v1 - v0) * len(directions)))
 
-        def launch(part: int, _lo: int, _hi: int) -> None:
+        def launch(part: int, _lo: int, _hi: int, parts=parts, tables=tables, d_offsets=d_offsets, out=out,
+                   overflow=overflow) -> None:
             first, last = parts[part]
             wp.launch(kernels.count_seen_voxels, dim=(last - first, len(directions)),
                       inputs=[first, *d, np.float64(max_range), np.float64(min_range), int(region is not None),

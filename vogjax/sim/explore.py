@@ -32,7 +32,7 @@ from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfi
 from vogjax.config.planner import ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath
-from vogjax.io.dataset import ScanBatch, DatasetWriter
+from vogjax.io.dataset import DatasetWriter, ScanBatch
 from vogjax.pipeline import Mapper
 from vogjax.planner import NbvPlanner, Overlay
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
