@@ -169,3 +169,14 @@ def test_settings_reach_the_configuration(tmp_path):
     assert config.pipeline.nav_noise.sigma2_x == 0.002
     assert config.pipeline.scans_per_submap is None
     assert config.pipeline.loop_closure.correlative.resolution_m == 0.15
+
+
+def test_a_run_without_the_standard_map_reports_without_it(boxes_run, tmp_path, capsys):
+    (tmp_path / "s.toml").write_text("[pipeline]\nstandard_map = false\n[timing]\nevery_submaps = 0\n"
+                                     "[report]\nsurface_points = 2000\n")
+    assert cli.main(["map", str(boxes_run), "--out", str(tmp_path / "out"), "--config", str(tmp_path / "s.toml"),
+                     "--quiet"]) == 0
+    report = json.loads((tmp_path / "out" / boxes_run.stem / "report.json").read_text())
+    assert "standard" not in report["auc"] and report["auc"]["online"] > 0.5
+    assert report["fig9"] is None and "update_per_submap" not in report["timing_s"]
+    assert "boxes" in capsys.readouterr().out  # the summary table

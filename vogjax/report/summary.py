@@ -18,8 +18,8 @@ def summary_table(reports: list[dict]) -> str:
         upd, query = t.get("update_per_submap", {}), t.get("query", {})
         rows.append((Path(r["run"]).stem, str(r["submaps"]),
                      f"{r['loop_closures']['accepted']}/{r['loop_closures']['rejected']}",
-                     *(fmt(r["auc"][k], ".3f") for k in ("online", "virtual", "full_merge", "standard")),
-                     *(fmt(r["rmse_m"][k], ".3f") for k in ("standard", "without_loop_closures", "with_loop_closures")),
+                     *(fmt(r["auc"].get(k), ".3f") for k in ("online", "virtual", "full_merge", "standard")),
+                     *(fmt(r["rmse_m"].get(k), ".3f") for k in ("standard", "without_loop_closures", "with_loop_closures")),
                      *(fmt(r["trajectory_rmse_m"].get(k), ".2f") for k in ("navigation", "optimized")),
                      fmt(upd.get("online") and upd["online"] * 1e3, ".1f"),
                      fmt(upd.get("full_merge") and upd["full_merge"] * 1e3, ".1f"),
