@@ -166,7 +166,8 @@ def main():
         gmap.update_poses(vog)
 
     result = {"machine": {"device": str(device), "cpu": platform.machine(), "cores": os.cpu_count(),
-                          "python": platform.python_version(), "warp": wp.__version__},
+                          "python": platform.python_version(), "warp": wp.__version__,
+                          "load_average": list(os.getloadavg())},  # a shared machine: how busy it was
               "scans_per_submap": SCANS_PER_SUBMAP, "beams_per_scan": 96, "voxel_size_m": 0.1,
               "rays": args.rays, "ray_length_m": 4.0, "repeats": args.repeats,
               "full_merge": merge, "queries": queries, "update_poses": updates,

@@ -194,7 +194,9 @@ def profile(args) -> dict:
                   outputs=[counts], device=device)
 
     walk()
-    walk_s = min(prof.run(walk, 1, [])["wall_s"] for _ in range(args.repeats))
+    walks = [prof.run(walk, 1, []) for _ in range(args.repeats)]
+    walk_s = min(w["kernels"]["count_beam_voxels"].get("cpu_s", w["wall_s"]) if not device.is_cuda
+                 else w["wall_s"] for w in walks)
     steps = int(counts.numpy().astype(np.int64).sum())
     it = result["integration"]
     it.update({"rays": rays, "voxel_steps": steps, "voxel_steps_per_s": steps / it["wall_s"],
@@ -350,8 +352,9 @@ def _print(result: dict) -> None:
         for name, h in sorted(s["host"].items(), key=lambda kv: -kv[1]["wall_s"]):
             print(f"    host   {name:28s} {h['wall_s'] * 1e3:9.2f} ms  ({h['calls']} calls)")
     it = result["integration"]
+    mark = f", mark_beams {it['mark_ns_per_step']:.2f} ns/step (CPU)" if "mark_ns_per_step" in it else ""
     print(f"integration: {it['voxel_steps'] / 1e6:.1f} M voxel steps, {it['voxel_steps_per_s'] / 1e6:.0f} M/s; "
-          f"plain walk alone {it['walk_only_ns_per_step']:.2f} ns/step")
+          f"plain walk alone {it['walk_only_ns_per_step']:.2f} ns/step{mark}")
     if "baseline" in result:
         b = result["baseline"]
         for k, v in b["speedup"].items():

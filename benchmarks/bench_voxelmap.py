@@ -118,7 +118,8 @@ def main():
 
     result = {
         "machine": {"device": str(vmap.device), "cpu": platform.processor() or platform.machine(),
-                    "cores": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__},
+                    "cores": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
+                    "load_average": list(os.getloadavg())},  # a shared machine: how busy it was
         "scene": "analytic pier, orbit sweep", "scans": args.scans, "beams_per_scan": 96,
         "repeats": args.repeats, "integration": integration, "raycast": raycast,
         "memory": {
