@@ -38,7 +38,7 @@ from vogjax.validation import float_array
 @dataclasses.dataclass(frozen=True)
 class Plan:
     """waypoints (K,4): x, y, z, yaw of the best branch's nodes, nearest first (fly the first;
-    empty when no edge was collision-free); gain_m3: the best branch's discounted gain;
+    empty when no edge was collision-free or none gains anything); gain_m3: the best branch's discounted gain;
     nodes: nodes grown (the vehicle's root excluded); iterations: samples drawn (remembered
     nodes included); rays: gain rays cast; seconds: wall time of the plan; tree_states (N+1,4)
     and tree_parents (N+1,) (-1 for the root): the whole tree, for plots."""

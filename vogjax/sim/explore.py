@@ -139,7 +139,7 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
                    "nodes": plan.nodes, "samples": plan.iterations}
             if len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3:
                 rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
-                stopped = "blocked" if len(plan.waypoints) == 0 else "gain"
+                stopped = "gain" if plan.nodes else "blocked"
                 if on_iteration:
                     on_iteration(loop.mapper, plan, rows[-1])
                 break
