@@ -521,3 +521,17 @@ def test_correlative_search_time_is_bounded(monkeypatch):
     except _Accepted:
         raise AssertionError("a search of about 5e10 cell-steps was accepted") from None
     raise AssertionError("the search ran without reaching its first FFT")
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="LoopClosureConfig.min_sigma_* have no upper bound, but "
+                   "PoseGraph refuses variances above 1e12: with min_sigma_translation_m = 1e7 every closure's "
+                   "covariance is refused by add_loop_closure mid-run ('covariance must have variances in [1e-12, "
+                   "1e+12]'), naming no setting, after the run was accepted")
+@pytest.mark.parametrize("field", ["min_sigma_translation_m", "min_sigma_rotation_rad"])
+def test_loop_closure_floors_stay_within_the_pose_graph_bounds(field):
+    from vogjax.config import LoopClosureConfig
+
+    def closure_with_floor():
+        floor = getattr(LoopClosureConfig(**{field: 1e7}), field) ** 2
+        backend._covariance("covariance", np.eye(6) * 1e-4 + np.diag([floor] * 6), 6)
+    refuses(closure_with_floor, field)
