@@ -1,46 +1,72 @@
-"""A readers-writer lock: queries share the map, updates have it to themselves."""
+"""A fair readers-writer lock: queries share the map, updates have it to themselves, and both
+are served in the order they arrive."""
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import threading
 
 
 class ReadWriteLock:
-    """Many readers at once, or one writer. A waiting writer holds back new readers, so a
-    stream of planner queries cannot starve a map update."""
+    """Many readers at once, or one writer, granted first come, first served: a reader waits
+    only for writers that asked before it, a writer for everyone who asked before it. So a
+    stream of queries cannot starve an update, and back-to-back updates cannot starve queries
+    (readers arriving together between two updates go in together). A thread must not take the
+    lock again while it holds it: behind a waiting writer, that second request would wait for
+    the first to be released."""
 
     def __init__(self):
         self._condition = threading.Condition()
         self._readers = 0
         self._writing = False
-        self._writers_waiting = 0
+        self._queue: collections.deque = collections.deque()  # [kind, granted] in arrival order
+
+    def _grant(self) -> None:
+        """Admit waiting requests from the head of the queue (called with the condition held)."""
+        granted = False
+        while self._queue and not self._writing:
+            request = self._queue[0]
+            if request[0] == "read":
+                self._readers += 1
+            elif self._readers == 0:
+                self._writing = True
+            else:
+                break
+            request[1] = True
+            self._queue.popleft()
+            granted = True
+        if granted:
+            self._condition.notify_all()
+
+    def _acquire(self, kind: str) -> None:
+        with self._condition:
+            request = [kind, False]
+            self._queue.append(request)
+            self._grant()
+            while not request[1]:
+                self._condition.wait()
+
+    def _release(self, kind: str) -> None:
+        with self._condition:
+            if kind == "read":
+                self._readers -= 1
+            else:
+                self._writing = False
+            self._grant()
 
     @contextlib.contextmanager
     def reading(self):
-        with self._condition:
-            while self._writing or self._writers_waiting:
-                self._condition.wait()
-            self._readers += 1
+        self._acquire("read")
         try:
             yield
         finally:
-            with self._condition:
-                self._readers -= 1
-                if self._readers == 0:
-                    self._condition.notify_all()
+            self._release("read")
 
     @contextlib.contextmanager
     def writing(self):
-        with self._condition:
-            self._writers_waiting += 1
-            while self._writing or self._readers:
-                self._condition.wait()
-            self._writers_waiting -= 1
-            self._writing = True
+        self._acquire("write")
         try:
             yield
         finally:
-            with self._condition:
-                self._writing = False
-                self._condition.notify_all()
+            self._release("write")
