@@ -4,10 +4,18 @@ Work happens under a hidden temporary name beside the target (`.NAME.PID.tmp`); 
 flushes it to disk (fsync), renames it over the target and syncs the folder, so a reader sees
 the old target or the whole new one, never a part. A crash (even kill -9) leaves only the
 temporary, and the next write to the same target removes temporaries whose process is gone.
+
+A folder cannot be renamed over a full one. On Linux the two are swapped in one step
+(renameat2 with RENAME_EXCHANGE) and the old one, now under the temporary's name, is removed;
+elsewhere the old one is moved aside first, and a crash between the two renames is repaired by
+the next write (`remove_stale`).
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import errno
 import os
 import re
 import shutil
@@ -48,7 +56,10 @@ class AtomicPath:
         else:
             _fsync(self.temporary)
         if self.folder and self.target.exists():
-            # a folder cannot be renamed over a full one: move the old one aside first
+            if _exchange(self.temporary, self.target):
+                _fsync_folder(self.target.parent)
+                shutil.rmtree(self.temporary, ignore_errors=True)  # the old folder now
+                return self.target
             old = self.target.with_name(f".{self.target.name}.{os.getpid()}.old.tmp")
             os.replace(self.target, old)
             os.replace(self.temporary, self.target)
@@ -89,23 +100,62 @@ def check_writable(target, folder: bool = False) -> None:
         raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable")
 
 
-_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(\.old)?\.tmp$")
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?P<old>\.old)?\.tmp$")
 
 
 def remove_stale(target) -> list[Path]:
-    """Remove temporaries of `target` left by processes that no longer run; returns them."""
+    """Remove temporaries of `target` left by processes that no longer run; returns them.
+
+    A folder is published over an earlier one in two renames (earlier -> `.NAME.PID.old.tmp`,
+    new -> NAME); a process killed between them leaves no NAME. The new folder was complete
+    (it is moved only once written and synced), so its publication is finished here; without
+    it the earlier folder is put back."""
     target = Path(target)
     removed = []
     try:
         entries = list(target.parent.iterdir())
     except OSError:
         return removed
-    for entry in entries:
-        match = _LEFTOVER.match(entry.name)
-        if match and match["name"] == target.name and not _alive(int(match["pid"])):
+    stale = [(entry, _LEFTOVER.match(entry.name)) for entry in entries]
+    stale = [(entry, match) for entry, match in stale
+             if match and match["name"] == target.name and not _alive(int(match["pid"]))]
+    for entry, match in stale:
+        if match["old"] and not target.exists():
+            new = entry.with_name(f".{target.name}.{match['pid']}.tmp")
+            os.replace(new if new.is_dir() else entry, target)
+    for entry, _ in stale:
+        if entry.exists() or entry.is_symlink():
             _remove(entry)
             removed.append(entry)
     return removed
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _renameat2():
+    try:
+        function = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    function.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    return function
+
+
+_RENAMEAT2 = _renameat2()
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step; False where the system or file system cannot."""
+    if _RENAMEAT2 is None:
+        return False
+    if _RENAMEAT2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EXDEV):
+        return False
+    raise OSError(code, os.strerror(code), str(b))
 
 
 def _alive(pid: int) -> bool:
