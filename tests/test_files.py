@@ -72,3 +72,20 @@ def test_damaged_files_give_clear_errors(saved, damage, message):
 def test_missing_file(tmp_path):
     with pytest.raises(ValueError, match="cannot be read"):
         vj.VoxelMap.load(tmp_path / "nope.vog")
+
+
+def test_a_header_is_checksummed_and_format_1_files_still_load(saved, tmp_path):
+    vmap, path = saved
+    data = path.read_bytes()
+    # one changed digit in the JSON header (the config) is caught, not loaded as another map
+    damaged = data.replace(b'"voxel_size": 0.2', b'"voxel_size": 0.3', 1)
+    assert damaged != data
+    path.write_bytes(damaged)
+    with pytest.raises(ValueError, match="checksum"):
+        vj.VoxelMap.load(path)
+    # the same map written as format 1 (payload checksum only, no trailing digest) still loads
+    old = bytearray(data[:-32])
+    old[8:12] = (1).to_bytes(4, "little")
+    (tmp_path / "old.vog").write_bytes(bytes(old))
+    loaded = vj.VoxelMap.load(tmp_path / "old.vog")
+    assert all(np.array_equal(a, b) for a, b in zip(loaded.voxels(), vmap.voxels()))

@@ -7,7 +7,8 @@ no_return (B,). File attributes: format, format_version, has_truth, metadata (JS
 seed, sensor, navigation noise, vogjax version, ...).
 
 Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2; a damaged chunk cannot be
-read back), and every batch is checked for physical sense as it is written and as it is read
+read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata carries its
+SHA-256, and every batch is checked for physical sense as it is written and as it is read
 (finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km] with NaN
 exactly where no_return is set). Runs of format 1 (no checksums, always with ground truth)
 still load and are checked the same way. A file is published atomically on close
@@ -17,6 +18,7 @@ still load and are checked the same way. A file is published atomically on close
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from pathlib import Path
 
@@ -79,9 +81,16 @@ class ScanBatch:
                           max_range_m)
 
 
-def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf) -> None:
+def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf, truth: bool = True) -> None:
     """ValueError naming `where` and the field unless the scans in `fields` make physical
-    sense (see the module docstring); `after_time_s`: the time of the scan before them."""
+    sense (see the module docstring); `after_time_s`: the time of the scan before them;
+    `truth`: whether pose_truth is due (else it must be None)."""
+    for name in _FIELDS:
+        if (fields.get(name) is None) != (name == "pose_truth" and not truth):
+            raise ValueError(f"{where}: {name} is {'missing' if fields.get(name) is None else 'not expected'}")
+        if fields.get(name) is not None and (np.ndim(fields[name]) == 0 or
+                                             np.asarray(fields[name]).dtype.kind not in "fiub"):
+            raise ValueError(f"{where}: {name} must be an array with a leading scan axis")
     count = len(fields["time_s"])
     for name, (shape, _) in _FIELDS.items():
         if fields.get(name) is None:
@@ -146,10 +155,13 @@ class DatasetWriter:
         self._file.attrs["format_version"] = FORMAT_VERSION
         self._file.attrs["has_truth"] = self.truth
         self._file.attrs["metadata"] = encoded
+        self._file.attrs["metadata_sha256"] = hashlib.sha256(encoded.encode()).hexdigest()
         for name, (shape, dtype) in self._fields().items():
             tail = shape(beams)
+            # NaN where HDF5 has no chunk to read (a damaged chunk index): the checks then fail
+            fill = np.nan if np.dtype(dtype).kind == "f" else None
             self._file.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail), dtype=dtype,
-                                      chunks=(256, *tail), compression="lzf", fletcher32=True)
+                                      chunks=(256, *tail), compression="lzf", fletcher32=True, fillvalue=fill)
 
     def _fields(self) -> dict:
         return {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
@@ -162,7 +174,7 @@ class DatasetWriter:
             missing, extra = expected - set(fields), set(fields) - expected
             raise ValueError(f"fields missing: {', '.join(sorted(missing)) or '-'}; unexpected: "
                              f"{', '.join(sorted(extra)) or '-'}")
-        check_scans(fields, self.beams, f"scans for {str(self.path)!r}", self._last_time_s)
+        check_scans(fields, self.beams, f"scans for {str(self.path)!r}", self._last_time_s, self.truth)
         count = len(fields["time_s"])
         if count == 0:
             return
@@ -206,14 +218,25 @@ class Dataset:
             raise ValueError(f"{where} is not a readable HDF5 run file (truncated or corrupt?): {error}") from None
         try:
             attrs = self._file.attrs
-            if attrs.get("format") != FORMAT:
+            if not _is_text(attrs.get("format"), FORMAT):
                 raise ValueError(f"{where} is not a vogjax run file")
-            version = int(attrs["format_version"])
+            version = attrs["format_version"]
+            if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):
+                raise ValueError(f"{where} is damaged: format_version {version!r} is no integer")
             if version > FORMAT_VERSION:
                 raise ValueError(f"{where} has run format version {version}; this vogjax reads up to "
                                  f"{FORMAT_VERSION}: upgrade vogjax")
-            self.has_truth = bool(attrs.get("has_truth", True))
-            self.metadata = json.loads(attrs["metadata"])
+            has_truth = attrs.get("has_truth", True)
+            if not isinstance(has_truth, (bool, np.bool_)):
+                raise ValueError(f"{where} is damaged: has_truth {has_truth!r} is no boolean")
+            self.has_truth = bool(has_truth)
+            encoded = attrs["metadata"]
+            if not isinstance(encoded, str):
+                raise ValueError(f"{where} is damaged: its metadata is no text")
+            digest = attrs.get("metadata_sha256")
+            if digest is not None and digest != hashlib.sha256(encoded.encode()).hexdigest():
+                raise ValueError(f"{where} is damaged: its metadata fails its checksum")
+            self.metadata = json.loads(encoded)
             if not isinstance(self.metadata, dict):
                 raise ValueError(f"{where} is damaged: its metadata is not a JSON object")
             names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"]
@@ -224,7 +247,7 @@ class Dataset:
                 if self._file[name].shape[1:] != shape(self.beams) or self._file[name].dtype != dtype:
                     raise ValueError(f"{where} is damaged: field {name} has shape {self._file[name].shape} "
                                      f"and type {self._file[name].dtype}")
-        except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError) as error:
+        except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError, UnicodeError) as error:
             self._file.close()
             raise ValueError(f"{where} is damaged: {error}") from None
         except ValueError:
@@ -248,7 +271,7 @@ class Dataset:
         except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
             raise ValueError(f"{where} is damaged: {error}") from None
         before = self._last_time_s.get(first, -np.inf)
-        check_scans(fields, self.beams, f"{where} is damaged (scans {first}-{last - 1})", before)
+        check_scans(fields, self.beams, f"{where} is damaged (scans {first}-{last - 1})", before, self.has_truth)
         if last > first:
             self._last_time_s[last] = float(fields["time_s"][-1])
         return ScanBatch(first, **fields)
@@ -273,3 +296,7 @@ class Dataset:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _is_text(value, expected: str) -> bool:
+    return isinstance(value, str) and value == expected

@@ -1,10 +1,12 @@
-"""One-file map format: magic, format version, JSON header, npz payload, SHA-256 of the payload.
+"""One-file map format: magic, format version, JSON header, npz payload, SHA-256 of it all.
 
     bytes 0-7    b"VOGJAXMP"
     bytes 8-11   format version, little-endian uint32
     bytes 12-19  header length H, little-endian uint64
     H bytes      UTF-8 JSON: kind, metadata (config, ...), payload size and SHA-256
-    rest         numpy .npz archive of the arrays (no pickles)
+    then         numpy .npz archive of the arrays (no pickles)
+    last 32      SHA-256 of every byte before them (format 2; format 1 checksums the payload
+                 only, and still loads)
 
 Files are published atomically (`vogjax.io.atomic`): a reader never sees half a file.
 """
@@ -23,7 +25,8 @@ import numpy as np
 from vogjax.io.atomic import AtomicPath
 
 MAGIC = b"VOGJAXMP"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+_DIGEST = 32  # format 2 ends in the SHA-256 of every byte before it: header included
 _PREFIX = struct.Struct("<8sIQ")
 MAX_HEADER_BYTES = 1 << 26
 
@@ -35,10 +38,10 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
     payload = buffer.getvalue()
     header = json.dumps({"kind": kind, "metadata": metadata, "payload_bytes": len(payload),
                          "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+    contents = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)) + header + payload
     with AtomicPath(path) as temporary, open(temporary, "wb") as f:
-        f.write(_PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)))
-        f.write(header)
-        f.write(payload)
+        f.write(contents)
+        f.write(hashlib.sha256(contents).digest())
 
 
 def map_kind(path) -> str:
@@ -78,6 +81,10 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
     if version > FORMAT_VERSION:
         raise ValueError(f"path {str(path)!r} has map format version {version}; this vogjax reads "
                          f"up to version {FORMAT_VERSION}: upgrade vogjax")
+    if version >= 2:  # the whole file is checksummed: a damaged header is caught too
+        if len(data) < _PREFIX.size + _DIGEST or hashlib.sha256(data[:-_DIGEST]).digest() != data[-_DIGEST:]:
+            raise ValueError(f"path {str(path)!r} is corrupt, truncated or has trailing data: checksum mismatch")
+        data = data[:-_DIGEST]
     end_of_header = _PREFIX.size + header_bytes
     if end_of_header > len(data):
         raise ValueError(f"path {str(path)!r} is truncated (header incomplete)")
@@ -85,6 +92,9 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
         header = json.loads(data[_PREFIX.size:end_of_header])
         payload_bytes = int(header["payload_bytes"])
         checksum = header["payload_sha256"]
+        metadata = header["metadata"]
+        if not isinstance(metadata, dict):
+            raise TypeError("metadata is not an object")
     except (ValueError, KeyError, TypeError):
         raise ValueError(f"path {str(path)!r} has a damaged header") from None
     payload = data[end_of_header:]
@@ -100,4 +110,4 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
             arrays = {name: archive[name] for name in archive.files}
     except (ValueError, OSError, zipfile.BadZipFile) as error:
         raise ValueError(f"path {str(path)!r} has an unreadable payload: {error}") from None
-    return header["metadata"], arrays
+    return metadata, arrays
