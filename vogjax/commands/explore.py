@@ -21,6 +21,7 @@ def add_parser(commands) -> None:
                          help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
                               "the scene) and the tables of `vogjax map` ([map], [nav_noise], [loop_closure], "
                               "[pipeline])")
+    explore.add_argument("--overwrite", action="store_true", help="replace --out (and its CSV) if it exists")
     explore.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -31,7 +32,7 @@ def run(args) -> None:
         raise ValueError(f"--seed must be non-negative, got {args.seed}")
     planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed)
     summary = explore(args.scene, args.out, args.submaps, map_kind=args.map, seed=args.seed,
-                      planner_config=planner_config, pipeline_config=pipeline_config, progress=not args.quiet)
+                      planner_config=planner_config, pipeline_config=pipeline_config, progress=not args.quiet, overwrite=args.overwrite)
     print(f"wrote {summary.path} and {summary.csv_path}: {summary.scans} scans, {summary.submaps} submaps, "
           f"{summary.iterations} plans, {summary.path_m:.1f} m flown in {summary.duration_s:.0f} s, "
           f"{summary.explored_m3:.1f} m^3 explored (stopped: {summary.stopped})")

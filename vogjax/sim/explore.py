@@ -31,7 +31,7 @@ from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
 from vogjax.config.planner import ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
-from vogjax.io.atomic import AtomicPath
+from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import DatasetWriter, ScanBatch
 from vogjax.pipeline import Mapper
 from vogjax.planner import NbvPlanner, Overlay
@@ -94,13 +94,20 @@ def csv_path_of(out) -> Path:
 def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: int = 0,
             planner_config: PlannerConfig | None = None, pipeline_config: PipelineConfig | None = None,
             sensor: RangeSensor | None = None, noise: NavNoise | None = None, max_scans: int | None = None,
-            progress: bool = True, on_iteration=None) -> ExploreSummary:
+            progress: bool = True, on_iteration=None, overwrite: bool = False) -> ExploreSummary:
     """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
     write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
     planning iteration to RUN.explore.csv. planner_config: default the papers' settings for the
-    scene (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise. on_iteration(mapper, plan, row): called after each plan (benchmarks)."""
+    scene (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise;
+    on_iteration(mapper, plan, row): called after each plan (benchmarks); overwrite: replace an
+    existing `out` and its CSV (else that is an error, raised before any work)."""
     if map_kind not in MAPS:
         raise ValueError(f"map_kind must be one of {', '.join(MAPS)}, got {map_kind!r}")
+    out = Path(out)
+    for path in (out, csv_path_of(out)):
+        if path.exists() and not overwrite:
+            raise ValueError(f"out {str(path)!r} exists (pass overwrite=True, or --overwrite, to replace it)")
+        check_writable(path)
     if not (isinstance(submaps, int) and submaps >= 1):
         raise ValueError(f"submaps must be a positive integer, got {submaps!r}")
     if max_scans is not None and not (isinstance(max_scans, int) and max_scans >= 1):
