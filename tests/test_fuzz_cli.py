@@ -324,10 +324,8 @@ def test_cli_top_level(capsys, argv):
         assert err.strip().splitlines()[-1].startswith("vogjax")
 
 
-# ------------------------------------------------------------------------------ findings (xfail until fixed)
+# ------------------------------------------------------------------------------ findings, fixed (regression tests)
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="io/rosbag.import_bag catches only AnyReaderError: a "
-                   "folder without metadata.yaml makes rosbags raise FileNotFoundError, a raw traceback")
 def test_import_of_a_folder_that_is_no_bag(workspace_factory, capsys):
     ws = workspace_factory()
     try:
@@ -338,8 +336,6 @@ def test_import_of_a_folder_that_is_no_bag(workspace_factory, capsys):
     check_refusal(code, err, ["folder"], "import")
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="vogjax/demo.run creates --out (mkdir) before anything "
-                   "is checked: a demo refused for a bad --scene or --laps leaves an empty folder behind")
 @pytest.mark.parametrize("argv", [["--scene", "nope"], ["--laps", "0"]], ids=["scene", "laps"])
 def test_refused_demo_leaves_nothing(workspace_factory, capsys, argv):
     ws = workspace_factory()
@@ -349,8 +345,6 @@ def test_refused_demo_leaves_nothing(workspace_factory, capsys, argv):
     assert ws.snapshot() == before, "the refused demo left files behind"
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="vogjax/demo.run calls out.mkdir() unchecked: --out "
-                   "naming a file raises FileExistsError, a path under a file NotADirectoryError (raw tracebacks)")
 @pytest.mark.parametrize("out", ["notes.txt", "notes.txt/demo"])
 def test_demo_into_a_file_is_refused(workspace_factory, capsys, out):
     ws = workspace_factory()
@@ -361,8 +355,6 @@ def test_demo_into_a_file_is_refused(workspace_factory, capsys, out):
     check_refusal(code, err, ["notes.txt"], out)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="simulate_run passes --seed to NumPy unchecked: -1 "
-                   "fails after the vehicle was flown, with NumPy's 'expected non-negative integer' (names no argument)")
 def test_negative_seed_is_refused_naming_it(workspace_factory, capsys):
     ws = workspace_factory()
     code, _, err = run_cli(["simulate", "--scene", "boxes", "--scans", SIM_SCANS, "--seed", -1, "--out", ws / "s.h5"],
@@ -374,8 +366,6 @@ class _Explored(Exception):
     pass
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="vogjax explore opens its DatasetWriter on --out without "
-                   "the existence check simulate has: an existing run file is replaced silently (no --overwrite)")
 def test_explore_keeps_an_existing_run(workspace_factory, capsys, monkeypatch):
     """Checked without exploring: the exploration loop raises as soon as it is built."""
     from vogjax.sim import explore

@@ -978,11 +978,10 @@ def test_confidence_map_refuses_rays_leaving_the_key_range():
     assert not r.hit[0] and r.num_unknown[0] > 0
 
 
-# ------------------------------------------------------------------------------ findings (xfail until fixed)
+# ------------------------------------------------------------------------------ findings, fixed (regression tests)
 
 def refuses(call, name: str = "") -> None:
-    """AssertionError unless `call()` raises a ValueError naming `name` (the findings below are
-    marked xfail(raises=AssertionError): any other exception is a broken test, not the bug)."""
+    """AssertionError unless `call()` raises a ValueError naming `name`."""
     try:
         call()
     except ValueError as error:
@@ -994,9 +993,6 @@ def refuses(call, name: str = "") -> None:
 COMPLEX_POSE = np.eye(4) + 1e-3j  # a rigid real part: the imaginary part is silently dropped
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="geometry.rigid_poses and GlobalMap._volumes convert with "
-                   "np.asarray(dtype=float64): complex values lose their imaginary part (ComplexWarning), "
-                   "numeric strings are parsed, booleans read as 0/1")
 @pytest.mark.parametrize("call", [
     lambda: vj.VogMap(CFG).add_submap(COMPLEX_POSE),
     lambda: vj.VogMap(CFG).add_submap(np.eye(4).astype(str)),
@@ -1007,8 +1003,6 @@ def test_complex_and_text_arrays_are_refused(call):
     refuses(call)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="validation.index_array and VogMap.check_ids call np.asarray unguarded: "
-                   "a ragged list raises NumPy's ValueError, which names no argument")
 @pytest.mark.parametrize("call, name", [
     (lambda: base_map()[0].integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
     (lambda: crm_base().integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
@@ -1019,9 +1013,6 @@ def test_ragged_ids_are_refused_naming_the_argument(call, name):
     refuses(call, name)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="geometry.rigid_poses accepts an empty (0,4,4) stack "
-                   "where one pose is due (count=None): VogMap.add_submap then appends a submap without a pose "
-                   "(num_submaps 1, poses() empty; pose(0) and GlobalMap.merge raise IndexError)")
 def test_an_empty_pose_stack_is_not_a_pose():
     vog = vj.VogMap(CFG)
     try:
@@ -1030,11 +1021,6 @@ def test_an_empty_pose_stack_is_not_a_pose():
         assert vog.num_submaps == len(vog.poses()), "a submap without a pose was added"
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="maps/locking.ReadWriteLock lets no reader in while a "
-                   "writer waits: two writers taking turns (each asks again while the other writes) hold every reader "
-                   "off for as long as they keep writing. With the maps, one thread merging a GlobalMap in a loop "
-                   "held a query off for the whole 4 s it ran in a trial here (its next request comes before the woken "
-                   "reader runs)")
 def test_readers_are_not_starved_by_writers_taking_turns():
     import threading
 

@@ -7,11 +7,19 @@ from pathlib import Path
 
 from vogjax import report as reporting
 from vogjax.config import SonarConfig
+from vogjax import scenes
+from vogjax.io.atomic import check_writable
 from vogjax.sim import simulate_run
+from vogjax.sim.mission import MAX_LAPS
 
 
 def run(out: Path, scene: str = "propeller", laps: int = 2, progress: bool = True) -> dict:
     out = Path(out)
+    if scene not in scenes.NAMES:
+        raise ValueError(f"scene must be one of {', '.join(scenes.NAMES)}, got {scene!r}")
+    if isinstance(laps, bool) or not isinstance(laps, int) or not 1 <= laps <= MAX_LAPS:
+        raise ValueError(f"laps must be an integer in [1, {MAX_LAPS}], got {laps!r}")
+    check_writable(out, folder=True)
     out.mkdir(parents=True, exist_ok=True)
     # 1. simulate the survey: MJX vehicle, sonar with 2 cm range noise, drifting navigation
     run_path = out / f"{scene}.h5"

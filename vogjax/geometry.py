@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from vogjax.validation import real_array
+
 RIGID_TOLERANCE = 1e-6
 
 
@@ -17,10 +19,7 @@ def rigid_poses(name: str, value, count: int | None = None) -> np.ndarray:
 
     Rotation blocks must be orthonormal with determinant +1 (to 1e-6) and the last row 0 0 0 1.
     """
-    try:
-        poses = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be 4x4 rigid transforms") from None
+    poses = real_array(name, value)
     single = poses.ndim == 2
     if single and count is None:
         poses = poses[None]
@@ -36,6 +35,14 @@ def rigid_poses(name: str, value, count: int | None = None) -> np.ndarray:
     if np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(initial=0.0) > 0:
         raise ValueError(f"{name} is not rigid: its last row must be 0 0 0 1")
     return poses
+
+
+def rigid_pose(name: str, value) -> np.ndarray:
+    """One (4,4) float64 rigid transform, checked as `rigid_poses` checks."""
+    array = real_array(name, value)
+    if array.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {array.shape}")
+    return rigid_poses(name, array)[0]
 
 
 def inverse(poses: np.ndarray) -> np.ndarray:

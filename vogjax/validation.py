@@ -7,13 +7,22 @@ import math
 import numpy as np
 
 
-def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """A finite floating array of the given shape (-1: any length), converted to `dtype`."""
+def real_array(name: str, value, dtype=np.float64) -> np.ndarray:
+    """`value` as an array of real numbers (integers or floats; not booleans, complex numbers,
+    text or ragged lists, which NumPy would quietly convert or refuse naming nothing)."""
     try:
         array = np.asarray(value)
-    except Exception as error:  # jax/torch conversion errors are not ValueErrors
+    except Exception as error:  # ragged lists, jax/torch conversion errors
         raise ValueError(f"{name} could not be read as an array: {error}") from None
-    if array.dtype.kind not in "fi" or array.dtype == np.bool_:
+    if array.dtype.kind not in "fiu" or array.dtype == np.bool_:
+        raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    return array.astype(dtype, copy=False)
+
+
+def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """A finite floating array of the given shape (-1: any length), converted to `dtype`."""
+    array = np.asarray(real_array(name, value, np.float64) if not isinstance(value, np.ndarray) else value)
+    if array.dtype.kind not in "fiu" or array.dtype == np.bool_:
         raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
     if array.ndim != len(shape) or any(s not in (-1, a) for s, a in zip(shape, array.shape)):
         wanted = "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"
@@ -39,7 +48,10 @@ def positive_range(name: str, value, count: int) -> np.ndarray:
 
 def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
     """Integers in [0, upper), one per element, as int32."""
-    array = np.asarray(value)
+    try:
+        array = np.asarray(value)
+    except Exception as error:  # ragged lists
+        raise ValueError(f"{name} could not be read as an array: {error}") from None
     if array.dtype.kind not in "iu":
         raise ValueError(f"{name} must hold integers, got dtype {array.dtype}")
     if array.shape != (count,):

@@ -177,6 +177,8 @@ class Config:
             raise ValueError(f"config {str(path)!r} does not exist") from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError, IsADirectoryError, PermissionError) as error:
             raise ValueError(f"config {str(path)!r} is not valid TOML: {error}") from None
+        except RecursionError:  # tomllib recurses into nested arrays and tables
+            raise ValueError(f"config {str(path)!r} nests too deeply to be a settings file") from None
         return cls.from_document(document, base)
 
     @classmethod

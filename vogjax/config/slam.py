@@ -75,5 +75,6 @@ class LoopClosureConfig(Config):
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)
-    min_sigma_rotation_rad: float = non_negative(0.005)
-    min_sigma_translation_m: float = non_negative(0.2)
+    # at most 1e5 (m or rad): a sigma floor squared must stay a variance the pose graph takes (<= 1e12)
+    min_sigma_rotation_rad: float = number(0.005, low=0, high=1e5)
+    min_sigma_translation_m: float = number(0.2, low=0, high=1e5)

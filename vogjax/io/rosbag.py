@@ -41,7 +41,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vogjax.config.point_cloud import PointCloudConfig
-from vogjax.geometry import interpolate_poses, inverse, rigid_poses
+from vogjax.geometry import interpolate_poses, inverse, rigid_pose
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import MAX_RANGE_M, DatasetWriter
 from vogjax.sensors.point_cloud import PointCloudSensor
@@ -105,8 +105,9 @@ def import_bag(bag, out, points_topic: str, odometry_topic: str, frame: str | No
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
             return _import(reader, bag, out, points_topic, odometry_topic, frame, max_range_m, progress)
-    except AnyReaderError as error:
-        raise ValueError(f"bag {str(bag)!r} cannot be read: {error}") from None
+    except (AnyReaderError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as error:
+        # rosbags reads a folder without metadata.yaml as a ROS 2 bag and fails opening it
+        raise ValueError(f"bag {str(bag)!r} cannot be read as a ROS 1, ROS 2 or MCAP bag: {error}") from None
 
 
 def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, max_range_m, progress):
@@ -393,7 +394,7 @@ def read_mount(reader, vehicle: str, sensor: str) -> tuple[np.ndarray, str]:
                 raise ValueError(f"--frame {sensor!r}: the TF link {parent} -> {child} moves during the bag; only a "
                                  "fixed sensor mount is supported")
         T_vehicle_sensor = T_vehicle_sensor @ (first if forward else inverse(first))
-    T_vehicle_sensor = rigid_poses("T_vehicle_sensor", _orthonormal(T_vehicle_sensor))[0]
+    T_vehicle_sensor = rigid_pose("T_vehicle_sensor", _orthonormal(T_vehicle_sensor))
     return T_vehicle_sensor, " + ".join(sorted(sources))
 
 

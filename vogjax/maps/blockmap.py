@@ -204,7 +204,10 @@ class BlockMap:
 
 
 def probability_from_log_odds(log_odds: np.ndarray) -> np.ndarray:
-    return (1.0 - 1.0 / (1.0 + np.exp(log_odds.astype(np.float64)))).astype(np.float32)
+    """Occupancy probability of log-odds; unclamped maps (`MapConfig.paper()`) reach log-odds
+    whose exp overflows to inf, which gives exactly 1.0 here, so the overflow is no error."""
+    with np.errstate(over="ignore"):
+        return (1.0 - 1.0 / (1.0 + np.exp(log_odds.astype(np.float64)))).astype(np.float32)
 
 
 def classify(values: np.ndarray, config: MapConfig) -> np.ndarray:

@@ -38,6 +38,19 @@ def unpack_blocks(keys: np.ndarray) -> np.ndarray:
     return np.stack([(keys >> 42) & _FIELD, (keys >> 21) & _FIELD, keys & _FIELD], axis=1) - _BIAS
 
 
+def check_block_keys(keys: np.ndarray, where: str) -> None:
+    """ValueError naming `where` unless `keys` (K,) int64 are distinct packed block coordinates
+    within the key range (not the table's empty or tombstone marks, nothing in the spare bits)."""
+    if keys.dtype != np.int64 or keys.ndim != 1:
+        raise ValueError(f"{where} has block keys of type {keys.dtype} and shape {keys.shape}, not (K,) int64")
+    blocks = unpack_blocks(keys)
+    limit = hashing.VOXEL_KEY_LIMIT // BLOCK_EDGE
+    if len(keys) and (keys.min() < 0 or np.any(pack_blocks(blocks) != keys) or np.abs(blocks).max() >= limit):
+        raise ValueError(f"{where} holds block keys that are no packed block coordinates")
+    if len(np.unique(keys)) != len(keys):
+        raise ValueError(f"{where} holds a block twice")
+
+
 def voxel_keys(block_keys: np.ndarray, block_index: np.ndarray, local: np.ndarray) -> np.ndarray:
     """(K,3) voxel keys of voxel `local` (0..511) in block `block_keys[block_index]`."""
     return unpack_blocks(block_keys)[block_index] * BLOCK_EDGE + voxel_offsets()[local]

@@ -19,14 +19,15 @@ import warp as wp
 
 from vogjax.maps import parallel
 from vogjax.maps.blockmap import BlockMap
-from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, voxel_keys
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, voxel_keys
 from vogjax.config import MapConfig, PipelineConfig
 from vogjax.config.schema import check_setting
-from vogjax.geometry import confidence_volume, pose_deltas
+from vogjax.geometry import confidence_volume, pose_deltas, rigid_pose
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation
 from vogjax.maps.submaps import VogMap
 from vogjax.maps.views import submap_views
+from vogjax.validation import real_array
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
 # Marginals whose x, y, yaw block fails these checks are not covariances.
@@ -189,10 +190,7 @@ class GlobalMap(BlockMap):
         """(N,) 95% x-y-yaw confidence volumes of checked marginals; None without marginals."""
         if marginals is None:
             return None
-        try:
-            marginals = np.asarray(marginals, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError("marginals must be an array of shape (N, 6, 6)") from None
+        marginals = real_array("marginals", marginals)
         if marginals.shape != (vog.num_submaps, 6, 6):
             raise ValueError(f"marginals must have shape ({vog.num_submaps}, 6, 6), got {marginals.shape}")
         unknown = np.all(np.isnan(marginals), axis=(1, 2))  # "not computed": counts as uncertain
@@ -348,18 +346,20 @@ class GlobalMap(BlockMap):
     @classmethod
     def load(cls, path, device=None) -> "GlobalMap":
         metadata, arrays = read_map_file(path, "GlobalMap")
+        where = f"path {str(path)!r}"
         try:
             config = MapConfig.from_dict(metadata["config"])
-            applied = {int(i): Applied(np.array(a["pose"], dtype=np.float64), int(a["revision"]),
-                                       math.inf if a.get("volume") is None else float(a["volume"]))
+            applied = {_applied_id(i): _applied_record(a, f"{where}: applied submap {i}")
                        for i, a in metadata["applied"].items()}
             keys, sums, counts = arrays["block_keys"], arrays["sum"], arrays["count"]
-        except (KeyError, TypeError, ValueError) as error:
-            raise ValueError(f"path {str(path)!r} has invalid map contents: {error}") from None
+        except (KeyError, TypeError, ValueError, AttributeError) as error:
+            raise ValueError(f"{where} has invalid map contents: {error}") from None
+        check_block_keys(keys, where)
         shape = (keys.shape[0], BLOCK_VOXELS)
-        if keys.dtype != np.int64 or sums.dtype != np.int64 or counts.dtype != np.int32 or \
-                sums.shape != shape or counts.shape != shape or len(np.unique(keys)) != len(keys):
-            raise ValueError(f"path {str(path)!r} has invalid map contents")
+        if sums.dtype != np.int64 or counts.dtype != np.int32 or sums.shape != shape or counts.shape != shape:
+            raise ValueError(f"{where} has invalid map contents (sums or counts of the wrong type or shape)")
+        if counts.size and (counts.min() < 0 or counts.max() > len(applied) or np.any(sums[counts == 0] != 0)):
+            raise ValueError(f"{where} holds contribution counts that no applied submaps give")
         gmap = cls(config, device)
         gmap._store = BlockStore.from_host(gmap.device, gmap._store.layer_specs, keys,
                                            {"sum": sums, "count": counts})
@@ -376,3 +376,23 @@ def _largest_displacement(box, T_old: np.ndarray, T_new: np.ndarray) -> float:
     corners = np.array([[(lo, hi)[m & 1][0], (lo, hi)[(m >> 1) & 1][1], (lo, hi)[(m >> 2) & 1][2]] for m in range(8)])
     moved = corners @ (T_new[:3, :3] - T_old[:3, :3]).T + (T_new[:3, 3] - T_old[:3, 3])
     return float(np.linalg.norm(moved, axis=1).max())
+
+
+def _applied_id(key) -> int:
+    i = int(key)
+    if i < 0 or str(i) != str(key):
+        raise ValueError(f"applied submap id {key!r} is no non-negative integer")
+    return i
+
+
+def _applied_record(record: dict, where: str) -> Applied:
+    """An applied submap read back from a file: a rigid pose, a revision, a volume (or None)."""
+    pose = rigid_pose(f"{where}: pose", np.array(record["pose"], dtype=np.float64))
+    revision = record["revision"]
+    if isinstance(revision, bool) or not isinstance(revision, int) or revision < 0:
+        raise ValueError(f"{where}: revision {revision!r} is no non-negative integer")
+    volume = record.get("volume")
+    if volume is not None and (isinstance(volume, bool) or not isinstance(volume, (int, float))
+                               or not 0 <= volume < math.inf):
+        raise ValueError(f"{where}: volume {volume!r} is no finite number >= 0")
+    return Applied(pose, revision, math.inf if volume is None else float(volume))

@@ -14,7 +14,7 @@ from vogjax.maps import parallel
 from vogjax.maps.blockmap import (RaycastResult, check_extent, classify, line_voxels, probability_from_log_odds,
                                   ray_arguments)
 from vogjax.config import MapConfig
-from vogjax.geometry import rigid_poses
+from vogjax.geometry import rigid_pose, rigid_poses
 from vogjax.kernels import fixed_point, virtual
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.maps.views import submap_views
@@ -82,7 +82,7 @@ class VogMap:
 
     def add_submap(self, pose) -> int:
         """A new empty submap with base pose `pose` (4,4) T_world_submap; returns its id."""
-        pose = rigid_poses("pose", pose)
+        pose = rigid_pose("pose", pose)[None]
         with self._lock.writing():
             self._submaps.append(Submap(self.config, self.device))
             self._poses = np.concatenate([self._poses, pose])
@@ -119,7 +119,10 @@ class VogMap:
 
     def check_ids(self, name: str, ids) -> np.ndarray:
         """`ids` as an int64 array of this map's submap ids; ValueError naming `name` otherwise."""
-        array = np.atleast_1d(np.asarray(ids))
+        try:
+            array = np.atleast_1d(np.asarray(ids))
+        except Exception:  # ragged lists
+            raise ValueError(f"{name} must be submap ids (integers), got {ids!r}") from None
         if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
             raise ValueError(f"{name} must be submap ids (integers), got {ids!r}")
         if array.size and (array.min() < 0 or array.max() >= self.num_submaps):

@@ -6,7 +6,7 @@ import numpy as np
 
 from vogjax.maps import integrator
 from vogjax.maps.blockmap import BlockMap
-from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys
 from vogjax.config import MapConfig
 from vogjax.io import read_map_file, write_map_file
 from vogjax.validation import float_array, index_array
@@ -79,9 +79,14 @@ class VoxelMap(BlockMap):
             keys, values = arrays["block_keys"], arrays["log_odds"]
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"path {str(path)!r} has invalid map contents: {error}") from None
-        if keys.dtype != np.int64 or values.dtype != np.float32 or \
-                values.shape != (keys.shape[0], BLOCK_VOXELS) or len(np.unique(keys)) != len(keys):
-            raise ValueError(f"path {str(path)!r} has invalid map contents")
+        where = f"path {str(path)!r}"
+        check_block_keys(keys, where)
+        if values.dtype != np.float32 or values.shape != (keys.shape[0], BLOCK_VOXELS):
+            raise ValueError(f"{where} has invalid map contents (log-odds of type {values.dtype}, shape {values.shape})")
+        observed = values[~np.isnan(values)]
+        if observed.size and (observed.min() < config.log_clamp_min or observed.max() > config.log_clamp_max
+                              or not np.all(np.isfinite(observed))):
+            raise ValueError(f"{where} holds log-odds outside its clamping range")
         vmap = cls(config, device)
         vmap._store = BlockStore.from_host(vmap.device, vmap._store.layer_specs, keys,
                                            {"log_odds": values})

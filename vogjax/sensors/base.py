@@ -15,7 +15,7 @@ import abc
 import numpy as np
 
 from vogjax.config import Config
-from vogjax.geometry import rigid_poses
+from vogjax.geometry import rigid_pose
 
 
 class RangeSensor(abc.ABC):
@@ -25,8 +25,8 @@ class RangeSensor(abc.ABC):
 
     def __init__(self, config: Config, T_vehicle_sensor=None):
         self.config = config
-        self.T_vehicle_sensor = rigid_poses("T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None
-                                            else T_vehicle_sensor)[0]
+        self.T_vehicle_sensor = rigid_pose("T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None
+                                           else T_vehicle_sensor)
 
     @property
     @abc.abstractmethod

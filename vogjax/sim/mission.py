@@ -56,6 +56,8 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
     check_writable(out)
     sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
     noise = noise or NavNoise()
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if laps is not None and not (isinstance(laps, int) and 1 <= laps <= MAX_LAPS):
         raise ValueError(f"laps must be an integer in [1, {MAX_LAPS}], got {laps!r}")
     if num_scans is not None and not (isinstance(num_scans, int) and 1 <= num_scans <= MAX_SCANS):

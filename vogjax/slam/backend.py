@@ -15,12 +15,16 @@ import gtsam
 import numpy as np
 
 from vogjax.config import NavNoise
-from vogjax.geometry import rigid_poses, wrap_angle
+from vogjax.geometry import rigid_pose, wrap_angle
+from vogjax.validation import real_array
 from vogjax.slam import factors
 
 PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
 MIN_VARIANCE, MAX_VARIANCE = 1e-12, 1e12
 MAX_DURATION_S = 1e7  # four months between two base poses
+# Below a millisecond the odometry factors' variances (drift per second x duration) leave iSAM2
+# an indeterminate system.
+MIN_DURATION_S = 1e-3
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -57,10 +61,7 @@ def _partial_error(between: gtsam.BetweenFactorPose3, basis: np.ndarray, this: g
 
 
 def _covariance(name: str, covariance, size: int) -> np.ndarray:
-    try:
-        covariance = np.asarray(covariance, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a ({size}, {size}) covariance matrix") from None
+    covariance = real_array(name, covariance)
     if covariance.shape != (size, size) or not np.all(np.isfinite(covariance)):
         raise ValueError(f"{name} must be a finite ({size}, {size}) matrix")
     if np.abs(covariance - covariance.T).max() > 1e-9 * max(np.abs(covariance).max(), 1e-300):
@@ -85,12 +86,9 @@ class PoseGraph:
 
     def __init__(self, noise: NavNoise | None = None, prior_pose=None, prior_sigmas=PRIOR_SIGMAS):
         self.noise = noise or NavNoise()
-        self.prior_pose = rigid_poses("prior_pose", np.eye(4) if prior_pose is None else prior_pose)[0]
-        try:
-            sigmas = np.asarray(prior_sigmas, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError("prior_sigmas must be six positive numbers (rad, rad, rad, m, m, m)") from None
-        if sigmas.shape != (6,) or not np.all(np.isfinite(sigmas)) or \
+        self.prior_pose = rigid_pose("prior_pose", np.eye(4) if prior_pose is None else prior_pose)
+        sigmas = real_array("prior_sigmas", prior_sigmas)
+        if sigmas.shape != (6,) or not np.all(np.isfinite(sigmas)) or not np.all(sigmas > 0) or \
                 not np.all((sigmas**2 >= MIN_VARIANCE) & (sigmas**2 <= MAX_VARIANCE)):
             raise ValueError(f"prior_sigmas must be six sigmas in [1e-6, 1e6] (rad, rad, rad, m, m, m), got {prior_sigmas!r}")
         self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
@@ -107,11 +105,12 @@ class PoseGraph:
 
     def add_submap(self, T_world_submap_nav, duration_s: float = 0.0) -> int:
         """A new node at the navigation pose; `duration_s`: time since the previous base pose."""
-        T = rigid_poses("T_world_submap_nav", T_world_submap_nav)[0]
+        T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
         i = self.num_submaps
         if i > 0 and not (isinstance(duration_s, (int, float, np.integer, np.floating)) and not isinstance(duration_s, bool)
-                          and np.isfinite(duration_s) and 0 < duration_s <= MAX_DURATION_S):
-            raise ValueError(f"duration_s must be a positive number of seconds up to {MAX_DURATION_S:g}, got {duration_s!r}")
+                          and np.isfinite(duration_s) and MIN_DURATION_S <= duration_s <= MAX_DURATION_S):
+            raise ValueError(f"duration_s must be a number of seconds in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}], "
+                             f"got {duration_s!r}")
         if i == 0:
             self._pending.add(gtsam.PriorFactorPose3(0, _pose3(self.prior_pose), self._prior_noise))
             self.factors.append(("prior", (0,)))
@@ -141,7 +140,7 @@ class PoseGraph:
                 raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
         if i == k:
             raise ValueError("i and k must differ")
-        T_i_k = rigid_poses("T_i_k", T_i_k)[0]
+        T_i_k = rigid_pose("T_i_k", T_i_k)
         covariance = _covariance("covariance", covariance, 6)
         if basis is None:
             self._pending.add(gtsam.BetweenFactorPose3(int(i), int(k), _pose3(T_i_k),

@@ -16,11 +16,15 @@ import numpy as np
 from scipy import fft, ndimage
 
 from vogjax.config import CorrelativeConfig
-from vogjax.geometry import rigid_poses, rotation_from_ypr
+from vogjax.geometry import rigid_pose, rotation_from_ypr
+from vogjax.validation import real_array
 
-# Bounds on one search: its grid (float32, plus its FFT) and the yaw steps it correlates.
+# Bounds on one search: its grid (float32, plus its FFT), and its work, grid cells times yaw
+# steps (one FFT pass per step: 1e9 is about a minute on two CPU cores).
 MAX_GRID_CELLS = 5e7
-MAX_YAW_STEPS = 2001
+MAX_SEARCH_WORK = 1e9
+MAX_RADIUS_M = 1000.0
+MAX_COORDINATE_M = 1e7  # beyond it float64 keeps no sub-voxel digits of a grid index
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,14 +49,16 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     The correction rotates about the source cloud's centroid (in the target frame) and then
     shifts by whole voxels in x and y.
     """
-    source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
+    source, target = real_array("source", source), real_array("target", target)
     for name, cloud in (("source", source), ("target", target)):
         if cloud.ndim != 2 or cloud.shape[1] != 3 or len(cloud) == 0 or not np.all(np.isfinite(cloud)):
             raise ValueError(f"{name} must be a non-empty (N, 3) array of finite points")
-    T_init = rigid_poses("T_init", T_init)[0]
-    for name, value in (("radius_m", radius_m), ("yaw_radius_rad", yaw_radius_rad)):
-        if not (isinstance(value, (int, float, np.floating)) and 0 <= value < np.inf):
-            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if np.abs(cloud).max() > MAX_COORDINATE_M:
+            raise ValueError(f"{name} has coordinates beyond {MAX_COORDINATE_M:g} m")
+    T_init = rigid_pose("T_init", T_init)
+    for name, value, most in (("radius_m", radius_m, MAX_RADIUS_M), ("yaw_radius_rad", yaw_radius_rad, np.pi)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float, np.integer, np.floating)) and 0 <= value <= most):
+            raise ValueError(f"{name} must be a number in [0, {most:g}], got {value!r}")
     res = config.resolution_m
     moved = source @ T_init[:3, :3].T + T_init[:3, 3]
     pivot = moved.mean(axis=0)
@@ -67,13 +73,16 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
         return CorrelativeMatch(T_init.copy(), 0.0, 0.0)
     lo[2] = min(target[:, 2].min(), moved[:, 2].min()) - res
     hi[2] = max(target[:, 2].max(), moved[:, 2].max()) + res
-    shape = np.ceil((hi - lo) / res).astype(int) + 1
-    steps = max(int(np.floor(yaw_radius_rad / config.yaw_step_rad)), 0)
-    cells = float(np.prod(shape.astype(np.float64)))
-    if cells > MAX_GRID_CELLS or 2 * steps + 1 > MAX_YAW_STEPS:
+    extent = np.ceil((hi - lo) / res) + 1  # in floats: a cast first could overflow
+    yaw_steps = 2 * np.floor(yaw_radius_rad / config.yaw_step_rad) + 1
+    cells = float(np.prod(extent))
+    if cells > MAX_GRID_CELLS or cells * yaw_steps > MAX_SEARCH_WORK:
         raise ValueError(f"radius_m ({radius_m:g} m) and yaw_radius_rad ({yaw_radius_rad:g}) ask for a search grid of "
-                         f"{cells:.3g} cells x {2 * steps + 1} yaw steps at {res:g} m; at most {MAX_GRID_CELLS:.0e} "
-                         f"cells and {MAX_YAW_STEPS} yaw steps (a coarser resolution_m or a smaller radius)")
+                         f"{cells:.3g} cells x {yaw_steps:.0f} yaw steps at {res:g} m; at most {MAX_GRID_CELLS:.0e} "
+                         f"cells and {MAX_SEARCH_WORK:.0e} cells x yaw steps (a coarser resolution_m or a smaller "
+                         "radius)")
+    shape = extent.astype(int)
+    steps = int(yaw_steps) // 2
     field = np.zeros(shape, np.float32)
     cells = np.floor((target - lo) / res).astype(int)
     field[cells[:, 0], cells[:, 1], cells[:, 2]] = 1.0

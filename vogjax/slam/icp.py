@@ -17,6 +17,9 @@ from scipy.spatial import cKDTree
 
 from vogjax.config import IcpConfig
 from vogjax.geometry import exp_se3, rigid_poses
+from vogjax.validation import real_array
+
+MAX_COORDINATE_M = 1e7  # clouds farther out lose their metres in float64 squares
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +81,8 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     sources = [_cloud("source", c) for c in sources]
     targets = [_cloud("target", c) for c in targets]
     count = len(sources)
+    if count == 0:
+        return []
     T = (np.tile(np.eye(4), (count, 1, 1)) if T_inits is None
          else rigid_poses("T_init", T_inits, count=count).copy())
     trees = [cKDTree(t) for t in targets]
@@ -173,14 +178,13 @@ def _free_columns(config: IcpConfig) -> np.ndarray:
 
 
 def _cloud(name: str, value) -> np.ndarray:
-    try:
-        cloud = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an (N, 3) point cloud") from None
+    cloud = real_array(name, value)
     if cloud.ndim != 2 or cloud.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {cloud.shape}")
     if len(cloud) < 3:
         raise ValueError(f"{name} needs at least 3 points, got {len(cloud)}")
     if not np.all(np.isfinite(cloud)):
         raise ValueError(f"{name} contains NaN or infinite values")
+    if np.abs(cloud).max() > MAX_COORDINATE_M:
+        raise ValueError(f"{name} has coordinates beyond {MAX_COORDINATE_M:g} m (the normals' squares would overflow)")
     return cloud
