@@ -501,19 +501,19 @@ def part_3d(args) -> dict:
     laps = 1 if args.quick else 2
     map_config = vj.MapConfig(voxel_size=0.1, max_range=11.0)
     out = {"scene": args.scene, "laps": laps, "voxel_size_m": 0.1, "map_config": map_config.to_dict(),
-           "noise": [], "machine": machine("cpu")}
+           "noise": [], "machine": machine(args.device)}
     for noise in tqdm(NOISES_3D, desc="sonar noise", leave=False):
         origins, points, scan_index, no_return = sonar_rays(scene, noise, laps, seed=11)
         crm_config = CrmConfig(voxel_size=0.1, max_range=11.0, range_sigma_m=noise)
         timed = noise == TIMED_NOISE
         repeats = 1 if args.quick or not timed else 5
         # compile and warm both first; then alternate them, so both see the same machine load
-        ConfidenceMap(crm_config, "cpu").integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
-        vj.VoxelMap(map_config, "cpu").integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
+        ConfidenceMap(crm_config, args.device).integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
+        vj.VoxelMap(map_config, args.device).integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
         pairs = []
         for _ in range(repeats):
-            t_vox, voxmap = best_time(1, lambda: _built(vj.VoxelMap(map_config, "cpu"), origins, points, scan_index))
-            t_crm, crm = best_time(1, lambda: _built(ConfidenceMap(crm_config, "cpu"), origins, points, scan_index))
+            t_vox, voxmap = best_time(1, lambda: _built(vj.VoxelMap(map_config, args.device), origins, points, scan_index))
+            t_crm, crm = best_time(1, lambda: _built(ConfidenceMap(crm_config, args.device), origins, points, scan_index))
             pairs.append((t_crm, t_vox))
         pairs = np.array(pairs)
         t_crm, t_vox = pairs.min(axis=0)
@@ -622,6 +622,7 @@ def main():
     parser.add_argument("--quick", action="store_true", help="a smoke run: few worlds, short runs")
     parser.add_argument("--bins", action="store_true", help="with --quick: still measure the bin counts")
     parser.add_argument("--scene", default="tank", help="built-in scene of the 3D part")
+    parser.add_argument("--device", default="cpu", help="Warp device of the 3D part (cpu, cuda:0)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     vj.devices.init()
@@ -641,7 +642,7 @@ def main():
               f"least ISM per world {s['best_ism_inconsistency_mean']:.2f}")
     if args.part in ("all", "3d"):
         result = part_3d(args)
-        (args.out / "crm_3d_cpu.json").write_text(json.dumps(result, indent=1))
+        (args.out / f"crm_3d_{args.device.split(':')[0]}.json").write_text(json.dumps(result, indent=1))
         print_3d(result)
 
 

@@ -1,9 +1,18 @@
-"""Simulation: the MJX vehicle, range scans of the scene, drifting navigation, runs."""
+"""Simulation: the MJX vehicle, range scans of the scene, drifting navigation, runs.
 
-from vogjax.sim.mission import RunSummary, simulate_run
-from vogjax.sim.navigation import drifting_navigation
-from vogjax.sim.ranging import SimulatedScans, scan
-from vogjax.sim.vehicle import simulate, simulate_batch
+Names are imported on first use, so the Warp ray casts (`vogjax.sim.ranging`, `scan`) work
+without loading MuJoCo and JAX."""
+
+import importlib
+
+_HOMES = {"RunSummary": "mission", "simulate_run": "mission", "drifting_navigation": "navigation",
+          "SimulatedScans": "ranging", "scan": "ranging", "simulate": "vehicle", "simulate_batch": "vehicle"}
 
 __all__ = ["RunSummary", "SimulatedScans", "drifting_navigation", "scan", "simulate",
            "simulate_batch", "simulate_run"]
+
+
+def __getattr__(name):
+    if name in _HOMES:
+        return getattr(importlib.import_module(f"vogjax.sim.{_HOMES[name]}"), name)
+    raise AttributeError(f"module 'vogjax.sim' has no attribute {name!r}")
