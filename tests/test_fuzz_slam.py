@@ -25,14 +25,22 @@ from .test_fuzz_maps import JUNK, REFUSED, SPECIALS, attempt, combined, fuzz, ho
 
 # ------------------------------------------------------------------------------ PoseGraph
 
-DURATIONS = st.sampled_from([0.1, 1.0, 20.0, 1e3, 1e7, 1e-5,  # valid
-                             0.0, -1.0, math.nan, math.inf, 1.1e7, "1", None, True, [1.0], np.array([1.0])])
+DURATIONS = st.sampled_from([0.1, 1.0, 20.0, 1e3, 1e7, 1e-3,  # valid
+                             1e-5, 0.0, -1.0, math.nan, math.inf, 1.1e7, "1", None, True, [1.0], np.array([1.0])])
 
 
 def duration_valid(value) -> str:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         return "invalid"
-    return "valid" if math.isfinite(value) and 0 < value <= backend.MAX_DURATION_S else "invalid"
+    return "valid" if math.isfinite(value) and backend.MIN_DURATION_S <= value <= backend.MAX_DURATION_S else "invalid"
+
+
+def step_valid(previous, pose, duration, noise) -> str:
+    """A step of more drift sigmas in x or y (in the previous pose's frame) than the pose graph
+    weighs may be refused; smaller ones must be taken."""
+    step = (np.linalg.inv(previous) @ pose)[:2, 3]
+    sigmas = np.abs(step) / np.sqrt(np.array([noise.sigma2_x, noise.sigma2_y]) * duration)
+    return "valid" if sigmas.max() <= 1e6 else "either"
 
 
 def covariance_case(draw):
@@ -124,8 +132,10 @@ def test_pose_graph(data):
                 pose = nav_pose(n)
             duration = data.draw(DURATIONS)
             e2 = duration_valid(duration) if n > 0 else "either"  # the first node has no duration
+            e3 = step_valid(pg.navigation_poses()[-1], pose, duration, noise) if n > 0 and e1 == e2 == "valid" \
+                else "either"
             i = attempt(lambda: pg.add_submap(pose, duration), ["T_world_submap_nav", "duration_s"], snapshot,
-                        combined(e1, e2), "PoseGraph.add_submap")
+                        combined(e1, e2, e3), "PoseGraph.add_submap")
             if i is not REFUSED:
                 assert i == n
                 twin.add_submap(pose, duration)
@@ -509,3 +519,17 @@ def test_loop_closure_floors_stay_within_the_pose_graph_bounds(field):
         floor = getattr(LoopClosureConfig(**{field: 1e7}), field) ** 2
         backend._covariance("covariance", np.eye(6) * 1e-4 + np.diag([floor] * 6), 6)
     refuses(closure_with_floor, field)
+
+
+def test_a_navigation_jump_the_graph_cannot_weigh_is_refused():
+    """3,000 km in 0.1 s: the odometry factor's information swamps the graph and iSAM2 raised
+    GTSAM's 'indeterminate system' (a RuntimeError) at the next update."""
+    pg = slam.PoseGraph()
+    pg.add_submap(np.eye(4))
+    pg.add_submap(np.eye(4), 0.1)
+    far = np.eye(4)
+    far[1, 3] = 3e6
+    with pytest.raises(ValueError, match="T_world_submap_nav"):
+        pg.add_submap(far, 0.1)
+    assert pg.num_submaps == 2
+    assert np.all(np.isfinite(pg.update()))

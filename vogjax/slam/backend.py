@@ -25,6 +25,10 @@ MAX_DURATION_S = 1e7  # four months between two base poses
 # Below a millisecond the odometry factors' variances (drift per second x duration) leave iSAM2
 # an indeterminate system.
 MIN_DURATION_S = 1e-3
+# A navigation step of more than this many drift sigmas between two base poses makes the
+# odometry factor's information (step^2 / variance) swamp the rest of the graph: iSAM2's
+# Cholesky then reports an indeterminate system (seen from about 1e7.5 sigmas).
+MAX_STEP_SIGMAS = 1e7
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -117,6 +121,12 @@ class PoseGraph:
             initial = self.prior_pose
         else:
             previous = self._nav[-1]
+            step_sigmas = np.abs(np.linalg.inv(previous)[:2] @ np.r_[T[:3, 3], 1.0]) / \
+                np.sqrt(self.noise.xyh_variances(duration_s)[:2])
+            if step_sigmas.max() > MAX_STEP_SIGMAS:
+                raise ValueError(f"T_world_submap_nav moved {step_sigmas.max():.3g} drift sigmas in x-y since the "
+                                 f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s): a jump "
+                                 "the pose graph cannot weigh")
             xyh_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.xyh_variances(duration_s))
             zpr_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.zpr_variances(duration_s))
             self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i],
