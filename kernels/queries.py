@@ -72,8 +72,8 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
               grid_dims: wp.vec3i, grid: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
               hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
               num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
-    """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range,
-    and the FREE and UNKNOWN voxels passed before it.
+    """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range
+    (max_ranges: one per ray, or one for all), and the FREE and UNKNOWN voxels passed before it.
 
     Voxel states come from classify_blocks. The map's blocks lie in [grid_lo, grid_hi] (block
     coordinates); with grid_dims > 0 a dense grid gives each block's slot in one load. Outside
@@ -84,7 +84,7 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     """
     tid = wp.tid()
     origin, direction = origins[tid], unit_direction(directions[tid])
-    max_range = max_ranges[tid]
+    max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
     w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
     # the map's box widened by a voxel: the ray is before it until span[0], past it after span[1]
     lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))

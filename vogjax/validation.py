@@ -63,6 +63,12 @@ def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
 
 def within_key_range(name: str, array: np.ndarray, voxel_size: float, limit: int) -> None:
     """Coordinates must map to voxel keys the block table can pack."""
-    if array.size and np.abs(array).max() / voxel_size >= limit - 2:
+    if not array.size:
+        return
+    if array.dtype.kind == "f":  # |array|.max() without a temporary (NaN propagates alike)
+        extent = np.maximum(array.max(), -array.min())
+    else:
+        extent = np.abs(array).max()
+    if extent / voxel_size >= limit - 2:
         raise ValueError(f"{name} lies too far from the origin for voxel size {voxel_size} m "
                          f"(at most {(limit - 2) * voxel_size:.0f} m per axis)")

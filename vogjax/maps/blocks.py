@@ -101,13 +101,12 @@ class BlockStore:
         self.table_slots = wp.full(_MIN_TABLE, -1, dtype=wp.int32, device=device)
         capacity = max(block_capacity, _MIN_BLOCKS)
         self.slot_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=device)
-        # Per-block scratch for batched integration: index among the blocks a batch touches.
-        self.touch_index = wp.full(capacity, -1, dtype=wp.int32, device=device)
         self.layers = {name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
                        for name, (dtype, fill) in self.layer_specs.items()}
         self.version = 0  # counts changes to the set of blocks (BlockGrid follows it)
         self._new_positions = wp.empty(0, dtype=wp.int32, device=device)  # ensure_blocks' scratch
         self._counters = wp.zeros(2, dtype=wp.int32, device=device)
+        self._no_slots = wp.empty(0, dtype=wp.int32, device=device)  # no released slots to reuse
         self._grid: tuple | None = None  # (version, BlockGrid)
         self._grid_lock = threading.Lock()
 
@@ -124,8 +123,7 @@ class BlockStore:
         return self.num_blocks - len(self.free_slots)
 
     def memory_bytes(self) -> int:
-        arrays = [self.table_keys, self.table_slots, self.slot_keys, self.touch_index,
-                  *self.layers.values()]
+        arrays = [self.table_keys, self.table_slots, self.slot_keys, *self.layers.values()]
         grid = self._grid
         return int(sum(a.capacity for a in arrays)) + (grid[1].cells.capacity if grid else 0)
 
@@ -161,6 +159,10 @@ class BlockStore:
             return
         if self._new_positions.shape[0] < keys.shape[0]:
             self._new_positions = wp.empty(keys.shape[0] + keys.shape[0] // 2, dtype=wp.int32, device=self.device)
+        # room for every key first (keys may repeat: at most their number are new): inserting
+        # into a table they would overfill fails part-way, and costs a second round
+        if 2 * (self.live_blocks + self.tombstones + keys.shape[0]) > self.table_capacity:
+            self._reserve_table(self.live_blocks + keys.shape[0])
         while True:
             self._counters.zero_()
             wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
@@ -171,9 +173,10 @@ class BlockStore:
                 del self.free_slots[:new_blocks]
                 fresh = new_blocks - len(reused)
                 self._reserve_blocks(self.num_blocks + fresh)
+                reused_slots = (wp.array(np.asarray(reused, np.int32), dtype=wp.int32, device=self.device)
+                                if reused else self._no_slots)
                 wp.launch(hashing.assign_slots, dim=new_blocks,
-                          inputs=[self._new_positions, wp.array(np.asarray(reused, np.int32), dtype=wp.int32,
-                                                                device=self.device), self.num_blocks],
+                          inputs=[self._new_positions, reused_slots, self.num_blocks],
                           outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
                 self.num_blocks += fresh
                 self.version += 1
@@ -262,7 +265,6 @@ class BlockStore:
         # (a few milliseconds for a 2000-scan survey) and holds at most a fifth of it spare.
         capacity = max(num_blocks, old + old // 4)
         self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
-        self.touch_index = _grown(self.touch_index, capacity, -1)
         for name, (_, fill) in self.layer_specs.items():
             self.layers[name] = _grown(self.layers[name], capacity * BLOCK_VOXELS, fill)
 

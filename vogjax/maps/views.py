@@ -9,11 +9,17 @@ import warp as wp
 from vogjax.kernels.submap_view import SubmapView
 
 
+_DTYPE = None  # SubmapView's NumPy dtype, parsed once (NumPy parses a dtype spec per use)
+
+
 def submap_views(submaps: list, poses: np.ndarray, device) -> wp.array:
     """Device array of SubmapViews of `submaps` (Submap objects, held read-locked by the caller)
     at `poses` (n,4,4). A view's box is its submap's observed box widened by a voxel (empty
     where the submap observed nothing)."""
-    views = np.zeros(len(submaps), dtype=SubmapView.numpy_dtype())
+    global _DTYPE
+    if _DTYPE is None:
+        _DTYPE = np.dtype(SubmapView.numpy_dtype())
+    views = np.zeros(len(submaps), dtype=_DTYPE)
     if len(submaps) == 0:
         return wp.array(views, dtype=SubmapView, device=device)
     stores = [submap.store for submap in submaps]
@@ -27,14 +33,11 @@ def submap_views(submaps: list, poses: np.ndarray, device) -> wp.array:
     views["rotation"] = poses[:, :3, :3]
     views["rotation_t"] = poses[:, :3, :3].transpose(0, 2, 1)
     views["translation"] = poses[:, :3, 3]
-    boxes = np.array([_widened_box(submap) for submap in submaps])
-    views["box_lo"], views["box_hi"] = boxes[:, 0], boxes[:, 1]
+    # the boxes widened by a voxel, in two array operations rather than two per submap
+    boxes = [submap.bounds() for submap in submaps]
+    empty = ((np.inf,) * 3, (-np.inf,) * 3)
+    lo = np.array([empty[0] if box is None else box[0] for box in boxes], dtype=np.float64)
+    hi = np.array([empty[1] if box is None else box[1] for box in boxes], dtype=np.float64)
+    margin = np.array([submap.config.voxel_size for submap in submaps], dtype=np.float64)[:, None]
+    views["box_lo"], views["box_hi"] = lo - margin, hi + margin
     return wp.array(views, dtype=SubmapView, device=device)
-
-
-def _widened_box(submap) -> np.ndarray:
-    box = submap.bounds()
-    if box is None:
-        return np.array([[np.inf] * 3, [-np.inf] * 3])
-    margin = submap.config.voxel_size
-    return np.array([box[0] - margin, box[1] + margin])
