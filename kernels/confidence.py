@@ -138,16 +138,20 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     last_key = EMPTY_KEY
     voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     steps = int(0)
+    moved = bool(True)  # the walk entered another block since the last voxel counted
     while t_in < length and steps <= w.max_steps:
         if first_boundary(t_max, length) > t_in:
-            key = pack_block(block_of(voxel))
-            if key != last_key:
-                if n_blocks < capacity:
-                    block_keys[tid, n_blocks] = key
-                n_blocks += 1
-                last_key = key
+            if moved:  # the key can only differ from the last one listed after a block change
+                key = pack_block(block_of(voxel))
+                if key != last_key:
+                    if n_blocks < capacity:
+                        block_keys[tid, n_blocks] = key
+                    n_blocks += 1
+                    last_key = key
+                moved = False
             n_steps += 1
-        voxel, t_max, t_in, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
+        moved = moved or new_block
         steps += 1
     block_counts[tid] = n_blocks  # above the capacity: the host lists again with more room
     step_counts[tid] = n_steps
@@ -304,9 +308,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
         """Multiply a voxel's bins by f(m_k) = r0 + m_k (r1 - r0), kept away from underflow."""
         b = wp.cw_mul(bins[voxel], ONES * r[0] + LEVELS * (r[1] - r[0]))
-        top = wp.max(b)
-        if top < RESCALE_BELOW and top > wp.float32(0.0):
-            b = b * (wp.float32(1.0) / top)
+        # the 16-way max only when neither end bin clears the threshold (the same test, and
+        # the same bits, at half the cost of the update: rescaling is rare)
+        if b[0] < RESCALE_BELOW and b[K - 1] < RESCALE_BELOW:
+            top = wp.max(b)
+            if top < RESCALE_BELOW and top > wp.float32(0.0):
+                b = b * (wp.float32(1.0) / top)
         bins[voxel] = b
 
     @wp.func
