@@ -16,6 +16,15 @@
    `vogjax simulate` over as many scans.
 
     python benchmarks/bench_explore.py --out benchmarks/results [--submaps 156] [--runs 2]
+    python benchmarks/bench_explore.py --out benchmarks/results --reuse /tmp/bench_runs
+
+`--reuse DIR` takes every ARM_SEED.h5 with its ARM_SEED.explore.csv found in DIR (as `--keep`
+leaves them) instead of exploring again: the run file is replayed through the pipeline's Mapper
+as explore() fed it (the same maps, checked against the CSV's explored volume), the summary
+comes from the run and the CSV (wall_s: null, unknown), and the timing probe runs at the CSV's
+planning moments, from the pose the planner planned from (explore's estimate: the last scan's
+navigation corrected by the last finished submap) on the map it had then. (A live probe runs
+after the iteration's flight, on the map that flight extended, from the pose before it.)
 
 Writes explore_<device>.json and explore_rmse.png, explore_timing.png, explore_volume.png.
 """
@@ -38,10 +47,12 @@ import numpy as np  # noqa: E402
 import vogjax as vj  # noqa: E402
 from vogjax import planner, scenes  # noqa: E402
 from vogjax.config.planner import PlannerConfig  # noqa: E402
+from vogjax.geometry import inverse  # noqa: E402
 from vogjax.io.dataset import Dataset  # noqa: E402
+from vogjax.pipeline import Mapper  # noqa: E402
 from vogjax.report.metrics import reconstruction_rmse  # noqa: E402
 from vogjax.sim import simulate_run  # noqa: E402
-from vogjax.sim.explore import explore  # noqa: E402
+from vogjax.sim.explore import PIECE_SCANS, csv_path_of, explore  # noqa: E402
 
 BOX_M = np.array(PlannerConfig().box_m)
 
@@ -63,6 +74,14 @@ def box_hits(scene, truth: np.ndarray) -> int:
     lo, hi = surface.min(axis=0) - BOX_M, surface.max(axis=0) + BOX_M
     near = truth[np.all((truth[:, :3, 3] >= lo) & (truth[:, :3, 3] <= hi), axis=1)]
     return int(sum(np.any(np.all(np.abs(surface - p[:3, 3]) <= BOX_M / 2, axis=1)) for p in near))
+
+
+def known_m3(vmap, lo, hi) -> float:
+    """Known (free or occupied) volume of a map inside the box lo-hi (explore's explored_m3)."""
+    centres, values = vmap.voxels()
+    known = (values <= vmap.config.log_free) | (values >= vmap.config.log_occupied)
+    inside = np.all((centres >= lo) & (centres <= hi), axis=1)
+    return float(np.count_nonzero(known & inside) * vmap.config.voxel_size**3)
 
 
 def explored_curve(path: Path, scene, voxel_size: float, every: int = 100) -> dict:
@@ -100,13 +119,15 @@ class TimingProbe:
         self.next = every
 
     def __call__(self, mapper, plan, row) -> None:
+        self.measure(mapper, vj.geometry.pose_from_xyz_yaw(*plan.tree_states[0]))  # where it planned from
+
+    def measure(self, mapper, T) -> None:
         if mapper.num_submaps < self.next:
             return
         self.next = mapper.num_submaps + self.every
         filling = list(range(mapper.num_submaps, len(mapper.submaps)))
         maps = {"global": planner.Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map,
                 "virtual": mapper.vog}
-        T = vj.geometry.pose_from_xyz_yaw(*plan.tree_states[0])  # where this iteration planned from
         rng = np.random.default_rng(mapper.num_submaps)
         lo, hi = self.scene.bounds[0] + BOX_M / 2, self.scene.bounds[1] - BOX_M / 2
         views = np.array([vj.geometry.pose_from_xyz_yaw(*rng.uniform(lo, hi), rng.uniform(-np.pi, np.pi))
@@ -129,33 +150,79 @@ class TimingProbe:
         self.rows.append(entry)
 
 
-def run_arm(arm: str, seed: int, submaps: int, folder: Path, scene_name: str, probe=None) -> dict:
+def replay(out: Path, rows, arm: str, seed: int, scene, probe=None) -> tuple[Mapper, dict]:
+    """Feed a run file to the pipeline's Mapper as explore() fed it: from each planning moment
+    (a CSV row's scan count) the flight's scans in pieces of PIECE_SCANS; at each planning
+    moment the probe measures from explore's estimate. Returns the mapper and the summary
+    explore() gave, rebuilt from the run and the CSV."""
     config, pipeline = table_4_2(seed)
-    kept = {}
+    with Dataset(out) as run:
+        expected = {"map": arm, "seed": seed, "planner": config.to_dict(), "nav_noise": pipeline.nav_noise.to_dict(),
+                    "pipeline": {"scans_per_submap": pipeline.scans_per_submap, "voxel_size": pipeline.map.voxel_size}}
+        wrong = [key for key, value in expected.items() if run.metadata.get(key) != value]
+        if wrong:
+            raise ValueError(f"{out} was not explored with table_4_2's settings ({', '.join(wrong)} differ)")
+        scans, sensor = run.read(0, len(run)), vj.sensors.from_metadata(run.metadata)
+        mapper = Mapper(pipeline, run.metadata)
+    moments = [int(r["scans"]) for r in rows]
+    for start, end in zip([0] + moments, moments + [len(scans)]):
+        if probe is not None and start and mapper.num_submaps >= probe.next:
+            k = mapper.num_submaps - 1  # explore's estimate: navigation corrected by the last finished submap
+            probe.measure(mapper, mapper.vog.pose(k) @ inverse(mapper.submaps[k].T_world_base_nav)
+                          @ scans.pose_nav[start - 1])
+        if start == moments[-1]:  # the last plan: the online global map's explored volume then
+            explored = known_m3(mapper.global_map, *scene.region())
+        for first in range(start, end, PIECE_SCANS):
+            mapper.add(scans.rows(first, min(first + PIECE_SCANS, end)))
+    mapper.finish_submap()
+    last = rows[-1]
+    positions = np.vstack([scene.start_pose[:3, 3], scans.pose_truth[:, :3, 3]])
+    summary = {"scans": len(scans), "submaps": mapper.num_submaps, "iterations": len(rows),
+               "stopped": ("gain" if last["nodes"] else "blocked") if np.isnan(last["x_m"]) else "submaps",
+               "path_m": float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()),
+               "duration_s": len(scans) / sensor.rate_hz, "wall_s": None,
+               "reuse_check": {"explored_m3_csv": float(last["explored_m3"]), "explored_m3_replay": explored}}
+    if not np.isclose(explored, last["explored_m3"], rtol=1e-5):
+        print(f"  WARNING: the replay's explored volume at the last plan ({explored:.3f} m^3) is not the CSV's "
+              f"({last['explored_m3']:.3f} m^3): the maps differ from the online ones", flush=True)
+    return mapper, summary
 
-    def hook(mapper, plan, row):
-        kept["mapper"] = mapper
-        if probe is not None:
-            probe(mapper, plan, row)
 
+def run_arm(arm: str, seed: int, submaps: int, folder: Path, scene_name: str, probe=None, reuse=False) -> dict:
     out = folder / f"{arm}_{seed}.h5"
-    start = time.perf_counter()
-    summary = explore(scene_name, out, submaps, map_kind=arm, seed=seed, planner_config=config,
-                      pipeline_config=pipeline, on_iteration=hook)
-    seconds = time.perf_counter() - start
-    result = kept["mapper"].result()
     scene = scenes.load(scene_name)
+    if reuse:
+        rows = list(np.genfromtxt(csv_path_of(out), delimiter=",", names=True))
+        mapper, facts = replay(out, rows, arm, seed, scene, probe)
+    else:
+        config, pipeline = table_4_2(seed)
+        kept = {}
+
+        def hook(mapper, plan, row):
+            kept["mapper"] = mapper
+            if probe is not None:
+                probe(mapper, plan, row)
+
+        start = time.perf_counter()
+        summary = explore(scene_name, out, submaps, map_kind=arm, seed=seed, planner_config=config,
+                          pipeline_config=pipeline, on_iteration=hook, overwrite=True)
+        seconds = time.perf_counter() - start
+        mapper, rows = kept["mapper"], list(np.genfromtxt(summary.csv_path, delimiter=",", names=True))
+        facts = {"scans": summary.scans, "submaps": summary.submaps, "iterations": summary.iterations,
+                 "stopped": summary.stopped, "path_m": summary.path_m, "duration_s": summary.duration_s,
+                 "wall_s": seconds}
+    result = mapper.result()
     surface = scene.surface_points(50_000)
-    rmse = {"standard": reconstruction_rmse(occupied_centres(result.standard_map), surface),
-            "without_loop_closures": reconstruction_rmse(occupied_centres(result.navigation_merge), surface),
-            "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
+    occupied = {key: occupied_centres(m) for key, m in (("standard", result.standard_map),
+                                                        ("without_loop_closures", result.navigation_merge),
+                                                        ("with_loop_closures", result.global_map))}
     with Dataset(out) as run:
         truth = run.read(0, len(run)).pose_truth
-    rows = list(np.genfromtxt(summary.csv_path, delimiter=",", names=True))
     plan_s = np.array([r["plan_s"] for r in rows])
-    return {"arm": arm, "seed": seed, "scans": summary.scans, "submaps": summary.submaps,
-            "iterations": summary.iterations, "stopped": summary.stopped, "path_m": summary.path_m,
-            "duration_s": summary.duration_s, "wall_s": seconds, "rmse_m": rmse,
+    # RMSE over the occupied voxels left: drift that erases a surface lowers their number, not the RMSE
+    return {"arm": arm, "seed": seed, "reused": reuse, **facts,
+            "rmse_m": {key: reconstruction_rmse(points, surface) for key, points in occupied.items()},
+            "occupied_voxels": {key: len(points) for key, points in occupied.items()},
             "trajectory_rmse_m": result.metrics["trajectory_rmse_m"],
             "loop_closures": result.metrics["loop_closures"]["accepted"],
             "collisions": box_hits(scene, truth), "plan_s_median": float(np.median(plan_s)),
@@ -175,6 +242,8 @@ def main() -> None:
     parser.add_argument("--arms", default="standard,global", help="maps the planner plans on")
     parser.add_argument("--timing-every", type=int, default=15, help="submaps between timing probes (0: none)")
     parser.add_argument("--keep", type=Path, default=None, help="keep the run files in this folder")
+    parser.add_argument("--reuse", type=Path, default=None,
+                        help="take ARM_SEED.h5 and ARM_SEED.explore.csv from this folder where there (no exploring)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     scene = scenes.load(args.scene)
@@ -189,8 +258,11 @@ def main() -> None:
                 probe_here = None
                 if arm == "global" and seed == 0 and args.timing_every > 0:
                     probe = probe_here = TimingProbe(table_4_2(0)[0], scene, sonar, args.timing_every)
-                print(f"exploring: {arm} map, seed {seed}", flush=True)
-                runs.append(run_arm(arm, seed, args.submaps, folder, args.scene, probe_here))
+                reuse = args.reuse is not None and (args.reuse / f"{arm}_{seed}.h5").exists() and \
+                    csv_path_of(args.reuse / f"{arm}_{seed}.h5").exists()
+                print(f"{'replaying' if reuse else 'exploring'}: {arm} map, seed {seed}", flush=True)
+                runs.append(run_arm(arm, seed, args.submaps, args.reuse if reuse else folder, args.scene,
+                                    probe_here, reuse))
                 r = runs[-1]
                 print(f"  {r['scans']} scans, {r['submaps']} submaps, stopped: {r['stopped']}, RMSE {r['rmse_m']}, "
                       f"collisions {r['collisions']}, plan {r['plan_s_median']:.2f} s median", flush=True)
@@ -220,6 +292,7 @@ def plot(report: dict, folder: Path) -> None:
     ax.bar(range(len(values)), values, color=["tab:red" if "standard\n" in lab or lab.endswith("standard")
                                                else "tab:orange" if "without" in lab else "tab:blue" for lab in labels])
     ax.set_xticks(range(len(values)), labels, fontsize=6)
+    ax.set_yscale("log")  # a map without loop closures can be metres off
     ax.set_ylabel("reconstruction RMSE [m]")
     ax.set_title("Propeller explored by the planner (Ho Table 4.3)")
     fig.tight_layout()
