@@ -23,7 +23,8 @@ step() {  # step SECONDS COMMAND...: run one step under a time limit, its output
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$log"
 step 60 "$python" -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())"
 # kernels, maps, CRM and planner against their references, on the GPU (the default device there)
-step 120 "$python" -m pytest -q -x -p no:cacheprovider -n 8 tests/test_kernels_integration.py \
+workers=$("$python" -c "import xdist" 2>/dev/null && echo "-n 8")  # pytest-xdist when installed
+step 120 "$python" -m pytest -q -x -p no:cacheprovider $workers tests/test_kernels_integration.py \
     tests/test_kernels_queries.py tests/test_kernels_accumulation.py tests/test_integration.py \
     tests/test_globalmap.py tests/test_queries.py tests/test_crm.py tests/test_planner.py
 step 90 "$python" benchmarks/bench_voxelmap.py --out "$out" --device cuda:0 --scans 10000 --repeats 3

@@ -292,3 +292,19 @@ def test_a_kill_before_the_new_folder_is_complete_keeps_the_old_one(tmp_path):
     atomic.remove_stale(target)
     assert (target / "file.txt").read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]
+
+
+def test_leftovers_of_an_earlier_process_with_this_pid_are_repaired(tmp_path):
+    """In containers a run often gets the pid of the killed one: its leftovers must still be
+    repaired, not taken for this process's own temporary and deleted."""
+    target = tmp_path / "results"
+    pid = os.getpid()
+    new, old = tmp_path / f".results.{pid}.tmp", tmp_path / f".results.{pid}.old.tmp"
+    new.mkdir()
+    (new / "file.txt").write_text("new")
+    old.mkdir()
+    (old / "file.txt").write_text("old")
+    publication = atomic.AtomicPath(target, folder=True)
+    publication.abort()  # this write fails: the repaired folder stays
+    assert (target / "file.txt").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]

@@ -63,3 +63,68 @@ def test_an_update_progresses_under_continuous_queries():
     for t in readers:
         t.join()
     assert waited < 1.0
+
+
+def test_a_reader_may_read_again_while_a_writer_waits():
+    """A query that takes the lock again inside its read (a submap's bounds refreshed while its
+    views are held) must not wait behind a writer that queued in between."""
+    lock = ReadWriteLock()
+    inner_done = threading.Event()
+    writer_done = threading.Event()
+    outer_has_lock = threading.Event()
+    writer_started = threading.Event()
+
+    def reader():
+        with lock.reading():
+            outer_has_lock.set()
+            writer_started.wait(5)
+            time.sleep(0.05)  # the writer is queued now
+            with lock.reading():
+                inner_done.set()
+
+    def writer():
+        outer_has_lock.wait(5)
+        writer_started.set()
+        with lock.writing():
+            writer_done.set()
+
+    threads = [threading.Thread(target=reader, daemon=True), threading.Thread(target=writer, daemon=True)]
+    for t in threads:
+        t.start()
+    assert inner_done.wait(5), "the nested read waited behind the queued writer"
+    assert writer_done.wait(5)
+
+
+def test_an_interrupted_wait_leaves_the_lock_usable():
+    lock = ReadWriteLock()
+    holder_in, release = threading.Event(), threading.Event()
+
+    def holder():
+        with lock.writing():
+            holder_in.set()
+            release.wait(5)
+
+    t = threading.Thread(target=holder, daemon=True)
+    t.start()
+    holder_in.wait(5)
+    original = lock._condition.wait
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    lock._condition.wait = interrupted
+    try:
+        lock.reading().__enter__()
+    except KeyboardInterrupt:
+        pass
+    lock._condition.wait = original
+    release.set()
+    t.join(5)
+    wrote = threading.Event()
+
+    def writer():
+        with lock.writing():  # neither the abandoned read nor the finished write holds it
+            wrote.set()
+
+    threading.Thread(target=writer, daemon=True).start()
+    assert wrote.wait(5), "an abandoned request still holds the lock"

@@ -19,6 +19,7 @@ import errno
 import os
 import re
 import shutil
+import sys
 from pathlib import Path
 
 
@@ -109,7 +110,9 @@ def remove_stale(target) -> list[Path]:
     A folder is published over an earlier one in two renames (earlier -> `.NAME.PID.old.tmp`,
     new -> NAME); a process killed between them leaves no NAME. The new folder was complete
     (it is moved only once written and synced), so its publication is finished here; without
-    it the earlier folder is put back."""
+    it the earlier folder is put back. Leftovers named with this process's own id count as
+    stale too: a process publishes one target at a time, so they are from an earlier process
+    that had the same id (common in containers)."""
     target = Path(target)
     removed = []
     try:
@@ -118,11 +121,16 @@ def remove_stale(target) -> list[Path]:
         return removed
     stale = [(entry, _LEFTOVER.match(entry.name)) for entry in entries]
     stale = [(entry, match) for entry, match in stale
-             if match and match["name"] == target.name and not _alive(int(match["pid"]))]
+             if match and match["name"] == target.name
+             and (int(match["pid"]) == os.getpid() or not _alive(int(match["pid"])))]
     for entry, match in stale:
         if match["old"] and not target.exists():
             new = entry.with_name(f".{target.name}.{match['pid']}.tmp")
-            os.replace(new if new.is_dir() else entry, target)
+            try:
+                os.replace(new if new.is_dir() else entry, target)
+            except OSError:  # another process repaired it first
+                if not target.exists():
+                    raise
     for entry, _ in stale:
         if entry.exists() or entry.is_symlink():
             _remove(entry)
@@ -135,9 +143,11 @@ _AT_FDCWD = -100
 
 
 def _renameat2():
+    if not sys.platform.startswith("linux"):
+        return None
     try:
         function = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True).renameat2
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):
         return None
     function.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
     return function
@@ -153,8 +163,8 @@ def _exchange(a: Path, b: Path) -> bool:
     if _RENAMEAT2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
         return True
     code = ctypes.get_errno()
-    if code in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EXDEV):
-        return False
+    if code in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EXDEV, errno.EPERM):
+        return False  # EPERM: a sandbox refusing the call; a real permission error recurs in the fallback
     raise OSError(code, os.strerror(code), str(b))
 
 

@@ -12,15 +12,16 @@ class ReadWriteLock:
     """Many readers at once, or one writer, granted first come, first served: a reader waits
     only for writers that asked before it, a writer for everyone who asked before it. So a
     stream of queries cannot starve an update, and back-to-back updates cannot starve queries
-    (readers arriving together between two updates go in together). A thread must not take the
-    lock again while it holds it: behind a waiting writer, that second request would wait for
-    the first to be released."""
+    (readers arriving together between two updates go in together). Reading is reentrant: a
+    thread that already reads is let in again at once (queued behind a waiting writer, it would
+    wait for itself). A thread that writes must not take the lock again."""
 
     def __init__(self):
         self._condition = threading.Condition()
         self._readers = 0
         self._writing = False
         self._queue: collections.deque = collections.deque()  # [kind, granted] in arrival order
+        self._held = threading.local()  # .reads: how many reads this thread holds
 
     def _grant(self) -> None:
         """Admit waiting requests from the head of the queue (called with the condition held)."""
@@ -41,19 +42,38 @@ class ReadWriteLock:
 
     def _acquire(self, kind: str) -> None:
         with self._condition:
+            if kind == "read" and getattr(self._held, "reads", 0):
+                self._readers += 1  # already reading: no writer can be in, nothing to wait for
+                self._held.reads += 1
+                return
             request = [kind, False]
             self._queue.append(request)
             self._grant()
-            while not request[1]:
-                self._condition.wait()
+            try:
+                while not request[1]:
+                    self._condition.wait()
+            except BaseException:  # interrupted while waiting: leave the queue as if never asked
+                if request[1]:
+                    self._release_locked(kind)
+                else:
+                    self._queue.remove(request)
+                    self._grant()
+                raise
+            if kind == "read":
+                self._held.reads = 1
 
     def _release(self, kind: str) -> None:
         with self._condition:
             if kind == "read":
-                self._readers -= 1
-            else:
-                self._writing = False
-            self._grant()
+                self._held.reads -= 1
+            self._release_locked(kind)
+
+    def _release_locked(self, kind: str) -> None:
+        if kind == "read":
+            self._readers -= 1
+        else:
+            self._writing = False
+        self._grant()
 
     @contextlib.contextmanager
     def reading(self):
