@@ -342,3 +342,32 @@ def test_eps_move_reapplies_only_submaps_whose_voxels_moved_that_far():
     applied[1] = gmap.applied_pose(1)
     expected.merge(vog.view(poses=applied))
     assert as_dict(expected) == as_dict(gmap)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), eps_move=st.sampled_from([0.0, 0.05]))
+def test_marginals_of_the_moved_submaps_alone_give_the_same_update(seed, eps_move):
+    """moved_submaps is update_poses's S1: with NaN for every other submap beyond the first ten,
+    the same submaps are re-applied, with the same volumes kept, as with every marginal."""
+    rng = np.random.default_rng(seed)
+    n = 14
+    vog = random_vog(rng, n, scans=1, beams=20)
+    marginals = np.tile(np.eye(6), (n, 1, 1)) * rng.uniform(1e-5, 1e-3, (n, 1, 1))
+    full, partial = vj.GlobalMap(vog.config), vj.GlobalMap(vog.config)
+    full.merge(vog, marginals)
+    partial.merge(vog, marginals)
+    poses = vog.poses()
+    for i in rng.choice(n, 6, replace=False):
+        poses[i, :3, 3] += rng.normal(0, 0.05, 3)
+    vog.set_poses(np.arange(n), poses)
+    later = marginals * rng.uniform(0.2, 3.0, (n, 1, 1))
+    moved = partial.moved_submaps(vog, eps_move_m=eps_move)
+    sparse = np.full_like(later, np.nan)
+    wanted = sorted(set(moved) | set(range(10)))
+    sparse[wanted] = later[wanted]
+    a = full.update_poses(vog, later, eps_move_m=eps_move)
+    b = partial.update_poses(vog, sparse, eps_move_m=eps_move)
+    assert a.moved == b.moved == moved
+    assert a.reapplied == b.reapplied
+    assert as_dict(full) == as_dict(partial)
+    assert [full._applied[i].volume for i in full.applied_ids] == [partial._applied[i].volume for i in partial.applied_ids]

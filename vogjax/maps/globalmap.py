@@ -159,19 +159,7 @@ class GlobalMap(BlockMap):
             was = np.array([self._applied[i].volume if i in self._applied else 0.0
                             for i in range(vog.num_submaps)])
             uncertain = set(np.flatnonzero(np.maximum(volumes, was) > threshold).tolist())
-        ids = np.array(self.applied_ids, dtype=np.int64)
-        moved = ()
-        if len(ids):
-            old = np.stack([self._applied[i].pose for i in ids.tolist()])
-            new = vog.poses(ids)
-            angle, shift = pose_deltas(old, new)
-            # An unchanged pose never moves, whatever round-off the SE(3) log leaves.
-            changed = np.any(old != new, axis=(1, 2))
-            displaced = np.ones(len(ids), bool)
-            if eps_move_m > 0:
-                displaced = np.array([_largest_displacement(vog.submap(i).bounds(), T_old, T_new) > eps_move_m
-                                      for i, T_old, T_new in zip(ids.tolist(), old, new)])
-            moved = tuple(ids[changed & displaced & ((angle > eps_rot) | (shift > eps_trans))].tolist())
+        moved = self._moved(vog, eps_rot, eps_trans, eps_move_m)
         reapply = [i for i in moved if uncertain is None or i in uncertain]
         stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
         if stale:
@@ -185,6 +173,31 @@ class GlobalMap(BlockMap):
             self._refresh(touched, release=True)
         return UpdateReport(tuple(reapply), moved, None if uncertain is None else tuple(sorted(uncertain)),
                             threshold, pulls, time.perf_counter() - start)
+
+    def moved_submaps(self, vog: VogMap, eps_rot: float = PipelineConfig.eps_rot,
+                      eps_trans: float = PipelineConfig.eps_trans, eps_move_m: float = 0.0) -> tuple:
+        """Algorithm 1's S1 as `update_poses` judges it with the same thresholds: the only
+        submaps whose marginals it reads (besides submaps 0-9 for eps_cov = "auto"), so a caller
+        may compute just those and pass NaN for the rest."""
+        self._check_vog(vog)
+        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_move_m", eps_move_m)):
+            check_setting(PipelineConfig, name, value)
+        return self._moved(vog, eps_rot, eps_trans, eps_move_m)
+
+    def _moved(self, vog: VogMap, eps_rot: float, eps_trans: float, eps_move_m: float) -> tuple:
+        ids = np.array(self.applied_ids, dtype=np.int64)
+        if not len(ids):
+            return ()
+        old = np.stack([self._applied[i].pose for i in ids.tolist()])
+        new = vog.poses(ids)
+        angle, shift = pose_deltas(old, new)
+        # An unchanged pose never moves, whatever round-off the SE(3) log leaves.
+        changed = np.any(old != new, axis=(1, 2))
+        displaced = np.ones(len(ids), bool)
+        if eps_move_m > 0:
+            displaced = np.array([_largest_displacement(vog.submap(i).bounds(), T_old, T_new) > eps_move_m
+                                  for i, T_old, T_new in zip(ids.tolist(), old, new)])
+        return tuple(ids[changed & displaced & ((angle > eps_rot) | (shift > eps_trans))].tolist())
 
     def _volumes(self, vog: VogMap, marginals) -> np.ndarray | None:
         """(N,) 95% x-y-yaw confidence volumes of checked marginals; None without marginals."""

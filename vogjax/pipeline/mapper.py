@@ -34,7 +34,7 @@ import numpy as np
 
 from vogjax import sensors
 from vogjax.config import CrmConfig, PipelineConfig
-from vogjax.geometry import inverse, pose_deltas
+from vogjax.geometry import inverse
 from vogjax.io.dataset import ScanBatch
 from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.pipeline.cutter import SubmapCutter
@@ -134,20 +134,20 @@ class Mapper:
         for closure in accepted:
             self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
         poses = self.graph.update()
-        # marginals of the submaps now off the pose the global map holds them at (Algorithm 1's
-        # S1, however small each step was), of the first ten (they set eps_cov) and the new one;
-        # the rest are not computed (NaN), never zero
-        applied = np.stack([self.global_map.applied_pose(i) for i in range(k)]) if k else np.zeros((0, 4, 4))
-        angle, shift = pose_deltas(applied, poses[:k])
-        wanted = sorted(set(np.flatnonzero((angle > cfg.eps_rot) | (shift > cfg.eps_trans)).tolist())
-                        | set(range(min(10, k + 1))) | {k})
-        marginals = np.full((k + 1, 6, 6), np.nan)
-        marginals[wanted] = self.graph.marginals(wanted)
         self.timings["isam2"][-1] += time.perf_counter() - start
         # d. move the submaps (the virtual map's whole update)
         start = time.perf_counter()
         self.vog.set_poses(np.arange(k + 1), poses)
         self.timings["virtual_update"].append(time.perf_counter() - start)
+        # marginals of what Algorithm 1 will judge: the submaps it finds moved (S1, however small
+        # each step was, measured from the pose the global map holds them at), the first ten
+        # (they set eps_cov) and the new one; the rest are not computed (NaN), never zero
+        start = time.perf_counter()
+        moved = self.global_map.moved_submaps(self.vog, cfg.eps_rot, cfg.eps_trans, cfg.eps_move_m)
+        wanted = sorted(set(moved) | set(range(min(10, k + 1))) | {k})
+        marginals = np.full((k + 1, 6, 6), np.nan)
+        marginals[wanted] = self.graph.marginals(wanted)
+        self.timings["isam2"][-1] += time.perf_counter() - start
         # e. undo/redo what moved in the global map, then add the new submap
         start = time.perf_counter()
         report = self.global_map.update_poses(self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov,
