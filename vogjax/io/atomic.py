@@ -35,9 +35,8 @@ class AtomicPath:
         check_writable(self.target, folder)
         if not self.target.parent.is_dir():
             raise ValueError(f"{str(self.target)!r}: folder {str(self.target.parent)!r} does not exist")
-        remove_stale(self.target)
+        remove_stale(self.target)  # this process's own temporary name included
         self.temporary = self.target.parent / f".{self.target.name}.{os.getpid()}.tmp"
-        _remove(self.temporary)
         if folder:
             self.temporary.mkdir(mode=0o777)  # the umask applies, as to any new folder
 

@@ -121,16 +121,15 @@ class PoseGraph:
             initial = self.prior_pose
         else:
             previous = self._nav[-1]
-            step_sigmas = np.abs(np.linalg.inv(previous)[:2] @ np.r_[T[:3, 3], 1.0]) / \
-                np.sqrt(self.noise.xyh_variances(duration_s)[:2])
-            if step_sigmas.max() > MAX_STEP_SIGMAS:
-                raise ValueError(f"T_world_submap_nav moved {step_sigmas.max():.3g} drift sigmas in x-y since the "
+            step, variances = factors.xyh(previous, T), self.noise.xyh_variances(duration_s)
+            step_sigmas = np.abs(step[:2]).max() / np.sqrt(variances[:2].min())
+            if step_sigmas > MAX_STEP_SIGMAS:
+                raise ValueError(f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
                                  f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s): a jump "
                                  "the pose graph cannot weigh")
-            xyh_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.xyh_variances(duration_s))
+            xyh_noise = gtsam.noiseModel.Diagonal.Variances(variances)
             zpr_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.zpr_variances(duration_s))
-            self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i],
-                                                 partial(_xyh_error, factors.xyh(previous, T))))
+            self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i], partial(_xyh_error, step)))
             self._pending.add(gtsam.CustomFactor(zpr_noise, [i], partial(_zpr_error, factors.zpr(T))))
             self.factors += [("xyh", (i - 1, i)), ("zpr", (i,))]
             # Start from the optimised previous pose moved by the navigation's relative motion.
