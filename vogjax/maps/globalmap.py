@@ -238,9 +238,8 @@ class GlobalMap(BlockMap):
     # ---------------------------------------------------------------- contributions
     def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
         """Add submaps `ids` at their current poses and record them as applied."""
-        ids = vog.check_ids("ids", [int(i) for i in ids]).tolist()
-        # the ids checked once (vog.submap and vog.pose check theirs on every call)
-        submaps, poses = [vog._submaps[i] for i in ids], vog.poses(ids)
+        ids = [int(i) for i in ids]
+        submaps, poses = vog.submaps(ids), vog.poses(ids)
         pulls = self._contribute(list(zip(submaps, poses)), +1, touched)
         for i, submap, pose in zip(ids, submaps, poses):
             self._applied[i] = Applied(pose.copy(), submap.revision, uid=submap.uid, volume=

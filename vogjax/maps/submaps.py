@@ -91,6 +91,10 @@ class VogMap:
     def submap(self, i) -> Submap:
         return self._submaps[self.check_ids("i", [i])[0]]
 
+    def submaps(self, ids) -> list[Submap]:
+        """The submaps `ids`, the ids checked once (as `poses(ids)` checks them)."""
+        return [self._submaps[i] for i in self.check_ids("ids", ids).tolist()]
+
     def pose(self, i) -> np.ndarray:
         return self._poses[self.check_ids("i", [i])[0]].copy()
 
