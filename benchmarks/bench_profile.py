@@ -233,7 +233,40 @@ def profile(args) -> dict:
         if not device.is_cuda:
             with one_thread(parallel):
                 result[world]["one_thread_wall_s"] = prof.run(merge, args.repeats, [])["wall_s"]
+        if world == "merge_pier":
+            result["planning"] = planning(prof, vj.GlobalMap(cfg, device=device), vog, args.repeats)
     return result
+
+
+def planning(prof: Profile, global_map, vog, repeats: int) -> dict:
+    """Next-best-view iterations with N_max 30 (a tree of about 30 nodes, 100k+ gain rays) on
+    the pier's merged global map, from vehicle poses on its survey orbits."""
+    from vogjax import planner
+    from vogjax.config.planner import PlannerConfig
+    from vogjax.geometry import pose_from_xyz_yaw
+    from vogjax.planner import nbv, seen, source
+
+    global_map.merge(vog)
+    positions = vog.poses(range(0, vog.num_submaps, max(1, vog.num_submaps // 6)))[:, :3, 3]
+    bounds = np.stack([positions.min(axis=0) - 3.0, positions.max(axis=0) + 3.0])
+    starts = [pose_from_xyz_yaw(*p, np.arctan2(-p[1], -p[0])) for p in positions]  # facing the pier
+    planner_ = planner.NbvPlanner(PlannerConfig(max_nodes=30), bounds=bounds)
+    planner_.plan(global_map, starts[0])  # compiles the kernels
+    plans = []
+
+    def plan_all():
+        for T in starts:
+            planner_.reset()
+            plans.append(planner_.plan(global_map, T))
+
+    hooks = [(nbv, "clear_edges", "collision checks"), (nbv, "edge_counts", "edge gains"),
+             (seen, "_launch", "gain pass (sets, launch, read-back)"), (source.Source, "candidates", "view candidates"),
+             (source, "submap_views", "submap views")]
+    out = prof.run(plan_all, repeats, hooks)
+    out.update({"iterations_per_run": len(starts), "rays_median": float(np.median([p.rays for p in plans])),
+                "nodes_median": float(np.median([p.nodes for p in plans])),
+                "plan_s_median": float(np.median([p.seconds for p in plans]))})
+    return out
 
 
 def totals(args) -> dict:
@@ -343,7 +376,7 @@ def _print(result: dict) -> None:
     m = result["machine"]
     print(f"{m['device']}, {m['cores']} cores, copy bandwidth {m['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s, "
           f"load {m['load_average'][0]:.1f}")
-    for section in ("integration", "raycast", "merge_pier", "merge_dense"):
+    for section in ("integration", "raycast", "merge_pier", "merge_dense", "planning"):
         s = result[section]
         one = f", one thread {s['one_thread_wall_s'] * 1e3:.1f} ms" if "one_thread_wall_s" in s else ""
         print(f"{section}: {s['wall_s'] * 1e3:.1f} ms (CPU {s['cpu_s'] * 1e3:.1f} ms){one}")
@@ -351,6 +384,9 @@ def _print(result: dict) -> None:
             print(f"    kernel {name:28s} {list(k.values())[1] * 1e3:9.2f} ms  ({k['calls']} launches)")
         for name, h in sorted(s["host"].items(), key=lambda kv: -kv[1]["wall_s"]):
             print(f"    host   {name:28s} {h['wall_s'] * 1e3:9.2f} ms  ({h['calls']} calls)")
+    p = result["planning"]
+    print(f"planning: {p['plan_s_median'] * 1e3:.1f} ms per iteration (median), {p['rays_median']:,.0f} gain rays, "
+          f"{p['nodes_median']:.0f} nodes")
     it = result["integration"]
     mark = f", mark_beams {it['mark_ns_per_step']:.2f} ns/step (CPU)" if "mark_ns_per_step" in it else ""
     print(f"integration: {it['voxel_steps'] / 1e6:.1f} M voxel steps, {it['voxel_steps_per_s'] / 1e6:.0f} M/s; "

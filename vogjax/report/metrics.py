@@ -44,16 +44,22 @@ def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
     return Roc(fpr, tpr, np.r_[np.inf, s[last_of_tie]], float(np.trapezoid(tpr, fpr)))
 
 
+def register_to_surface(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
+                        search_radius_m: float = 3.0) -> np.ndarray:
+    """T_surface_points (4, 4) registering `points` to the true `surface` points: a correlative
+    x-y-yaw search within `search_radius_m` (a drifted map can sit farther off than ICP
+    reaches), then point-to-plane ICP."""
+    config = config or IcpConfig(max_correspondence_m=0.5)
+    seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
+    return icp(points, surface, seed.T_target_source, config=config).T_target_source
+
+
 def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
                         search_radius_m: float = 3.0) -> float:
     """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
-    registering them to it: a correlative x-y-yaw search within `search_radius_m` (a drifted
-    map can sit farther off than ICP reaches), then point-to-plane ICP."""
-    config = config or IcpConfig(max_correspondence_m=0.5)
-    seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
-    result = icp(points, surface, seed.T_target_source, config=config)
-    moved = points @ result.T_target_source[:3, :3].T + result.T_target_source[:3, 3]
-    distance, _ = cKDTree(surface).query(moved, workers=-1)
+    registering them to it (`register_to_surface`)."""
+    T = register_to_surface(points, surface, config, search_radius_m)
+    distance, _ = cKDTree(surface).query(points @ T[:3, :3].T + T[:3, 3], workers=-1)
     return float(np.sqrt(np.mean(distance**2)))
 
 
