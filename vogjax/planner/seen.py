@@ -40,8 +40,15 @@ def group_counts(source: Source, poses: np.ndarray, groups: np.ndarray, num_grou
     s = source.config.voxel_size
     origins = np.ascontiguousarray(poses[:, :3, 3])
     within_key_range("T_world_sensor", np.abs(origins) + max_range, s, hashing.VOXEL_KEY_LIMIT)
-    ends = origins[:, None, :] + np.einsum("vij,bj->vbi", poses[:, :3, :3], directions) * max_range
-    crossed = (np.abs(np.floor(ends / s) - np.floor(origins / s)[:, None, :]).sum(axis=2) + 3).sum(axis=1)
+    # voxels each view's rays cross, at most (sizes the sets only: counts are exact either way);
+    # a batched matmul and in-place steps, as this runs once per round of the planner's tree
+    steps = directions @ poses[:, :3, :3].transpose(0, 2, 1)
+    steps *= max_range
+    steps += origins[:, None, :]
+    steps /= s
+    np.floor(steps, out=steps)
+    steps -= np.floor(origins / s)[:, None, :]
+    crossed = np.abs(steps, out=steps).sum(axis=(1, 2)) + 3 * len(directions)
     bound = np.bincount(groups, weights=crossed, minlength=num_groups)
     first_view = np.searchsorted(groups, np.arange(num_groups))
     anchors = np.floor(origins[np.minimum(first_view, len(origins) - 1)] / s).astype(np.int64)
