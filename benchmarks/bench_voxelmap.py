@@ -1,5 +1,6 @@
 """VoxelMap vs OctoMap, side by side in one run: integration rays/s, the 100k-ray planner
-workload, and memory for the same map. Writes JSON (and prints a table).
+workload (rays given as NumPy arrays, and the same rays kept on the map's device as Warp
+arrays), and memory for the same map. Writes JSON (and prints a table).
 
 Each repeat times vogjax and then OctoMap on the same input, back to back, so a machine shared
 with other work slows both alike; the JSON keeps every run, the median of each side, and the
@@ -111,6 +112,11 @@ def main():
 
     raycast = {"rays": args.rays, "max_range_m": length,
                **paired(args.repeats, lambda: vmap.raycast(origins, directions, length), octo_rays)}
+    # the same rays kept on the device (a planner in JAX or Warp): checks in a kernel, no transfers
+    d_origins = wp.array(origins, dtype=wp.float64, device=vmap.device)
+    d_directions = wp.array(directions, dtype=wp.float64, device=vmap.device)
+    vmap.raycast(d_origins, d_directions, length)  # compiles check_rays
+    raycast["on_device"] = paired(args.repeats, lambda: vmap.raycast(d_origins, d_directions, length), octo_rays)
     if not vmap.device.is_cuda:  # per core: both sides on one thread
         integration["one_thread"] = paired(max(1, args.repeats // 2), one_thread(vog_integrate), octo_integrate)
         raycast["one_thread"] = paired(max(1, args.repeats // 2),
@@ -138,6 +144,9 @@ def main():
           f"({i['speedup_range'][0]:.1f}-{i['speedup_range'][1]:.1f})")
     print(f"100k rays    vogjax {r['vogjax_s'] * 1e3:9.1f} ms       octomap {r['octomap_s'] * 1e3:9.1f} ms"
           f"       speedup {r['speedup']:.1f}x ({r['speedup_range'][0]:.1f}-{r['speedup_range'][1]:.1f})")
+    d = r["on_device"]
+    print(f"  on device  vogjax {d['vogjax_s'] * 1e3:9.2f} ms       octomap {d['octomap_s'] * 1e3:9.1f} ms"
+          f"       speedup {d['speedup']:.1f}x ({d['speedup_range'][0]:.1f}-{d['speedup_range'][1]:.1f})")
     for name, part in (("integration", i), ("100k rays", r)):
         if "one_thread" in part:
             print(f"{name:12s} one thread: speedup {part['one_thread']['speedup']:.1f}x")

@@ -60,6 +60,35 @@ def lookup_log_odds(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64
     values[tid] = value_in_slot(find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds)
 
 
+# What check_rays finds wrong with a ray, as indices of its `first_bad` output.
+BAD_ORIGIN = wp.constant(0)  # NaN, infinite, or beyond the key range
+BAD_DIRECTION = wp.constant(1)  # NaN, infinite or zero
+BAD_RANGE = wp.constant(2)  # NaN, infinite or not positive
+
+
+@wp.func
+def finite3(v: wp.vec3d) -> bool:
+    return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
+
+
+@wp.kernel
+def check_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+               max_ranges: wp.array(dtype=wp.float64), limit_m: wp.float64, first_bad: wp.array(dtype=wp.int32)):
+    """The host checks of `BlockMap.raycast` for rays already on the device: first_bad[k], set
+    to the ray count beforehand, ends as the index of the first ray with fault k (BAD_*).
+    max_ranges holds one range per ray, or one for all."""
+    tid = wp.tid()
+    o = origins[tid]
+    if not finite3(o) or wp.max(wp.abs(o[0]), wp.max(wp.abs(o[1]), wp.abs(o[2]))) >= limit_m:
+        wp.atomic_min(first_bad, BAD_ORIGIN, tid)
+    d = directions[tid]
+    if not finite3(d) or (d[0] == wp.float64(0.0) and d[1] == wp.float64(0.0) and d[2] == wp.float64(0.0)):
+        wp.atomic_min(first_bad, BAD_DIRECTION, tid)
+    r = max_ranges[wp.min(tid, max_ranges.shape[0] - 1)]
+    if not (wp.isfinite(r) and r > wp.float64(0.0)):
+        wp.atomic_min(first_bad, BAD_RANGE, tid)
+
+
 # A stretch of unknown voxels longer than this is counted in closed form, not walked.
 SKIP_VOXELS = wp.constant(64)
 

@@ -125,31 +125,69 @@ class BlockMap:
         space outside the map's box are counted without walking them, so a ray costs at most
         about the voxels of the map it crosses; voxels outside the key range
         (`hashing.VOXEL_KEY_LIMIT` voxels from the origin per axis) are not counted.
+
+        Rays already on the map's device stay there: with origins and directions given as Warp
+        arrays (float64, (R,3) or (R,) vec3d; `wp.from_jax` wraps a JAX array without a copy)
+        and max_range a float or such an array of (R,), the checks run in a kernel and the
+        result's fields are Warp arrays on the device, final when this returns.
         """
+        if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
+            return self._raycast_on_device(origins, directions, max_range)
         origins, directions, ranges = ray_arguments(origins, directions, max_range, normalise=False)
         check_extent(self.config, origins=origins)
-        count = origins.shape[0]
-        device = self.device
         # one range for every ray: one value for the kernel (cast_rays reads a length-1 array
         # for all rays), not an array of copies to fill and upload
-        shared = np.isscalar(max_range) and count > 1
+        shared = np.isscalar(max_range) and origins.shape[0] > 1
+        device = self.device
         # on the CPU, Warp arrays over the NumPy ones (no copies)
-        d = {
-            "origins": wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
-            "directions": wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
-            "ranges": wp.array(ranges[:1] if shared else ranges, dtype=wp.float64, device=device, copy=False),
-        }
+        out = self._cast(wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
+                         wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
+                         wp.array(ranges[:1] if shared else ranges, dtype=wp.float64, device=device, copy=False))
+        return RaycastResult(**{name: a.numpy() for name, a in out.items()})
+
+    def _raycast_on_device(self, origins, directions, max_range) -> RaycastResult:
+        origins = device_rays("origins", origins, -1, self.device)
+        count = origins.shape[0]
+        directions = device_rays("directions", directions, count, self.device)
+        if isinstance(max_range, wp.array):
+            if max_range.device != self.device or max_range.dtype != wp.float64 or max_range.shape != (count,):
+                raise ValueError(f"max_range must be a float64 Warp array of shape ({count},) on {self.device}, got "
+                                 f"{wp.types.type_repr(max_range.dtype)} {max_range.shape} on {max_range.device}")
+            ranges = max_range
+        else:
+            ranges = wp.array(positive_range("max_range", max_range, 1), dtype=wp.float64, device=self.device)
+        if count == 0:
+            return RaycastResult(*(wp.empty(0, dtype=t, device=self.device)
+                                   for t in (wp.bool, wp.float32, wp.int32, wp.int32)))
+        # the host checks of the NumPy path, in one launch and one read-back of three numbers
+        first_bad = wp.full(3, count, dtype=wp.int32, device=self.device)
+        limit_m = (hashing.VOXEL_KEY_LIMIT - 2) * self.config.voxel_size
+        wp.launch(queries.check_rays, dim=count, inputs=[origins, directions, ranges, np.float64(limit_m)],
+                  outputs=[first_bad], device=self.device)
+        bad = first_bad.numpy()
+        for fault, (name, what) in enumerate((
+                ("origins", f"NaN, infinite or farther than {limit_m:.0f} m from the origin on an axis"),
+                ("directions", "NaN, infinite or zero"), ("max_range", "NaN, infinite or not positive"))):
+            if bad[fault] < count:
+                raise ValueError(f"{name}: ray {bad[fault]} is {what}")
+        out = self._cast(origins, directions, ranges, synchronize=True)
+        return RaycastResult(**out)
+
+    def _cast(self, origins: wp.array, directions: wp.array, ranges: wp.array, synchronize: bool = False) -> dict:
+        """cast_rays over checked device rays (ranges: one per ray, or one for all): the
+        RaycastResult fields as Warp arrays."""
+        count, device, cfg = origins.shape[0], self.device, self.config
+        shared = ranges.shape[0] == 1 and count > 1
         out = {
             "hit": wp.empty(count, dtype=wp.bool, device=device),
             "distance": wp.empty(count, dtype=wp.float32, device=device),
             "num_unknown": wp.empty(count, dtype=wp.int32, device=device),
             "num_free": wp.empty(count, dtype=wp.int32, device=device),
         }
-        cfg = self.config
 
         def launch(part: int, lo: int, hi: int) -> None:
             wp.launch(queries.cast_rays, dim=hi - lo,
-                      inputs=[d["origins"][lo:hi], d["directions"][lo:hi], d["ranges"] if shared else d["ranges"][lo:hi],
+                      inputs=[origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
                               np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
                               store.table_keys, store.table_slots, *grid_inputs, states],
                       outputs=[a[lo:hi] for a in out.values()], device=device)
@@ -160,7 +198,9 @@ class BlockMap:
             grid_inputs = [wp.vec3i(*grid.lo), wp.vec3i(*grid.hi), wp.vec3i(*grid.dims), grid.cells]
             states = self._ray_states()
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
-        return RaycastResult(**{name: a.numpy() for name, a in out.items()})
+            if synchronize:  # results left on the device: done before an update may run
+                wp.synchronize_device(device)
+        return out
 
     def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:
         """Log-odds of every voxel from the voxel of each start to that of its end, inclusive.
@@ -258,6 +298,21 @@ def unit_directions(directions: np.ndarray) -> np.ndarray:
         directions[extreme] /= scale[:, None]
         squared[extreme] = np.einsum("ij,ij->i", directions[extreme], directions[extreme])
     return directions / np.sqrt(squared)[:, None]
+
+
+def device_rays(name: str, array, count: int, device) -> wp.array:
+    """A Warp array of `count` (-1: any) 3-vectors on `device`: float64 (R,3) or vec3d (R,)."""
+    if not isinstance(array, wp.array):
+        raise ValueError(f"{name} must be a Warp array too when any ray argument is one, got {type(array).__name__}")
+    if array.device != device:
+        raise ValueError(f"{name} is on {array.device}; the map is on {device}")
+    if array.dtype == wp.float64 and array.ndim == 2 and array.shape[1] == 3 and array.is_contiguous:
+        array = array.view(wp.vec3d)
+    if array.dtype != wp.vec3d or array.ndim != 1 or not array.is_contiguous or count not in (-1, array.shape[0]):
+        wanted = "R" if count == -1 else str(count)
+        raise ValueError(f"{name} must be a contiguous float64 Warp array of shape ({wanted}, 3) or a vec3d one of "
+                         f"shape ({wanted},), got {wp.types.type_repr(array.dtype)} {array.shape}")
+    return array
 
 
 def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:
