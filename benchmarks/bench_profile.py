@@ -14,6 +14,7 @@ same minutes).
 
     python benchmarks/bench_profile.py --out benchmarks/results [--scans 2000] [--submaps 100]
         [--repeats 3] [--baseline HEAD~3]
+    python benchmarks/bench_profile.py --out benchmarks/results --pass-sweep 256,512,1024,2048 --scans 10000
 """
 
 from __future__ import annotations
@@ -269,6 +270,48 @@ def planning(prof: Profile, global_map, vog, repeats: int) -> dict:
     return out
 
 
+def pass_sweep(args) -> dict:
+    """Integration of the pier scans with each number of scans per pass (the mark scratch's
+    budget lifted so no pass splits): median wall time, rays/s, and the scratch it took."""
+    import vogjax as vj
+    from vogjax.maps import integrator, voxelmap
+    from vogjax.scenes import analytic
+
+    cfg = vj.MapConfig()
+    sweep = analytic.orbit_sweep(analytic.pier(), args.scans)
+    device = vj.VoxelMap(cfg, device=args.device).device
+    name = "SCANS_PER_PASS_CUDA" if device.is_cuda else "SCANS_PER_PASS"
+    budget = "MARK_BUDGET_BYTES_CUDA" if device.is_cuda else "MARK_BUDGET_BYTES"
+    saved = getattr(voxelmap, name), getattr(voxelmap, budget)
+    rows = []
+    try:
+        setattr(voxelmap, budget, 1 << 40)
+        for per_pass in [int(n) for n in args.pass_sweep.split(",")]:
+            setattr(voxelmap, name, per_pass)
+            integrator._pool.clear()  # each size grows its own scratch
+
+            def integrate():
+                vmap = vj.VoxelMap(cfg, device=device)
+                vmap.integrate_scans(sweep.origins, sweep.points, sweep.scan_index)
+
+            integrate()  # compiles, grows the scratch
+            times = []
+            for _ in range(args.repeats):
+                start = time.perf_counter()
+                integrate()
+                times.append(time.perf_counter() - start)
+            scratch = sum(s.memory_bytes() for free in integrator._pool.values() for s in free)
+            rows.append({"scans_per_pass": per_pass, "seconds": float(np.median(times)),
+                         "rays_per_s": sweep.points.shape[0] / float(np.median(times)), "scratch_bytes": scratch})
+            print(f"  {per_pass:6d} scans per pass: {rows[-1]['seconds'] * 1e3:8.1f} ms, "
+                  f"{rows[-1]['rays_per_s'] / 1e6:6.1f} M rays/s, scratch {scratch / 2**20:7.1f} MiB", flush=True)
+    finally:
+        setattr(voxelmap, name, saved[0])
+        setattr(voxelmap, budget, saved[1])
+        integrator._pool.clear()
+    return {"device": str(device), "scans": args.scans, "rays": int(sweep.points.shape[0]), "rows": rows}
+
+
 def totals(args) -> dict:
     """Median seconds of the public calls only (any revision's code has them)."""
     import warp as wp
@@ -346,6 +389,8 @@ def main():
     parser.add_argument("--rounds", type=int, default=3, help="alternations with --baseline")
     parser.add_argument("--baseline", default=None, help="git revision to compare with")
     parser.add_argument("--device", default=None)
+    parser.add_argument("--pass-sweep", default=None,
+                        help="comma-separated scans per pass: time integration with each (writes pass_sweep_DEVICE.json)")
     parser.add_argument("--totals", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--tree", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -353,6 +398,13 @@ def main():
         use_tree(args.tree.resolve())
     if args.totals:
         print(json.dumps(totals(args)))
+        return
+    if args.pass_sweep:
+        result = pass_sweep(args)
+        args.out.mkdir(parents=True, exist_ok=True)
+        path = args.out / f"pass_sweep_{result['device'].split(':')[0]}.json"
+        path.write_text(json.dumps(result, indent=2))
+        print(f"wrote {path}")
         return
     import warp as wp
 

@@ -31,4 +31,6 @@ step 90 "$python" benchmarks/bench_voxelmap.py --out "$out" --device cuda:0 --sc
 step 90 "$python" benchmarks/bench_globalmap.py --out "$out" --device cuda:0 --repeats 3
 step 180 "$python" benchmarks/bench_pipeline.py --out "$out" ${run:+--run "$run"}
 step 60 "$python" benchmarks/bench_profile.py --out "$out" --device cuda:0 --repeats 3
+step 90 "$python" benchmarks/bench_profile.py --out "$out" --device cuda:0 --repeats 3 --scans 10000 \
+    --pass-sweep 256,512,1024,2048,4096
 step 60 "$python" benchmarks/bench_crm.py --out "$out" --part 3d --quick --device cuda:0

@@ -77,8 +77,11 @@ def test_matches_octomap_on_random_scans():
 
 
 def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch):
+    # several passes on either device (a GPU takes 2048 scans per pass by default)
+    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", 16)
+    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", 16)
     rng = np.random.default_rng(3)
-    origins, points, scan = ref.random_scans(rng, voxelmap.SCANS_PER_PASS + 9, 40, far=0.1)
+    origins, points, scan = ref.random_scans(rng, 4 * 16 + 9, 40, far=0.1)
     sequential = vj.VoxelMap()
     for s in range(origins.shape[0]):
         sequential.integrate_scan(origins[s], points[scan == s])
@@ -86,6 +89,7 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch):
     order = rng.permutation(points.shape[0])  # scan_index need not be sorted
     batch.integrate_scans(origins, points[order], scan[order])
     monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting
+    monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES_CUDA", 1 << 16)
     split = vj.VoxelMap()
     split.integrate_scans(origins, points, scan)
     for other in (batch, split):

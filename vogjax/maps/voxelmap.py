@@ -12,11 +12,14 @@ from vogjax.io import read_map_file, write_map_file
 from vogjax.validation import float_array, index_array
 
 # Scans integrated per pass: each voxel a pass touches carries two bits per scan. A GPU takes
-# more per pass: fewer launches and host round trips, and memory to spare.
+# more per pass: its time goes to the host work of each pass (launches, block allocation,
+# read-backs), and it has memory to spare (`bench_profile.py --pass-sweep`).
 SCANS_PER_PASS = 64
-SCANS_PER_PASS_CUDA = 512
-# Bound on the per-pass mark scratch; a pass above it is split in two.
+SCANS_PER_PASS_CUDA = 2048
+# Bound on the per-pass mark scratch; a pass above it is split in two. 2048 scans over the
+# 1300 blocks of the pier benchmark take 333 MB.
 MARK_BUDGET_BYTES = 256 << 20
+MARK_BUDGET_BYTES_CUDA = 1 << 30
 
 
 class VoxelMap(BlockMap):
@@ -57,9 +60,10 @@ class VoxelMap(BlockMap):
 
     def _integrate(self, origins: np.ndarray, points: np.ndarray, scan_index: np.ndarray) -> None:
         batch = integrator.beams(self.device, origins, points, scan_index)
-        per_pass = SCANS_PER_PASS_CUDA if self.device.is_cuda else SCANS_PER_PASS
+        cuda = self.device.is_cuda
         with self._lock.writing():
-            integrator.integrate(self._store, self.config, batch, per_pass, MARK_BUDGET_BYTES)
+            integrator.integrate(self._store, self.config, batch, SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
+                                 MARK_BUDGET_BYTES_CUDA if cuda else MARK_BUDGET_BYTES)
             self.revision += 1
             self._values_changed()
 
