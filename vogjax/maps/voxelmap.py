@@ -16,8 +16,8 @@ from vogjax.validation import float_array, index_array
 # read-backs), and it has memory to spare (`bench_profile.py --pass-sweep`).
 SCANS_PER_PASS = 64
 SCANS_PER_PASS_CUDA = 2048
-# Bound on the per-pass mark scratch; a pass above it is split in two. 2048 scans over the
-# 1300 blocks of the pier benchmark take 333 MB.
+# Bound on the per-pass mark scratch; a pass above it is split in two. Passes of 2048 of the
+# pier benchmark's scans took a 148 MiB scratch (64 words, 256 KiB, per block touched).
 MARK_BUDGET_BYTES = 256 << 20
 MARK_BUDGET_BYTES_CUDA = 1 << 30
 
