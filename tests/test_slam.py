@@ -146,6 +146,46 @@ def test_batched_icp_equals_one_pair_at_a_time():
             assert together.converged == alone.converged
 
 
+def test_prepared_targets_give_the_same_alignments(monkeypatch):
+    """A target prepared once (tree and normals) aligns exactly as the raw cloud does, is not
+    changed by preparing, and the detector prepares each submap's cloud once over many calls."""
+    rng = np.random.default_rng(6)
+    target = structured_cloud(rng, 2000)
+    kept = target.copy()
+    sources = [(target - m[:3, 3]) @ m[:3, :3] for m in (small_motion(rng), small_motion(rng))]
+    prepared = slam.prepare_target(target)
+    assert target.flags.writeable and np.array_equal(target, kept)
+    for method in ("point_to_plane", "point_to_point_xyh"):
+        raw = slam.icp_batch(sources, [target, target], None, method)
+        reused = slam.icp_batch(sources, [prepared, prepared], None, method)
+        for a, b in zip(raw, reused):
+            assert np.array_equal(a.T_target_source, b.T_target_source) and np.array_equal(a.hessian, b.hessian)
+            assert (a.iterations, a.num_inliers, a.fitness) == (b.iterations, b.num_inliers, b.fitness)
+    with pytest.raises(ValueError, match="normal_neighbours"):
+        slam.icp_batch(sources[:1], [prepared], None, config=slam.IcpConfig(normal_neighbours=7))
+
+    calls = []
+    real = slam.loop_closure.prepare_target
+    monkeypatch.setattr(slam.loop_closure, "prepare_target", lambda cloud, config: calls.append(1) or real(cloud, config))
+    bounds = (target.min(axis=0) - 0.1, target.max(axis=0) + 0.1)
+    poses = np.stack([np.eye(4)] * 4)
+    clouds = [target, sources[1], sources[0], sources[1]]
+    all_bounds = [bounds] * 4
+    detector = slam.LoopClosureDetector()
+    times = np.array([0.0, 600.0, 1200.0, 1800.0])
+    detector.detect(2, clouds, all_bounds, poses, poses, times)  # candidates: submap 0
+    assert len(calls) == 1
+    second = detector.detect(3, clouds, all_bounds, poses, poses, times)  # submaps 0 (kept) and 1
+    assert len(calls) == 2 and len(second[0]) + len(second[1]) == 2
+    fresh = slam.LoopClosureDetector().detect(3, clouds, all_bounds, poses, poses, times)
+    assert [(c.i, c.k) for c in second[0]] == [(c.i, c.k) for c in fresh[0]]
+    assert all(np.array_equal(a.T_i_k, b.T_i_k) for a, b in zip(second[0], fresh[0]))
+    assert [(r.i, r.reason) for r in second[1]] == [(r.i, r.reason) for r in fresh[1]]
+    clouds[0] = target.copy()  # a new cloud object for submap 0: prepared again
+    detector.detect(2, clouds, all_bounds, poses, poses, times)
+    assert len(calls) == 5  # twice more for the fresh detector, once more here
+
+
 def test_degenerate_scenes_give_a_reduced_basis():
     rng = np.random.default_rng(2)
     plane = np.c_[rng.uniform(0, 10, 2000), rng.uniform(0, 10, 2000), rng.normal(0, 0.002, 2000)]

@@ -4,7 +4,7 @@ from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import PoseGraph
 from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh
-from vogjax.slam.icp import IcpResult, icp, icp_batch
+from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 
 __all__ = [
@@ -12,6 +12,7 @@ __all__ = [
     "CorrelativeMatch",
     "IcpConfig",
     "IcpResult",
+    "IcpTarget",
     "LoopClosure",
     "LoopClosureConfig",
     "LoopClosureDetector",
@@ -21,4 +22,5 @@ __all__ = [
     "icp",
     "icp_batch",
     "pose_deltas",
+    "prepare_target",
 ]

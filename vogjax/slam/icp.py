@@ -1,6 +1,7 @@
 """ICP between submap point clouds: the thesis's 2D point-to-point (x, y, yaw; Ho, Algorithm 6)
 and point-to-plane with degeneracy-aware updates (Zhang et al.'s solution remapping; Ho,
 Algorithm 7). Nearest neighbours come from a k-d tree; the normal equations are batched NumPy.
+A target's tree and normals can be prepared once (`prepare_target`) and reused.
 
 The Hessian reported is the Gauss-Newton J^T J of point-to-plane residuals at the result (with
 respect to GTSAM's Pose3 tangent of T_target_source: rotation, then translation), so both
@@ -44,6 +45,26 @@ class IcpResult:
         return self.basis.shape[1] < 6
 
 
+@dataclasses.dataclass(frozen=True)
+class IcpTarget:
+    """A target cloud prepared for ICP once, for as many alignments as it takes part in:
+    points (M,3), their k-d tree, and their unit normals fitted to `neighbours` points each."""
+
+    points: np.ndarray
+    tree: cKDTree
+    normals: np.ndarray
+    neighbours: int
+
+
+def prepare_target(target, config: IcpConfig | None = None) -> IcpTarget:
+    """`target` (M,3) checked, with its k-d tree and normals (config.normal_neighbours)."""
+    config = config or IcpConfig()
+    points = np.array(_cloud("target", target))  # a copy: the tree and normals describe these values
+    points.setflags(write=False)
+    tree = cKDTree(points)
+    return IcpTarget(points, tree, target_normals(points, tree, config.normal_neighbours), config.normal_neighbours)
+
+
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
     """Unit normals of the target cloud: smallest principal axis of each point's neighbours."""
     k = min(neighbours, len(target))
@@ -72,21 +93,26 @@ def icp(source, target, T_init=None, method: str = "point_to_plane",
 def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
               config: IcpConfig | None = None) -> list[IcpResult]:
     """Align many (source, target) pairs at once: the neighbour searches run per pair, the normal
-    equations, eigen-decompositions and updates for all pairs together (padded arrays)."""
+    equations, eigen-decompositions and updates for all pairs together (padded arrays). A
+    target may be an `IcpTarget` (`prepare_target`): its tree and normals are used as they are,
+    so a cloud that is a target many times is prepared once, with the same results."""
     config = config or IcpConfig()
     if method not in ("point_to_plane", "point_to_point_xyh"):
         raise ValueError(f"method must be 'point_to_plane' or 'point_to_point_xyh', got {method!r}")
     if len(sources) != len(targets):
         raise ValueError("sources and targets must pair up (same length)")
     sources = [_cloud("source", c) for c in sources]
-    targets = [_cloud("target", c) for c in targets]
+    prepared = [t if isinstance(t, IcpTarget) else prepare_target(t, config) for t in targets]
+    if any(t.neighbours != config.normal_neighbours for t in prepared):
+        raise ValueError("targets: an IcpTarget was prepared with other normal_neighbours than config's")
     count = len(sources)
     if count == 0:
         return []
     T = (np.tile(np.eye(4), (count, 1, 1)) if T_inits is None
          else rigid_poses("T_init", T_inits, count=count).copy())
-    trees = [cKDTree(t) for t in targets]
-    normals = [target_normals(t, tree, config.normal_neighbours) for t, tree in zip(targets, trees)]
+    targets = [t.points for t in prepared]
+    trees = [t.tree for t in prepared]
+    normals = [t.normals for t in prepared]
     width = max(len(s) for s in sources)
     active = np.ones(count, bool)
     converged = np.zeros(count, bool)

@@ -23,7 +23,7 @@ import numpy as np
 from vogjax.config import LoopClosureConfig, NavNoise
 from vogjax.geometry import inverse
 from vogjax.slam.correlative import correlative_xyh
-from vogjax.slam.icp import IcpResult, icp_batch
+from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,11 +63,12 @@ class Alignment:
 
 
 def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict) -> list[Alignment]:
-    """The default aligner. pairs: (source (N,3), target (M,3), T_init (4,4), radius_m,
-    yaw_radius_rad) per candidate, source = submap k's cloud, target = submap i's; `seconds`
-    collects the time per phase."""
+    """The default aligner. pairs: (source (N,3), target (an IcpTarget: submap i's cloud
+    prepared once for every alignment it takes part in), T_init (4,4), radius_m,
+    yaw_radius_rad) per candidate, source = submap k's cloud; `seconds` collects the time per
+    phase."""
     start = time.perf_counter()
-    seeds = [correlative_xyh(source, target, T_init, radius_m, yaw_radius_rad, config.correlative)
+    seeds = [correlative_xyh(source, target.points, T_init, radius_m, yaw_radius_rad, config.correlative)
              for source, target, T_init, radius_m, yaw_radius_rad in pairs]
     seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
     # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
@@ -89,16 +90,28 @@ class LoopClosureDetector:
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
         self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # per phase, in the last detect call
+        self._targets: dict[int, tuple[np.ndarray, IcpTarget]] = {}  # submap -> (its cloud, prepared)
+
+    def _target(self, i: int, cloud: np.ndarray) -> IcpTarget:
+        """Submap i's cloud prepared for ICP, once per cloud: a new array object for i (a
+        cloud rebuilt) is prepared again. Clouds must not change in place once given."""
+        kept = self._targets.get(i)
+        if kept is None or kept[0] is not cloud:
+            start = time.perf_counter()
+            kept = self._targets[i] = (cloud, prepare_target(cloud, self.config.icp))
+            self.seconds["icp"] += time.perf_counter() - start
+        return kept[1]
 
     def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
         """Earlier submaps worth aligning with k (the thesis's precondition)."""
         cfg = self.config
-        if len(clouds[k]) < cfg.min_points:
+        least = max(cfg.min_points, 3)  # ICP's least; fewer points are no cloud to align
+        if len(clouds[k]) < least:
             return []
         centroid = np.append(clouds[k].mean(axis=0), 1.0)
         found, distances = [], []
         for i in range(0, k - cfg.min_separation + 1):
-            if len(clouds[i]) < cfg.min_points or bounds[i] is None:
+            if len(clouds[i]) < least or bounds[i] is None:
                 continue
             in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
             if np.all(in_i >= bounds[i][0]) and np.all(in_i <= bounds[i][1]):
@@ -127,7 +140,7 @@ class LoopClosureDetector:
             elapsed = abs(times_s[k] - times_s[i])
             # with ICP holding the rotation, the search takes the yaw from the estimate too
             yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if cfg.icp.free == "all" else 0.0
-            pairs.append((clouds[k], clouds[i], inverse(poses[i]) @ poses[k],
+            pairs.append((clouds[k], self._target(i, clouds[i]), inverse(poses[i]) @ poses[k],
                           min(self._drift_bound(elapsed), cfg.max_search_m), yaw_radius))
         alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds)
         for i, alignment in zip(found, alignments):
