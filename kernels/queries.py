@@ -73,13 +73,15 @@ def finite3(v: wp.vec3d) -> bool:
 
 @wp.kernel
 def check_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-               max_ranges: wp.array(dtype=wp.float64), limit_m: wp.float64, first_bad: wp.array(dtype=wp.int32)):
+               max_ranges: wp.array(dtype=wp.float64), voxel_size: wp.float64, key_limit: wp.float64,
+               first_bad: wp.array(dtype=wp.int32)):
     """The host checks of `BlockMap.raycast` for rays already on the device: first_bad[k], set
     to the ray count beforehand, ends as the index of the first ray with fault k (BAD_*).
-    max_ranges holds one range per ray, or one for all."""
+    max_ranges holds one range per ray, or one for all. An origin is out of range as
+    `within_key_range` decides, in the same float64 operations: max |o| / voxel_size >= key_limit."""
     tid = wp.tid()
     o = origins[tid]
-    if not finite3(o) or wp.max(wp.abs(o[0]), wp.max(wp.abs(o[1]), wp.abs(o[2]))) >= limit_m:
+    if not finite3(o) or wp.max(wp.abs(o[0]), wp.max(wp.abs(o[1]), wp.abs(o[2]))) / voxel_size >= key_limit:
         wp.atomic_min(first_bad, BAD_ORIGIN, tid)
     d = directions[tid]
     if not finite3(d) or (d[0] == wp.float64(0.0) and d[1] == wp.float64(0.0) and d[2] == wp.float64(0.0)):

@@ -95,7 +95,7 @@ def test_raycast_of_rays_on_the_device_matches_reference():
     assert empty.hit.shape == (0,)
 
 
-def _bad_rays(fault: str, rng):
+def _bad_rays(fault: str, rng, device):
     origins, directions, ranges = rng.uniform(-1, 1, (50, 3)), rng.normal(size=(50, 3)), rng.uniform(1, 2, 50)
     if fault == "nan origin":
         origins[31, 1] = np.nan
@@ -109,8 +109,8 @@ def _bad_rays(fault: str, rng):
         ranges[31] = 0.0
     elif fault == "nan range":
         ranges[31] = np.nan
-    return (wp.array(origins, dtype=wp.float64), wp.array(directions, dtype=wp.float64),
-            wp.array(ranges, dtype=wp.float64))
+    return (wp.array(origins, dtype=wp.float64, device=device), wp.array(directions, dtype=wp.float64, device=device),
+            wp.array(ranges, dtype=wp.float64, device=device))
 
 
 @pytest.mark.parametrize("fault, message", [
@@ -119,25 +119,56 @@ def _bad_rays(fault: str, rng):
 def test_raycast_on_the_device_refuses_bad_rays_naming_the_first(fault, message):
     vmap, _, _, rng = mapped_scene(seed=4)
     with pytest.raises(ValueError, match=message):
-        vmap.raycast(*_bad_rays(fault, rng))
+        vmap.raycast(*_bad_rays(fault, rng, vmap.device))
 
 
 def test_raycast_on_the_device_refuses_wrong_arrays():
     vmap, _, _, rng = mapped_scene(seed=5)
-    good = wp.array(rng.normal(size=(20, 3)), dtype=wp.float64)
+    good = wp.array(rng.normal(size=(20, 3)), dtype=wp.float64, device=vmap.device)
     cases = [
-        ((wp.array(rng.normal(size=(20, 3)), dtype=wp.float32), good, 1.0), "origins must be a contiguous float64"),
-        ((good, wp.array(rng.normal(size=(19, 3)), dtype=wp.float64), 1.0), r"directions must .* shape \(20, 3\)"),
+        ((good, good, np.ones(20)), "max_range must be a number or a float64 Warp array"),
+        ((good, good, [3.0]), "max_range must be a number or a float64 Warp array"),
+        ((wp.array(rng.normal(size=(20, 3)), dtype=wp.float32, device=vmap.device), good, 1.0),
+         "origins must be a contiguous float64"),
+        ((good, wp.array(rng.normal(size=(19, 3)), dtype=wp.float64, device=vmap.device), 1.0),
+         r"directions must .* shape \(20, 3\)"),
         ((good, rng.normal(size=(20, 3)), 1.0), "directions must be a Warp array too"),
         ((rng.normal(size=(20, 3)), good, 1.0), "origins must be a Warp array too"),
-        ((good, good, wp.array(np.ones(19), dtype=wp.float64)), "max_range must be a float64 Warp array of shape"),
-        ((good, good, wp.array(np.ones(20), dtype=wp.float32)), "max_range must be a float64 Warp array"),
+        ((good, good, wp.array(np.ones(19), dtype=wp.float64, device=vmap.device)),
+         "max_range must be a float64 Warp array of shape"),
+        ((good, good, wp.array(np.ones(20), dtype=wp.float32, device=vmap.device)), "max_range must be a float64 Warp array"),
         ((good, good, float("nan")), "max_range must be positive"),
         ((good[::2], good[::2], 1.0), "origins must be a contiguous"),
     ]
     for args, message in cases:
         with pytest.raises(ValueError, match=message):
             vmap.raycast(*args)
+
+
+def test_raycast_on_the_device_draws_the_key_range_where_the_numpy_path_does():
+    """At the edge of the key range both paths accept and refuse the same origins (the same
+    float64 division), and a single ray works."""
+    cfg = vj.MapConfig(voxel_size=0.5403036408139767)
+    vmap = vj.VoxelMap(cfg)
+    edge = (vj.kernels.hashing.VOXEL_KEY_LIMIT - 2) * cfg.voxel_size
+    outcomes = set()
+    for x in (4532394.36315397, np.nextafter(edge, 0), edge, np.nextafter(edge, np.inf), -edge, 1.0):
+        origin, direction = np.array([[x, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]])
+        try:
+            host = vmap.raycast(origin, direction, 2.0)
+        except ValueError:
+            host = None
+        try:
+            device = vmap.raycast(wp.array(origin, dtype=wp.float64, device=vmap.device),
+                                  wp.array(direction, dtype=wp.float64, device=vmap.device), 2.0)
+        except ValueError as error:
+            assert "origins: ray 0" in str(error)
+            device = None
+        assert (host is None) == (device is None), x
+        outcomes.add(host is None)
+        if host is not None:
+            assert device.num_unknown.numpy()[0] == host.num_unknown[0] > 0
+    assert outcomes == {True, False}  # both sides of the edge were tried
 
 
 def test_raycast_analytic_wall():

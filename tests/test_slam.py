@@ -181,9 +181,22 @@ def test_prepared_targets_give_the_same_alignments(monkeypatch):
     assert [(c.i, c.k) for c in second[0]] == [(c.i, c.k) for c in fresh[0]]
     assert all(np.array_equal(a.T_i_k, b.T_i_k) for a, b in zip(second[0], fresh[0]))
     assert [(r.i, r.reason) for r in second[1]] == [(r.i, r.reason) for r in fresh[1]]
-    clouds[0] = target.copy()  # a new cloud object for submap 0: prepared again
+    clouds[0] = target.copy()  # a new object with the same values: kept
     detector.detect(2, clouds, all_bounds, poses, poses, times)
-    assert len(calls) == 5  # twice more for the fresh detector, once more here
+    assert len(calls) == 4  # twice more for the fresh detector
+    clouds[0] += 0.01  # changed in place: prepared again
+    detector.detect(2, clouds, all_bounds, poses, poses, times)
+    assert len(calls) == 5
+    detector.config = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="translation",
+                                                                normal_neighbours=8))
+    detector.detect(2, clouds, all_bounds, poses, poses, times)  # other ICP settings: prepared again
+    assert len(calls) == 6
+    # a hand-made IcpTarget whose parts do not belong together is refused
+    other = slam.prepare_target(sources[0])
+    mixed = slam.IcpTarget(prepared.points, other.tree, prepared.normals, prepared.neighbours)
+    with pytest.raises(ValueError, match="do not belong together"):
+        slam.icp_batch(sources[:1], [mixed])
+    assert not prepared.points.flags.writeable and not prepared.normals.flags.writeable
 
 
 def test_degenerate_scenes_give_a_reduced_basis():

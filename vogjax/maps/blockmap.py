@@ -29,7 +29,8 @@ MAX_LINE_VOXELS = 1 << 16
 class RaycastResult:
     """Per ray: `hit` (R,) bool, an OCCUPIED voxel was met before `max_range`;
     `distance` (R,) float32, where the ray enters that voxel, else `max_range`;
-    `num_unknown`, `num_free` (R,) int32, voxels of each state passed before it."""
+    `num_unknown`, `num_free` (R,) int32, voxels of each state passed before it.
+    NumPy arrays, or Warp arrays on the map's device for rays given on the device."""
 
     hit: np.ndarray
     distance: np.ndarray
@@ -127,9 +128,10 @@ class BlockMap:
         (`hashing.VOXEL_KEY_LIMIT` voxels from the origin per axis) are not counted.
 
         Rays already on the map's device stay there: with origins and directions given as Warp
-        arrays (float64, (R,3) or (R,) vec3d; `wp.from_jax` wraps a JAX array without a copy)
-        and max_range a float or such an array of (R,), the checks run in a kernel and the
-        result's fields are Warp arrays on the device, final when this returns.
+        arrays (float64, (R,3) or (R,) vec3d; `wp.from_jax` wraps a float64 JAX array, x64
+        enabled, without a copy) and max_range a number or a float64 Warp array of (R,), the
+        checks run in a kernel and the result's fields are Warp arrays on the device, final
+        when this returns.
         """
         if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
             return self._raycast_on_device(origins, directions, max_range)
@@ -154,26 +156,33 @@ class BlockMap:
                 raise ValueError(f"max_range must be a float64 Warp array of shape ({count},) on {self.device}, got "
                                  f"{wp.types.type_repr(max_range.dtype)} {max_range.shape} on {max_range.device}")
             ranges = max_range
-        else:
+        elif np.isscalar(max_range):
             ranges = wp.array(positive_range("max_range", max_range, 1), dtype=wp.float64, device=self.device)
+        else:
+            raise ValueError(f"max_range must be a number or a float64 Warp array of ({count},) when the rays are "
+                             f"Warp arrays, got {type(max_range).__name__}")
         if count == 0:
             return RaycastResult(*(wp.empty(0, dtype=t, device=self.device)
                                    for t in (wp.bool, wp.float32, wp.int32, wp.int32)))
         # the host checks of the NumPy path, in one launch and one read-back of three numbers
         first_bad = wp.full(3, count, dtype=wp.int32, device=self.device)
-        limit_m = (hashing.VOXEL_KEY_LIMIT - 2) * self.config.voxel_size
-        wp.launch(queries.check_rays, dim=count, inputs=[origins, directions, ranges, np.float64(limit_m)],
+        voxel_size, key_limit = self.config.voxel_size, hashing.VOXEL_KEY_LIMIT - 2
+        wp.launch(queries.check_rays, dim=count,
+                  inputs=[origins, directions, ranges, np.float64(voxel_size), np.float64(key_limit)],
                   outputs=[first_bad], device=self.device)
         bad = first_bad.numpy()
         for fault, (name, what) in enumerate((
-                ("origins", f"NaN, infinite or farther than {limit_m:.0f} m from the origin on an axis"),
+                ("origins", f"NaN, infinite or {key_limit} voxels ({key_limit * voxel_size:g} m) or farther from "
+                            "the origin on an axis"),
                 ("directions", "NaN, infinite or zero"), ("max_range", "NaN, infinite or not positive"))):
             if bad[fault] < count:
                 raise ValueError(f"{name}: ray {bad[fault]} is {what}")
-        out = self._cast(origins, directions, ranges, synchronize=True)
+        out = self._cast(origins, directions, ranges)
+        if self.device.is_cuda:  # final on return, as the docstring says (later launches queue behind it)
+            wp.synchronize_stream(wp.get_stream(self.device))
         return RaycastResult(**out)
 
-    def _cast(self, origins: wp.array, directions: wp.array, ranges: wp.array, synchronize: bool = False) -> dict:
+    def _cast(self, origins: wp.array, directions: wp.array, ranges: wp.array) -> dict:
         """cast_rays over checked device rays (ranges: one per ray, or one for all): the
         RaycastResult fields as Warp arrays."""
         count, device, cfg = origins.shape[0], self.device, self.config
@@ -198,8 +207,6 @@ class BlockMap:
             grid_inputs = [wp.vec3i(*grid.lo), wp.vec3i(*grid.hi), wp.vec3i(*grid.dims), grid.cells]
             states = self._ray_states()
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
-            if synchronize:  # results left on the device: done before an update may run
-                wp.synchronize_device(device)
         return out
 
     def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:

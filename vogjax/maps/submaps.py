@@ -174,7 +174,8 @@ class VogMap:
 
     def raycast(self, origins, directions, max_range) -> RaycastResult:
         """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre (long
-        stretches before and after the submaps' boxes are counted, not walked, likewise)."""
+        stretches before and after the submaps' boxes are counted, not walked, likewise); rays
+        as NumPy arrays only."""
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         check_extent(self.config, origins=origins)
         cfg, device, count = self.config, self.device, origins.shape[0]

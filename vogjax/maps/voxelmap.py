@@ -17,7 +17,9 @@ from vogjax.validation import float_array, index_array
 SCANS_PER_PASS = 64
 SCANS_PER_PASS_CUDA = 2048
 # Bound on the per-pass mark scratch; a pass above it is split in two. Passes of 2048 of the
-# pier benchmark's scans took a 148 MiB scratch (64 words, 256 KiB, per block touched).
+# pier benchmark's scans took a 148 MiB scratch (64 words, 256 KiB, per block touched). The
+# scratch grows by doubling and is pooled per device, so it may keep up to twice the budget;
+# on a GPU the budget is also at most a 32nd of its memory (512 MiB kept on a 16 GiB card).
 MARK_BUDGET_BYTES = 256 << 20
 MARK_BUDGET_BYTES_CUDA = 1 << 30
 
@@ -63,7 +65,8 @@ class VoxelMap(BlockMap):
         cuda = self.device.is_cuda
         with self._lock.writing():
             integrator.integrate(self._store, self.config, batch, SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
-                                 MARK_BUDGET_BYTES_CUDA if cuda else MARK_BUDGET_BYTES)
+                                 min(MARK_BUDGET_BYTES_CUDA, self.device.total_memory // 32) if cuda
+                                 else MARK_BUDGET_BYTES)
             self.revision += 1
             self._values_changed()
 

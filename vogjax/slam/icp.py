@@ -62,7 +62,24 @@ def prepare_target(target, config: IcpConfig | None = None) -> IcpTarget:
     points = np.array(_cloud("target", target))  # a copy: the tree and normals describe these values
     points.setflags(write=False)
     tree = cKDTree(points)
-    return IcpTarget(points, tree, target_normals(points, tree, config.normal_neighbours), config.normal_neighbours)
+    normals = target_normals(points, tree, config.normal_neighbours)
+    normals.setflags(write=False)
+    return IcpTarget(points, tree, normals, config.normal_neighbours)
+
+
+def _check_target(target: IcpTarget, config: IcpConfig) -> IcpTarget:
+    """A prepared target as `prepare_target` makes them (one built by hand could pair a tree
+    or normals with other points)."""
+    points = target.points
+    if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2 and
+            points.shape[1] == 3 and len(points) >= 3 and isinstance(target.tree, cKDTree) and
+            target.tree.n == len(points) and np.array_equal(target.tree.data, points) and
+            isinstance(target.normals, np.ndarray) and target.normals.shape == points.shape):
+        raise ValueError("targets: an IcpTarget whose points, tree and normals do not belong together "
+                         "(make them with prepare_target)")
+    if target.neighbours != config.normal_neighbours:
+        raise ValueError("targets: an IcpTarget was prepared with other normal_neighbours than config's")
+    return target
 
 
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
@@ -102,9 +119,8 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     if len(sources) != len(targets):
         raise ValueError("sources and targets must pair up (same length)")
     sources = [_cloud("source", c) for c in sources]
-    prepared = [t if isinstance(t, IcpTarget) else prepare_target(t, config) for t in targets]
-    if any(t.neighbours != config.normal_neighbours for t in prepared):
-        raise ValueError("targets: an IcpTarget was prepared with other normal_neighbours than config's")
+    prepared = [_check_target(t, config) if isinstance(t, IcpTarget) else prepare_target(t, config)
+                for t in targets]
     count = len(sources)
     if count == 0:
         return []

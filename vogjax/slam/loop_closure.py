@@ -90,17 +90,18 @@ class LoopClosureDetector:
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
         self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # per phase, in the last detect call
-        self._targets: dict[int, tuple[np.ndarray, IcpTarget]] = {}  # submap -> (its cloud, prepared)
+        self._targets: dict[int, IcpTarget] = {}  # submap -> its cloud, prepared for ICP
 
     def _target(self, i: int, cloud: np.ndarray) -> IcpTarget:
-        """Submap i's cloud prepared for ICP, once per cloud: a new array object for i (a
-        cloud rebuilt) is prepared again. Clouds must not change in place once given."""
+        """Submap i's cloud prepared for ICP once: kept while the same values (compared point by
+        point, cheap next to a tree and normals) come with the same ICP settings."""
         kept = self._targets.get(i)
-        if kept is None or kept[0] is not cloud:
+        if kept is None or kept.neighbours != self.config.icp.normal_neighbours or \
+                not np.array_equal(kept.points, cloud):
             start = time.perf_counter()
-            kept = self._targets[i] = (cloud, prepare_target(cloud, self.config.icp))
+            kept = self._targets[i] = prepare_target(cloud, self.config.icp)
             self.seconds["icp"] += time.perf_counter() - start
-        return kept[1]
+        return kept
 
     def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
         """Earlier submaps worth aligning with k (the thesis's precondition)."""
