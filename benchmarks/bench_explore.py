@@ -2,11 +2,13 @@
 
 1. rmse (Ho thesis Table 4.3, IROS Table II): the propeller explored with Table 4.2's
    parameters (0.095 m voxels, 100 scans per submap, 2 m edges, lambda 0.5, N_max 15, planner
-   range 5 m, 1 x 1 x 0.5 m box), `--runs` runs per arm: the planner on the standard
-   (navigation-only) map, and on the online global map with loop closures. Reconstruction RMSE
-   after registration of the standard map, of the virtual map at navigation poses (without loop
-   closures) and of the online global map (with loop closures). Every run is also checked for
-   collisions of the true path's box with the true mesh.
+   range 5 m, 1 x 1 x 0.5 m box) and the thesis's drift (Eq. 4.1), `--runs` runs per arm: the
+   planner on the standard (navigation-only) map, and on the online global map with loop
+   closures. Reconstruction RMSE after registration of the standard map, of the virtual map at
+   navigation poses (without loop closures) and of the online global map (with loop closures),
+   with the share of the true surface each covers, and per seed whether they fall in the
+   thesis's order. Every run is also checked for collisions of the true path's box with the
+   true mesh.
 2. timing (Sodhi Fig. 8 with the planner's own queries): in the first global-map run, every
    `--timing-every` submaps, the same planning iteration on the online global map and on the
    virtual map side by side (a fresh planner, same seed), and the median time per gain ray of a
@@ -19,7 +21,7 @@
     python benchmarks/bench_explore.py --out benchmarks/results --reuse /tmp/bench_runs
 
 `--reuse DIR` takes every ARM_SEED.h5 with its ARM_SEED.explore.csv found in DIR (as `--keep`
-leaves them) instead of exploring again: the run file is replayed through the pipeline's Mapper
+leaves them) instead of exploring again (runs it lacks are explored, into `--keep` if given): the run file is replayed through the pipeline's Mapper
 as explore() fed it (the same maps, checked against the CSV's explored volume), the summary
 comes from the run and the CSV (wall_s: null, unknown), and the timing probe runs at the CSV's
 planning moments, from the pose the planner planned from (explore's estimate: the last scan's
