@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+import warp as wp
+from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 import vogjax as vj
@@ -423,6 +424,49 @@ def test_voxelmap_raycast(warm, args):
                      vmap.voxels, expect, "VoxelMap.raycast")
     if result is not REFUSED:
         check_rays(result, cells, origins, directions, max_range, CFG)
+
+
+def plain_rays(value) -> np.ndarray | None:
+    """`value` as a float64 (R, 3) array, or None when it is no plain real (R, 3) array (junk,
+    ragged, bool or complex: what the NumPy path's own checks refuse)."""
+    try:
+        array = np.asarray(value)
+    except Exception:
+        return None
+    if array.dtype.kind not in "fiu" or array.dtype == np.bool_ or array.ndim != 2 or array.shape[1] != 3:
+        return None
+    return np.ascontiguousarray(array, np.float64)
+
+
+@fuzz(50)
+@given(args=ray_arguments())
+def test_voxelmap_raycast_on_the_device_agrees_with_numpy(warm, args):
+    """The same rays as Warp arrays: refused exactly when the NumPy path refuses them (NaN,
+    infinities, zero directions, the key range, ranges), and bit for bit its answers."""
+    vmap, _ = base_map()
+    origins, directions, max_range, _ = args
+    o, d = plain_rays(origins), plain_rays(directions)
+    assume(o is not None and d is not None and o.shape == d.shape)
+    count = o.shape[0]
+    d_origins = wp.array(o, dtype=wp.float64, device=vmap.device)
+    d_directions = wp.array(d, dtype=wp.float64, device=vmap.device)
+    if np.isscalar(max_range) and isinstance(max_range, (int, float, np.integer, np.floating)) \
+            and not isinstance(max_range, bool):
+        d_range = max_range
+    elif isinstance(max_range, np.ndarray) and max_range.dtype.kind in "fiu" and max_range.dtype != np.bool_ \
+            and max_range.shape == (count,):
+        d_range = wp.array(max_range.astype(np.float64), dtype=wp.float64, device=vmap.device)
+    else:
+        d_range = None
+    assume(d_range is not None)
+    host = attempt(lambda: vmap.raycast(origins, directions, max_range), ["origins", "directions", "max_range"],
+                   vmap.voxels, "either", "VoxelMap.raycast")
+    event("refused" if host is REFUSED else "answered")
+    device = attempt(lambda: vmap.raycast(d_origins, d_directions, d_range), ["origins", "directions", "max_range"],
+                     vmap.voxels, "invalid" if host is REFUSED else "valid", "VoxelMap.raycast on the device")
+    if host is not REFUSED:
+        for name in ("hit", "distance", "num_unknown", "num_free"):
+            assert np.array_equal(getattr(device, name).numpy(), getattr(host, name)), name
 
 
 @st.composite
