@@ -155,6 +155,16 @@ def test_prepared_targets_give_the_same_alignments(monkeypatch):
     sources = [(target - m[:3, 3]) @ m[:3, :3] for m in (small_motion(rng), small_motion(rng))]
     prepared = slam.prepare_target(target)
     assert target.flags.writeable and np.array_equal(target, kept)
+    # its normals against a brute-force reference: each point's 10 nearest by the full distance
+    # matrix, the direction of least spread of their scatter (up to sign)
+    sample = rng.choice(len(target), 200, replace=False)
+    distances = np.linalg.norm(target[sample, None, :] - target[None, :, :], axis=2)
+    for row, point in enumerate(sample):
+        patch = target[np.argsort(distances[row])[:10]]
+        centred = patch - patch.mean(axis=0)
+        reference = np.linalg.svd(centred)[2][-1]
+        assert abs(prepared.normals[point] @ reference) > 1 - 1e-6
+    assert np.array_equal(prepared.tree.query(target[sample])[1], sample)
     for method in ("point_to_plane", "point_to_point_xyh"):
         raw = slam.icp_batch(sources, [target, target], None, method)
         reused = slam.icp_batch(sources, [prepared, prepared], None, method)

@@ -192,12 +192,12 @@ class GlobalMap(BlockMap):
         new = vog.poses(ids)
         angle, shift = pose_deltas(old, new)
         # An unchanged pose never moves, whatever round-off the SE(3) log leaves.
-        changed = np.any(old != new, axis=(1, 2))
-        displaced = np.ones(len(ids), bool)
-        if eps_move_m > 0:
-            displaced = np.array([_largest_displacement(vog.submap(i).bounds(), T_old, T_new) > eps_move_m
-                                  for i, T_old, T_new in zip(ids.tolist(), old, new)])
-        return tuple(ids[changed & displaced & ((angle > eps_rot) | (shift > eps_trans))].tolist())
+        moved = np.any(old != new, axis=(1, 2)) & ((angle > eps_rot) | (shift > eps_trans))
+        if eps_move_m > 0:  # the box corners only of those the cheap tests left in
+            left = np.flatnonzero(moved)
+            for k, submap in zip(left.tolist(), vog.submaps(ids[left].tolist())):
+                moved[k] = _largest_displacement(submap.bounds(), old[k], new[k]) > eps_move_m
+        return tuple(ids[moved].tolist())
 
     def _volumes(self, vog: VogMap, marginals) -> np.ndarray | None:
         """(N,) 95% x-y-yaw confidence volumes of checked marginals; None without marginals."""
@@ -382,12 +382,15 @@ class GlobalMap(BlockMap):
         return gmap
 
 
+# corner m of a box takes hi on axis a when bit a of m is set
+_CORNER_HIGH = ((np.arange(8)[:, None] >> np.arange(3)) & 1).astype(bool)
+
+
 def _largest_displacement(box, T_old: np.ndarray, T_new: np.ndarray) -> float:
     """How far the farthest corner of a submap-frame box moves from T_old to T_new (0 for None)."""
     if box is None:
         return 0.0
-    lo, hi = box
-    corners = np.array([[(lo, hi)[m & 1][0], (lo, hi)[(m >> 1) & 1][1], (lo, hi)[(m >> 2) & 1][2]] for m in range(8)])
+    corners = np.where(_CORNER_HIGH, box[1], box[0])
     moved = corners @ (T_new[:3, :3] - T_old[:3, :3]).T + (T_new[:3, 3] - T_old[:3, 3])
     return float(np.linalg.norm(moved, axis=1).max())
 
