@@ -317,6 +317,70 @@ def test_correlative_search_recovers_planar_offsets(seed):
     assert match.score > 0.5 and match.ratio < 0.7
 
 
+def direct_correlation(source, target, T_init, radius_m, yaw_radius_rad, config):
+    """correlative_xyh by its definition, without FFTs: the same grid, the target blurred on the
+    whole of it, and every yaw and x-y offset scored by summing the field under the moved source
+    points one by one. Returns (best score, its yaw, its offset in cells, runner-up)."""
+    from scipy import ndimage
+    res = config.resolution_m
+    moved = source @ T_init[:3, :3].T + T_init[:3, 3]
+    pivot = moved.mean(axis=0)
+    cells_r = int(np.ceil(radius_m / res))
+    reach = np.linalg.norm(moved[:, :2] - pivot[:2], axis=1).max() * yaw_radius_rad
+    margin = res * (cells_r + 2) + reach
+    lo, hi = moved.min(axis=0) - margin, moved.max(axis=0) + margin
+    target = target[np.all((target[:, :2] >= lo[:2] + res) & (target[:, :2] <= hi[:2] - res), axis=1)]
+    lo[2] = min(target[:, 2].min(), moved[:, 2].min()) - res
+    hi[2] = max(target[:, 2].max(), moved[:, 2].max()) + res
+    shape = (np.ceil((hi - lo) / res) + 1).astype(int)
+    field = np.zeros(shape)
+    t = np.floor((target - lo) / res).astype(int)
+    field[t[:, 0], t[:, 1], t[:, 2]] = 1.0
+    if config.blur_voxels > 0:
+        field = ndimage.gaussian_filter(field, config.blur_voxels)
+        field /= field.max()
+    steps = int(np.floor(yaw_radius_rad / config.yaw_step_rad))
+    offsets = np.arange(-cells_r, cells_r + 1)
+    best = (-np.inf, None, None, None)
+    for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
+        c, s = np.cos(yaw), np.sin(yaw)
+        points = (moved - pivot) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + pivot
+        cells = np.floor((points - lo) / res).astype(int)
+        window = np.array([[field[cells[:, 0] + dx, cells[:, 1] + dy, cells[:, 2]].sum() for dy in offsets]
+                           for dx in offsets]) / len(points)
+        peak = np.unravel_index(np.argmax(window), window.shape)
+        if window[peak] > best[0]:
+            best = (window[peak], yaw, peak, window)
+    score, yaw, peak, window = best
+    ii, jj = np.meshgrid(offsets, offsets, indexing="ij")
+    far = np.hypot(ii - offsets[peak[0]], jj - offsets[peak[1]]) * res >= config.exclusion_m
+    return score, yaw, (offsets[peak[0]], offsets[peak[1]]), window[far].max()
+
+
+@pytest.mark.parametrize("seed, blur", [(0, 1.0), (1, 0.0), (2, 1.6), (3, 1.0)])
+def test_correlative_search_equals_direct_correlation(seed, blur):
+    """The FFT search (on padded sizes, over the source's layers, the blur cropped to the target)
+    scores every yaw and offset as summing the whole grid's field point by point does."""
+    rng = np.random.default_rng(seed)
+    target = structured_cloud(rng, 1500)
+    truth = np.eye(4)
+    truth[:3, :3] = Rotation.from_euler("z", rng.uniform(-0.01, 0.01)).as_matrix()
+    truth[:3, 3] = [*rng.uniform(-0.6, 0.6, 2), 0.0]
+    source = ((target - truth[:3, 3]) @ truth[:3, :3])[rng.random(len(target)) < 0.5]
+    source = source[source[:, 2] < 1.5]  # fewer layers than the target: the search keeps only these
+    T_init = np.eye(4)
+    T_init[:3, 3] = rng.uniform(-0.2, 0.2, 3)
+    config = slam.CorrelativeConfig(blur_voxels=blur, yaw_step_rad=0.004)
+    match = slam.correlative_xyh(source, target, T_init, 0.9, 0.012, config)
+    score, yaw, (dx, dy), runner_up = direct_correlation(source, target, T_init, 0.9, 0.012, config)
+    np.testing.assert_allclose([match.score, match.runner_up], [score, runner_up], rtol=1e-5)
+    expected = np.eye(4)
+    expected[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+    pivot = (source @ T_init[:3, :3].T + T_init[:3, 3]).mean(axis=0)
+    expected[:3, 3] = pivot - expected[:3, :3] @ pivot + [dx * 0.1, dy * 0.1, 0.0]
+    np.testing.assert_allclose(match.T_target_source, expected @ T_init, atol=1e-12)
+
+
 def test_correlative_search_reports_ambiguity_along_a_wall():
     rng = np.random.default_rng(5)
     wall = np.c_[rng.uniform(0, 8, 3000), np.zeros(3000), rng.uniform(0, 3, 3000)]

@@ -83,23 +83,27 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
                          "radius)")
     shape = extent.astype(int)
     steps = int(yaw_steps) // 2
-    field = np.zeros(shape, np.float32)
-    cells = np.floor((target - lo) / res).astype(int)
-    field[cells[:, 0], cells[:, 1], cells[:, 2]] = 1.0
-    if config.blur_voxels > 0:
-        field = ndimage.gaussian_filter(field, (config.blur_voxels, config.blur_voxels, config.blur_voxels))
-        field /= max(float(field.max()), 1e-12)
-    field_spectrum = fft.rfft2(field, axes=(0, 1), workers=-1)
+    # Only the layers the source occupies enter the sum over z (a yaw keeps every z), and the
+    # transforms run on x-y sizes FFTs are fast at: the padding only adds zeros beyond a grid
+    # whose margins already keep every window offset from wrapping.
+    # (a layer either side: rotating about the pivot can round a z across a layer's face)
+    z_lo = max(int(np.floor((moved[:, 2].min() - lo[2]) / res)) - 1, 0)
+    z_hi = min(int(np.floor((moved[:, 2].max() - lo[2]) / res)) + 2, int(shape[2]))
+    field = _target_field(np.floor((target - lo) / res).astype(int), shape, z_lo, z_hi, config.blur_voxels)
+    fft_shape = (fft.next_fast_len(int(shape[0])), fft.next_fast_len(int(shape[1]), real=True))
+    field_spectrum = fft.rfft2(field, s=fft_shape, axes=(0, 1), workers=-1)
+    layer_shape = (int(shape[0]), int(shape[1]), z_hi - z_lo)
     best = (-np.inf, None, None, None)
     for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
         rotation = rotation_from_ypr(yaw)
         points = (moved - pivot) @ rotation.T + pivot
-        counts = np.zeros(shape, np.float32)
         cells = np.floor((points - lo) / res).astype(int)
-        np.add.at(counts, (cells[:, 0], cells[:, 1], cells[:, 2]), 1.0)
+        cells[:, 2] -= z_lo
+        counts = np.bincount(np.ravel_multi_index(cells.T, layer_shape), minlength=int(np.prod(layer_shape)))
+        counts = counts.reshape(layer_shape).astype(np.float32)
         # score(d) = sum_x counts(x) field(x + d), for every x-y offset d at once
-        spectrum = (np.conj(fft.rfft2(counts, axes=(0, 1), workers=-1)) * field_spectrum).sum(axis=2)
-        scores = fft.irfft2(spectrum, s=shape[:2], workers=-1)
+        spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1), workers=-1)) * field_spectrum).sum(axis=2)
+        scores = fft.irfft2(spectrum, s=fft_shape, workers=-1)
         window = _window(scores, shift_cells) / len(points)
         peak = np.unravel_index(np.argmax(window), window.shape)
         if window[peak] > best[0]:
@@ -113,6 +117,29 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     correction[:3, :3] = rotation_from_ypr(yaw)
     correction[:3, 3] = pivot - correction[:3, :3] @ pivot + np.array([offsets[0], offsets[1], 0.0])
     return CorrelativeMatch(correction @ T_init, score, runner_up)
+
+
+def _target_field(cells: np.ndarray, shape: np.ndarray, z_lo: int, z_hi: int, blur_voxels: float) -> np.ndarray:
+    """Layers [z_lo, z_hi) of the target's occupancy on the grid (1 in each cell holding a point),
+    blurred by a Gaussian of blur_voxels (ndimage's, reflecting at the grid's faces) and scaled
+    to a maximum of 1. The blur runs on the box around the target only: past the kernel's reach
+    the blurred field is exactly zero, and a box kept a further reach away from any face it does
+    not share with the grid reflects only those zeros, so every value is the whole grid's, bit
+    for bit."""
+    reach = int(4.0 * blur_voxels + 0.5) if blur_voxels > 0 else 0  # gaussian_filter's truncate=4
+    box_lo = np.maximum(cells.min(axis=0) - 2 * reach, 0)
+    box_hi = np.minimum(cells.max(axis=0) + 2 * reach + 1, shape)
+    box = np.zeros(box_hi - box_lo, np.float32)
+    inside = cells - box_lo
+    box[inside[:, 0], inside[:, 1], inside[:, 2]] = 1.0
+    if blur_voxels > 0:
+        box = ndimage.gaussian_filter(box, blur_voxels)
+        box /= max(float(box.max()), 1e-12)
+    field = np.zeros((int(shape[0]), int(shape[1]), z_hi - z_lo), np.float32)
+    z0, z1 = max(z_lo, int(box_lo[2])), min(z_hi, int(box_hi[2]))
+    if z1 > z0:
+        field[box_lo[0]:box_hi[0], box_lo[1]:box_hi[1], z0 - z_lo:z1 - z_lo] = box[:, :, z0 - box_lo[2]:z1 - box_lo[2]]
+    return field
 
 
 def _window(scores: np.ndarray, cells: int) -> np.ndarray:
