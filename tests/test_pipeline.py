@@ -89,3 +89,55 @@ def test_confidence_rich_map_beside_the_standard_one(boxes_run):
     details = metrics["confidence_map"]
     # its means sit closer to the truth than the standard map's probabilities (Agha-mohammadi's claim)
     assert details["mean_error"] < details["standard_mean_error"]
+
+
+def test_rigid_truth_is_the_least_squares_placement_of_a_bent_submap():
+    """rigid_truth against its definition: the true rotation, and no translation puts the
+    returns closer to their true places (perturbations of it, and the base's true pose, all do
+    worse); unbent returns give back the base's true pose."""
+    from scipy.spatial.transform import Rotation
+    from vogjax.pipeline.mapper import rigid_truth
+
+    rng = np.random.default_rng(3)
+    true = rng.uniform(-3, 3, (400, 3))
+    T_base = np.eye(4)
+    T_base[:3, :3] = Rotation.from_euler("zyx", [0.4, 0.05, -0.02]).as_matrix()
+    T_base[:3, 3] = [5.0, -2.0, 1.0]
+    in_base = (true - T_base[:3, 3]) @ T_base[:3, :3]
+    np.testing.assert_allclose(rigid_truth(in_base, true, T_base), T_base, atol=1e-12)
+    bent = in_base + 0.05 * np.c_[in_base[:, 0] ** 2, np.sin(in_base[:, 1]), in_base[:, 0]]  # drift's bend
+
+    def cost(T):
+        return np.sum((bent @ T[:3, :3].T + T[:3, 3] - true) ** 2)
+
+    best = rigid_truth(bent, true, T_base)
+    np.testing.assert_array_equal(best[:3, :3], T_base[:3, :3])
+    assert cost(best) < cost(T_base)
+    for _ in range(50):
+        moved = best.copy()
+        moved[:3, 3] += rng.normal(0, 1e-3, 3)
+        assert cost(moved) > cost(best)
+    np.testing.assert_array_equal(rigid_truth(bent[:0], true[:0], T_base), T_base)  # no returns
+
+
+def test_closure_errors_against_true_and_rigid_poses(boxes_run):
+    """Both precisions count closures within 0.2 m and 1 degree of the relative pose their
+    references give, in the directions each closure constrains (recomputed here directly)."""
+    from vogjax.geometry import inverse, log_se3
+
+    result = pipeline.run(boxes_run, pipeline.PipelineConfig(scans_per_submap=50), progress=False)
+    assert result.loop_closures, "the boxes run closes loops"
+    report = result.closure_errors()
+    rigid, truth = result.rigid_truth, result.truth
+    assert rigid is not None and not np.allclose(rigid, truth)  # navigation drifts inside submaps
+    for suffix, poses in (("", truth), ("_rigid", rigid)):
+        good = []
+        for c, e in zip(result.loop_closures, report["errors"]):
+            twist = log_se3(inverse(inverse(poses[c.i]) @ poses[c.k]) @ c.T_i_k)
+            basis = np.eye(6) if c.basis is None else c.basis
+            assert e["translation_m" + suffix] == pytest.approx(np.linalg.norm((basis @ basis.T @ twist)[3:]))
+            good.append(e["translation_m" + suffix] <= 0.2 and e["rotation_deg" + suffix] <= 1.0)
+        assert report["precision" + suffix] == np.mean(good)
+    metrics = result.metrics
+    assert metrics["loop_closures"]["precision_rigid"] == report["precision_rigid"]
+    assert metrics["trajectory_rmse_m"]["rigid_truth"] > 0

@@ -199,14 +199,16 @@ class Mapper:
         middle = len(scans) // 2
         base = scans.pose_nav[middle]
         truth = None if scans.pose_truth is None else scans.pose_truth[middle]
-        self.submaps.append(SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]),
-                                         base, truth))
-        i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
         origins, endpoints = scans.world(inverse(base) @ scans.pose_nav, self.reach_m)
+        returns = endpoints[~scans.no_return]
+        rigid = None if truth is None else rigid_truth(returns, scans.world(scans.pose_truth, self.reach_m)[1]
+                                                       [~scans.no_return], truth)
+        self.submaps.append(SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]),
+                                         base, truth, rigid))
+        i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
         self.vog.submap(i).integrate_scans(origins, endpoints.reshape(-1, 3),
                                            np.repeat(np.arange(len(scans)), endpoints.shape[1]))
         self.timings["integration"].append(time.perf_counter() - start)
-        returns = endpoints[~scans.no_return]
         self.clouds.append(voxel_means(returns, self.config.map.voxel_size))
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
@@ -220,6 +222,18 @@ class Mapper:
         """Where the optimised previous submap puts a new base pose (navigation's relative motion)."""
         previous = self.graph.num_submaps - 1
         return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ base_nav
+
+
+def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndarray) -> np.ndarray:
+    """T_world_base (4,4): the base's true rotation and the translation that puts the returns
+    `built` (K,3, in the submap's frame, placed by navigation) closest to their true positions
+    `true` (K,3, world) in the least-squares sense: their mean offset. (Fitting the rotation too
+    would trade a small turn of the whole swath against metres at its base.) The base's true
+    pose when there are no returns."""
+    T = T_world_base_truth.copy()
+    if len(built):
+        T[:3, 3] = np.mean(true - built @ T[:3, :3].T, axis=0)
+    return T
 
 
 def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:

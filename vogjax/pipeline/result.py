@@ -17,7 +17,11 @@ from vogjax.slam import LoopClosure, Rejection
 class SubmapRecord:
     """One submap as the pipeline cut it: its first scan, how many scans it holds, its base
     scan (the middle one: see `vogjax.pipeline.mapper`), the time of the base scan, and the
-    base pose by navigation and (when the run has it) by ground truth."""
+    base pose by navigation and (when the run has it) by ground truth, and its rigid truth: the
+    true rotation with the translation that puts the submap's returns, as navigation placed
+    them in it, closest to where they truly are (least squares). Drift inside a submap bends
+    it; a registration can at best find the rigid truth, which differs from the base's true
+    pose by the bend."""
 
     first_scan: int
     scans: int
@@ -25,6 +29,7 @@ class SubmapRecord:
     time_s: float
     T_world_base_nav: np.ndarray
     T_world_base_truth: np.ndarray | None
+    T_world_base_rigid: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -77,6 +82,13 @@ class Result:
         return np.array([s.T_world_base_truth for s in self.submaps]).reshape(-1, 4, 4)
 
     @property
+    def rigid_truth(self) -> np.ndarray | None:
+        """(N,4,4) rigid truths of the submaps (see SubmapRecord); None without ground truth."""
+        if self.scan_truth is None or any(s.T_world_base_rigid is None for s in self.submaps):
+            return None
+        return np.array([s.T_world_base_rigid for s in self.submaps]).reshape(-1, 4, 4)
+
+    @property
     def submap_first_scan(self) -> np.ndarray:
         return np.array([s.first_scan for s in self.submaps], dtype=np.int64)
 
@@ -94,6 +106,11 @@ class Result:
             for name in ("navigation", "optimized"):
                 offsets = getattr(self, name)[:, :3, 3] - truth[:, :3, 3]
                 errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+            rigid = self.rigid_truth
+            if rigid is not None:  # how far the bends inside submaps put the best rigid placement
+                for name, poses in (("rigid_truth", rigid), ("optimized_vs_rigid_truth", self.optimized)):
+                    offsets = poses[:, :3, 3] - (truth if name == "rigid_truth" else rigid)[:, :3, 3]
+                    errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
         rejected = {}
         for r in self.rejected:
             rejected[r.reason] = rejected.get(r.reason, 0) + 1
@@ -106,18 +123,29 @@ class Result:
     def closure_errors(self, max_translation_m: float = 0.2, max_rotation_deg: float = 1.0) -> dict:
         """Each accepted closure against the true relative pose, in the directions it constrains
         (all six for a full factor): translation and rotation error, and `precision`, the share
-        within `max_translation_m` and `max_rotation_deg` (NaN without closures)."""
-        truth = self.truth
+        within `max_translation_m` and `max_rotation_deg` (NaN without closures). The same
+        against the submaps' rigid truths (`*_rigid`, `precision_rigid`): what is left is the
+        registration's own error, without the bends drift put inside the two submaps."""
         errors = []
+        references = {"": self.truth, "_rigid": self.rigid_truth}
         for c in self.loop_closures:
-            twist = log_se3(inverse(inverse(truth[c.i]) @ truth[c.k]) @ c.T_i_k)
             basis = np.eye(6) if c.basis is None else c.basis
-            constrained = basis @ (basis.T @ twist)
-            errors.append({"i": c.i, "k": c.k, "translation_m": float(np.linalg.norm(constrained[3:])),
-                           "rotation_deg": float(np.degrees(np.linalg.norm(constrained[:3]))),
-                           "directions": int(basis.shape[1])})
-        good = [e["translation_m"] <= max_translation_m and e["rotation_deg"] <= max_rotation_deg for e in errors]
-        return {"precision": float(np.mean(good)) if errors else float("nan"), "errors": errors}
+            error = {"i": c.i, "k": c.k, "directions": int(basis.shape[1])}
+            for suffix, poses in references.items():
+                if poses is None:
+                    continue
+                twist = log_se3(inverse(inverse(poses[c.i]) @ poses[c.k]) @ c.T_i_k)
+                constrained = basis @ (basis.T @ twist)
+                error["translation_m" + suffix] = float(np.linalg.norm(constrained[3:]))
+                error["rotation_deg" + suffix] = float(np.degrees(np.linalg.norm(constrained[:3])))
+            errors.append(error)
+        out = {}
+        for suffix, poses in references.items():
+            if poses is not None:
+                good = [e["translation_m" + suffix] <= max_translation_m and
+                        e["rotation_deg" + suffix] <= max_rotation_deg for e in errors]
+                out["precision" + suffix] = float(np.mean(good)) if errors else float("nan")
+        return {**out, "errors": errors}
 
     @functools.cached_property
     def full_merge(self) -> GlobalMap:
