@@ -141,3 +141,20 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
     metrics = result.metrics
     assert metrics["loop_closures"]["precision_rigid"] == report["precision_rigid"]
     assert metrics["trajectory_rmse_m"]["rigid_truth"] > 0
+
+
+def test_rigid_truth_map_scores_the_true_pose_map_without_drift(tmp_path):
+    """With (almost) no navigation drift the submaps are not bent and sit where the truth puts
+    them: the rigid-truth map scores what the true-pose map scores."""
+    from vogjax import report as vj_eval
+    from vogjax import scenes
+
+    still = vj.NavNoise(**{name: 1e-14 for name in ("sigma2_x", "sigma2_y", "sigma2_z", "sigma2_yaw", "sigma2_pitch",
+                                                   "sigma2_roll")})
+    path = tmp_path / "still.h5"
+    simulate_run("boxes", path, laps=1, num_scans=240, noise=still, progress=False)
+    config = pipeline.PipelineConfig(scans_per_submap=60, nav_noise=still)
+    result = pipeline.run(path, config, progress=False)
+    auc = vj_eval.evaluate_run(result, scenes.load("boxes"), surface_points=5_000)[0]["auc"]
+    assert np.max(np.abs(result.rigid_truth[:, :3, 3] - result.truth[:, :3, 3])) < 1e-4
+    assert auc["rigid_truth"] == pytest.approx(auc["true_pose"], abs=2e-3)

@@ -165,6 +165,17 @@ class Result:
         return merged
 
     @functools.cached_property
+    def rigid_truth_merge(self) -> GlobalMap | None:
+        """The pipeline's submaps merged at their rigid truths: the best any placement of these
+        rigid, navigation-bent submaps can do (None without ground truth)."""
+        rigid = self.rigid_truth
+        if rigid is None:
+            return None
+        merged = GlobalMap(self.config.map, self.global_map.device)
+        merged.merge(self.vog.view(poses=rigid))
+        return merged
+
+    @functools.cached_property
     def navigation_merge(self) -> GlobalMap:
         """The submaps merged at their navigation poses: the map without loop closures."""
         merged = GlobalMap(self.config.map, self.global_map.device)

@@ -16,7 +16,9 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
 
     Returns (metrics, curves): metrics holds `auc` for the online global map, the virtual map at
     the optimised poses, a full merge, the standard map and (with true poses) `true_pose`, the
-    same submaps built and placed by the truth; `auc_vs_reference`, the same maps scored
+    same submaps built and placed by the truth, and `rigid_truth`, the pipeline's own submaps
+    at their rigid truths (the best placement of rigid submaps bent by the navigation);
+    `auc_vs_reference`, the same maps scored
     against the true-pose map's states instead of the mesh; `rmse_m` for the standard map and
     the virtual map without and with loop closures; `agreement` of the online map with the full
     merge. curves holds the ROC curves (for plots).
@@ -38,6 +40,8 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     centres, occupied = centres[observed], occupied[observed]
     if result.truth_merge is not None:
         maps["true_pose"] = result.truth_merge
+    if result.rigid_truth_merge is not None:
+        maps["rigid_truth"] = result.rigid_truth_merge
     curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()}
     confidence = {}
     if result.confidence_map is not None:  # Agha-mohammadi's map beside the standard one
