@@ -80,7 +80,7 @@ def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
 def test_map_writes_a_complete_report(mapped, boxes_run):
     report = json.loads((mapped / "report.json").read_text())
     assert report["run"] == str(boxes_run) and report["scene"] == "boxes"
-    assert set(report["auc"]) == {"online", "virtual", "full_merge", "standard", "true_pose"}
+    assert set(report["auc"]) == {"online", "virtual", "full_merge", "standard", "true_pose", "rigid_truth"}
     assert all(0.5 < v <= 1.0 for v in report["auc"].values())
     assert report["auc"]["online"] == report["auc"]["full_merge"]  # eps = 0: the same map
     assert abs(report["auc"]["online"] - report["auc"]["virtual"]) < 0.01
