@@ -140,6 +140,18 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
         assert report["precision" + suffix] == np.mean(good)
     metrics = result.metrics
     assert metrics["loop_closures"]["precision_rigid"] == report["precision_rigid"]
+    # each rigid truth from the submap's own returns: in its frame by navigation, and by the truth
+    from vogjax.io.dataset import Dataset
+    from vogjax.pipeline.mapper import rigid_truth as fit
+
+    with Dataset(boxes_run) as run:
+        for k in (0, len(result.submaps) // 2):
+            s = result.submaps[k]
+            scans = run.read(s.first_scan, s.first_scan + s.scans)
+            base = scans.pose_nav[s.base_scan - s.first_scan]
+            built = scans.world(np.linalg.inv(base) @ scans.pose_nav, 1e9)[1][~scans.no_return]
+            true = scans.world(scans.pose_truth, 1e9)[1][~scans.no_return]
+            np.testing.assert_allclose(rigid[k], fit(built, true, truth[k]), atol=1e-9)
     assert metrics["trajectory_rmse_m"]["rigid_truth"] > 0
 
 

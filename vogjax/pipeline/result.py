@@ -124,8 +124,8 @@ class Result:
         """Each accepted closure against the true relative pose, in the directions it constrains
         (all six for a full factor): translation and rotation error, and `precision`, the share
         within `max_translation_m` and `max_rotation_deg` (NaN without closures). The same
-        against the submaps' rigid truths (`*_rigid`, `precision_rigid`): what is left is the
-        registration's own error, without the bends drift put inside the two submaps."""
+        against the submaps' rigid truths (`*_rigid`, `precision_rigid`): what is left is mostly
+        the registration's own error, the bends drift put inside the two submaps taken out."""
         errors = []
         references = {"": self.truth, "_rigid": self.rigid_truth}
         for c in self.loop_closures:
@@ -166,8 +166,8 @@ class Result:
 
     @functools.cached_property
     def rigid_truth_merge(self) -> GlobalMap | None:
-        """The pipeline's submaps merged at their rigid truths: the best any placement of these
-        rigid, navigation-bent submaps can do (None without ground truth)."""
+        """The pipeline's submaps merged at their rigid truths: one good placement of these
+        rigid, navigation-bent submaps (None without ground truth)."""
         rigid = self.rigid_truth
         if rigid is None:
             return None
