@@ -83,10 +83,10 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
                          "radius)")
     shape = extent.astype(int)
     steps = int(yaw_steps) // 2
-    # Only the layers the source occupies enter the sum over z (a yaw keeps every z), and the
+    # Only the layers the source occupies enter the sum over z (a yaw keeps every z; one more
+    # layer either side, as rotating about the pivot can round a z across a face), and the
     # transforms run on x-y sizes FFTs are fast at: the padding only adds zeros beyond a grid
     # whose margins already keep every window offset from wrapping.
-    # (a layer either side: rotating about the pivot can round a z across a layer's face)
     z_lo = max(int(np.floor((moved[:, 2].min() - lo[2]) / res)) - 1, 0)
     z_hi = min(int(np.floor((moved[:, 2].max() - lo[2]) / res)) + 2, int(shape[2]))
     field = _target_field(np.floor((target - lo) / res).astype(int), shape, z_lo, z_hi, config.blur_voxels)
