@@ -20,8 +20,8 @@ class SubmapRecord:
     base pose by navigation and (when the run has it) by ground truth, and its rigid truth: the
     true rotation with the translation that puts the submap's returns, as navigation placed
     them in it, closest to where they truly are (least squares). Drift inside a submap bends
-    it; a registration can at best find the rigid truth, which differs from the base's true
-    pose by the bend."""
+    it; the rigid truth is where a registration of the whole bent submap belongs, and differs
+    from the base's true pose by the bend."""
 
     first_scan: int
     scans: int
@@ -103,14 +103,13 @@ class Result:
         errors = {}
         truth = self.truth
         if truth is not None:
-            for name in ("navigation", "optimized"):
-                offsets = getattr(self, name)[:, :3, 3] - truth[:, :3, 3]
-                errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+            pairs = {"navigation": (self.navigation, truth), "optimized": (self.optimized, truth)}
             rigid = self.rigid_truth
-            if rigid is not None:  # how far the bends inside submaps put the best rigid placement
-                for name, poses in (("rigid_truth", rigid), ("optimized_vs_rigid_truth", self.optimized)):
-                    offsets = poses[:, :3, 3] - (truth if name == "rigid_truth" else rigid)[:, :3, 3]
-                    errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+            if rigid is not None:  # how far the bends move the rigid truths, and SLAM from them
+                pairs.update(rigid_truth=(rigid, truth), optimized_vs_rigid_truth=(self.optimized, rigid))
+            for name, (poses, reference) in pairs.items():
+                offsets = poses[:, :3, 3] - reference[:, :3, 3]
+                errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
         rejected = {}
         for r in self.rejected:
             rejected[r.reason] = rejected.get(r.reason, 0) + 1

@@ -18,10 +18,9 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     the optimised poses, a full merge, the standard map and (with true poses) `true_pose`, the
     same submaps built and placed by the truth, and `rigid_truth`, the pipeline's own submaps
     at their rigid truths (one good placement of these rigid, navigation-bent submaps);
-    `auc_vs_reference`, the same maps scored
-    against the true-pose map's states instead of the mesh; `rmse_m` for the standard map and
-    the virtual map without and with loop closures; `agreement` of the online map with the full
-    merge. curves holds the ROC curves (for plots).
+    `auc_vs_reference`, the same maps scored against the true-pose map's states instead of the
+    mesh; `rmse_m` for the standard map and the virtual map without and with loop closures;
+    `agreement` of the online map with the full merge. curves holds the ROC curves (for plots).
     """
     cfg = result.config.map
     truth = scene.occupancy(cfg.voxel_size)
