@@ -86,12 +86,13 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     # Only the layers the source occupies enter the sum over z (a yaw keeps every z; one more
     # layer either side, as rotating about the pivot can round a z across a face), and the
     # transforms run on x-y sizes FFTs are fast at: the padding only adds zeros beyond a grid
-    # whose margins already keep every window offset from wrapping.
+    # whose margins already keep every window offset from wrapping. One thread per transform:
+    # on grids of these sizes more threads cost more than they save (the bits are the same).
     z_lo = max(int(np.floor((moved[:, 2].min() - lo[2]) / res)) - 1, 0)
     z_hi = min(int(np.floor((moved[:, 2].max() - lo[2]) / res)) + 2, int(shape[2]))
     field = _target_field(np.floor((target - lo) / res).astype(int), shape, z_lo, z_hi, config.blur_voxels)
     fft_shape = (fft.next_fast_len(int(shape[0])), fft.next_fast_len(int(shape[1]), real=True))
-    field_spectrum = fft.rfft2(field, s=fft_shape, axes=(0, 1), workers=-1)
+    field_spectrum = fft.rfft2(field, s=fft_shape, axes=(0, 1))
     layer_shape = (int(shape[0]), int(shape[1]), z_hi - z_lo)
     best = (-np.inf, None, None, None)
     for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
@@ -102,8 +103,8 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
         counts = np.bincount(np.ravel_multi_index(cells.T, layer_shape), minlength=int(np.prod(layer_shape)))
         counts = counts.reshape(layer_shape).astype(np.float32)
         # score(d) = sum_x counts(x) field(x + d), for every x-y offset d at once
-        spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1), workers=-1)) * field_spectrum).sum(axis=2)
-        scores = fft.irfft2(spectrum, s=fft_shape, workers=-1)
+        spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1))) * field_spectrum).sum(axis=2)
+        scores = fft.irfft2(spectrum, s=fft_shape)
         window = _window(scores, shift_cells) / len(points)
         peak = np.unravel_index(np.argmax(window), window.shape)
         if window[peak] > best[0]:

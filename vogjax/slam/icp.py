@@ -196,7 +196,8 @@ def _xyh_steps(moved: np.ndarray, matched: np.ndarray, weight: np.ndarray) -> np
 
 def _result(source, target, tree, normals, T, converged, iterations, config) -> IcpResult:
     moved = source @ T[:3, :3].T + T[:3, 3]
-    distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m, workers=-1)
+    # one thread, as in target_normals: threads cost these clouds more than they save
+    distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m)
     inlier = np.isfinite(distance)
     if inlier.any():
         J, _ = _plane_system(moved[inlier], T[:3, :3], source[inlier], target[index[inlier]],
