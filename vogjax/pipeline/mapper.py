@@ -201,8 +201,9 @@ class Mapper:
         truth = None if scans.pose_truth is None else scans.pose_truth[middle]
         origins, endpoints = scans.world(inverse(base) @ scans.pose_nav, self.reach_m)
         returns = endpoints[~scans.no_return]
-        rigid = None if truth is None else rigid_truth(returns, scans.world(scans.pose_truth, self.reach_m)[1]
-                                                       [~scans.no_return], truth)
+        # the same beams placed by the truth, in the frame of the base's true pose
+        true_rays = None if truth is None else scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
+        rigid = None if truth is None else rigid_truth(returns, true_rays[1][~scans.no_return], truth)
         self.submaps.append(SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]),
                                          base, truth, rigid))
         i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
@@ -213,7 +214,7 @@ class Mapper:
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
             j = self.truth_vog.add_submap(truth)
-            origins, endpoints = scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
+            origins, endpoints = true_rays
             self.truth_vog.submap(j).integrate_scans(origins, endpoints.reshape(-1, 3),
                                                      np.repeat(np.arange(len(scans)), endpoints.shape[1]))
             self.timings["truth_maps"].append(time.perf_counter() - start)
@@ -227,12 +228,12 @@ class Mapper:
 def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndarray) -> np.ndarray:
     """T_world_base (4,4): the base's true rotation and the translation that puts the returns
     `built` (K,3, in the submap's frame, placed by navigation) closest to their true positions
-    `true` (K,3, world) in the least-squares sense: their mean offset. (Fitting the rotation too
-    would trade a small turn of the whole swath against metres at its base.) The base's true
-    pose when there are no returns."""
+    `true` (K,3, in the frame of the base's true pose) in the least-squares sense: the base
+    moved by their mean offset. (Fitting the rotation too would trade a small turn of the whole
+    swath against metres at its base.) The base's true pose when there are no returns."""
     T = T_world_base_truth.copy()
     if len(built):
-        T[:3, 3] = np.mean(true - built @ T[:3, :3].T, axis=0)
+        T[:3, 3] += T[:3, :3] @ np.mean(true - built, axis=0)
     return T
 
 
