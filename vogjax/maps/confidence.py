@@ -276,8 +276,13 @@ class ConfidenceMap:
                 break
             max_blocks = most  # round-off made a cone longer than the bound: list again
         steps = step_counts.numpy().astype(np.int64)
-        listed = block_keys.numpy().reshape(-1)
-        keys.append(np.unique(listed[listed != EMPTY_KEY]))
+        listed = block_keys.numpy()
+        # neighbouring beams of a scan cross the same blocks in the same order: an entry equal to
+        # the previous beam's at the same place is listed there already (np.unique then sorts a
+        # fraction of the entries)
+        fresh = listed != EMPTY_KEY
+        fresh[1:] &= listed[1:] != listed[:-1]
+        keys.append(np.unique(listed[fresh]))
         total = np.zeros(count + 1, np.int64)
         np.cumsum(steps, out=total[1:])
 
