@@ -275,17 +275,22 @@ def node_gains(vmap, states, parents, config, sensor):
     gains, distances = np.zeros(len(states)), np.zeros(len(states))
     for n in range(1, len(states)):
         p = parents[n]
-        distances[n] = distances[p] + np.linalg.norm(states[n, :3] - states[p, :3])
+        turn = abs((states[n, 3] - states[p, 3] + np.pi) % (2 * np.pi) - np.pi)
+        # an edge costs its length, or the distance flown in the time its turn takes if longer
+        distances[n] = distances[p] + max(np.linalg.norm(states[n, :3] - states[p, :3]),
+                                          config.turn_cost_m_per_rad * turn)
         g = planner.edge_gain(vmap, states[p][None], states[n][None], sensor, config.gain_step_m, config.gain_range_m)
         gains[n] = gains[p] + planner.discounted(g.unknown_m3[0], distances[n], config.discount)
     return gains
 
 
-def test_plan_grows_a_valid_tree_whose_best_branch_is_returned():
+@pytest.mark.parametrize("turn_cost", [0.0, SMALL.turn_cost_m_per_rad])
+def test_plan_grows_a_valid_tree_whose_best_branch_is_returned(turn_cost):
     rng = np.random.default_rng(7)
     vmap = room_map(rng)
     T = pose_from_xyz_yaw(0.1, -0.2, 0.1, 0.4)
-    plan = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    config = SMALL.replace(turn_cost_m_per_rad=turn_cost)
+    plan = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
     states, parents = plan.tree_states, plan.tree_parents
     assert plan.nodes == len(states) - 1 >= SMALL.max_nodes and plan.rays > 0 and plan.seconds > 0
     np.testing.assert_allclose(states[0], [0.1, -0.2, 0.1, 0.4], atol=1e-12)
@@ -298,7 +303,7 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned():
         assert np.all((states[n, :3] >= lo - 1e-9) & (states[n, :3] <= hi + 1e-9))
         assert brute_clear(vmap, states[p, :3], states[n, :3], np.array(SMALL.box_m) + 2 * SMALL.margin_m,
                            states[0, :3], SMALL.clearance_m)
-    gains = node_gains(vmap, states, parents, SMALL, SONAR)
+    gains = node_gains(vmap, states, parents, config, SONAR)
     assert plan.gain_m3 == pytest.approx(gains.max(), rel=1e-9) and plan.gain_m3 > 0
     best, branch = int(np.argmax(gains)), []
     while best > 0:
@@ -306,7 +311,7 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned():
         best = parents[best]
     np.testing.assert_array_equal(plan.waypoints, np.array(branch[::-1]))
     # the same seed plans the same tree
-    again = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    again = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
     np.testing.assert_array_equal(again.tree_states, states)
 
 

@@ -21,6 +21,10 @@ class PlannerConfig(Config):
     attempts_per_node: samples allowed per wanted node before giving up (collisions reject many).
     discount: lambda of the gain formula: an edge's gain counts exp(-lambda * d), d the path
         length from the vehicle to the edge's end along the branch (nbvplanner's discount).
+    turn_cost_m_per_rad: what a turn adds to d in the discount, metres per radian of heading
+        change: an edge costs max(its length, this * its turn), the distance the vehicle flies
+        in the time the turn takes (IROS Eq. 7's traversal cost c(sigma); the default is the
+        simulated vehicle's 0.25 m/s over its 0.15 rad/s). 0: turns are free, as in nbvplanner.
     gain_range_m: range of the simulated sensor rays in the gain (d_max^planner).
     gain_step_m: spacing of the simulated scans along an edge; a turn is sampled so that the
         fan moves at most this far at gain_range_m (thesis 4.5.4: the path-segment gain).
@@ -51,6 +55,7 @@ class PlannerConfig(Config):
     tolerance_nodes: int = integer(60, low=1, high=100_000)
     attempts_per_node: int = integer(8, low=1, high=1000)
     discount: float = non_negative(0.5)
+    turn_cost_m_per_rad: float = non_negative(0.25 / 0.15)
     gain_range_m: float = positive(5.0)
     gain_step_m: float = positive(0.1)
     gain_unknown: float = non_negative(1.0)

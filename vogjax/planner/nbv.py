@@ -3,12 +3,15 @@ changes for a profiling sonar: thesis 4.5.3-4.5.4, IROS IV-B).
 
 Each `plan` grows an RRT from the vehicle's pose inside the exploration box. A node is a
 vehicle state (x, y, z, yaw); its gain is its parent's plus the edge's view gain discounted by
-the path length from the vehicle (IROS Eq. 7 with nbvplanner's discount):
+the traversal cost from the vehicle (IROS Eq. 7 with nbvplanner's discount):
 
     Gain(n_k) = Gain(n_k-1) + Visible(edge k) * exp(-lambda * d(n_k))
 
 where Visible is the volume of unknown voxels the sonar would see from the views sampled along
-the edge (it sees a plane, so gain accrues while the vehicle moves). Samples are constrained:
+the edge (it sees a plane, so gain accrues while the vehicle moves), and d sums the edges'
+costs: an edge costs its length, or, if longer, the distance the vehicle would fly in the time
+its turn takes (nbvplanner counts length only; then turning in place is free, and a vehicle
+with a profiling sonar spends minutes sweeping the fan on the spot for small gains). Samples are constrained:
 in the x-y plane at the vehicle's depth or along z at its x, y, with the heading within a bound
 of the parent's. An edge enters the tree only if the collision box swept along it is free in
 the map. The tree stops at N_max nodes once its best branch gains something, else at N_tol.
@@ -167,7 +170,7 @@ class NbvPlanner:
         for k, edge in enumerate(np.flatnonzero(ok)):
             # a chain's edges are added in order: each hangs off the node added just before
             parent = (0 if edge == 0 else len(tree.states) - 1) if chain else int(parents[edge])
-            tree.add(parent, ends[edge], visible[k], cfg.discount)
+            tree.add(parent, ends[edge], visible[k], cfg.discount, cfg.turn_cost_m_per_rad)
         return rays
 
 
@@ -180,8 +183,10 @@ class _Tree:
         self.distances = np.zeros(1)
         self.gains = np.zeros(1)
 
-    def add(self, parent: int, state: np.ndarray, visible_m3: float, discount: float) -> None:
-        distance = self.distances[parent] + np.linalg.norm(state[:3] - self.states[parent, :3])
+    def add(self, parent: int, state: np.ndarray, visible_m3: float, discount: float, turn_cost: float) -> None:
+        origin = self.states[parent]
+        cost = max(float(np.linalg.norm(state[:3] - origin[:3])), turn_cost * abs(wrap_angle(state[3] - origin[3])))
+        distance = self.distances[parent] + cost
         self.states = np.vstack([self.states, state])
         self.parents = np.r_[self.parents, parent]
         self.distances = np.r_[self.distances, distance]
