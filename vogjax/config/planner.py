@@ -19,8 +19,9 @@ class PlannerConfig(Config):
     max_nodes: N_max, nodes the tree grows to when its best branch gains something.
     tolerance_nodes: N_tol, nodes it may grow to while the best gain stays zero.
     attempts_per_node: samples allowed per wanted node before giving up (collisions reject many).
-    discount: lambda of the gain formula: an edge's gain counts exp(-lambda * d), d the path
-        length from the vehicle to the edge's end along the branch (nbvplanner's discount).
+    discount: lambda of the gain formula: an edge's gain counts exp(-lambda * d), d the
+        traversal cost from the vehicle to the edge's end along the branch, metres (nbvplanner's
+        discount; turns count through turn_cost_m_per_rad).
     turn_cost_m_per_rad: what a turn adds to d in the discount, metres per radian of heading
         change: an edge costs max(its length, this * its turn), the distance the vehicle flies
         in the time the turn takes (IROS Eq. 7's traversal cost c(sigma); the default is the

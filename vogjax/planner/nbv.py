@@ -11,11 +11,13 @@ where Visible is the volume of unknown voxels the sonar would see from the views
 the edge (it sees a plane, so gain accrues while the vehicle moves), and d sums the edges'
 costs: an edge costs its length, or, if longer, the distance the vehicle would fly in the time
 its turn takes (nbvplanner counts length only; then turning in place is free, and a vehicle
-with a profiling sonar spends minutes sweeping the fan on the spot for small gains). Samples are constrained:
-in the x-y plane at the vehicle's depth or along z at its x, y, with the heading within a bound
-of the parent's. An edge enters the tree only if the collision box swept along it is free in
-the map. The tree stops at N_max nodes once its best branch gains something, else at N_tol.
-The vehicle flies the best branch's first edge; the rest seeds the next tree.
+with a profiling sonar spends minutes sweeping the fan on the spot for small gains).
+
+Samples are constrained: in the x-y plane at the vehicle's depth or along z at its x, y, with
+the heading within a bound of the parent's. An edge enters the tree only if the collision box
+swept along it is free in the map. The tree stops at N_max nodes once its best branch gains
+something, else at N_tol. The vehicle flies the best branch's first edge; the rest seeds the
+next tree.
 
 Trees grow in rounds, each of as many samples as half the tree's nodes (one, then one, two,
 three, ...; at most N_max), each attached to the nearest node of the tree before the round: a
@@ -175,7 +177,8 @@ class NbvPlanner:
 
 
 class _Tree:
-    """Nodes (x, y, z, yaw), parents, path lengths from the root and discounted branch gains."""
+    """Nodes (x, y, z, yaw), parents, traversal costs from the root (m) and discounted branch
+    gains."""
 
     def __init__(self, root: np.ndarray):
         self.states = root[None].copy()
