@@ -11,6 +11,7 @@ import dataclasses
 
 from vogjax.config.pipeline import PipelineConfig
 from vogjax.config.schema import Config, integer, non_negative, number, positive, section
+from vogjax.config.sim import ControllerConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,7 +26,8 @@ class PlannerConfig(Config):
     turn_cost_m_per_rad: what a turn adds to d in the discount, metres per radian of heading
         change: an edge costs max(its length, this * its turn), the distance the vehicle flies
         in the time the turn takes (IROS Eq. 7's traversal cost c(sigma); the default is the
-        simulated vehicle's 0.25 m/s over its 0.15 rad/s). 0: turns are free, as in nbvplanner.
+        simulated vehicle's speed limit over its yaw-rate limit, ControllerConfig's 0.25 m/s over
+        0.15 rad/s). 0: turns are free, as in nbvplanner.
     gain_range_m: range of the simulated sensor rays in the gain (d_max^planner).
     gain_step_m: spacing of the simulated scans along an edge; a turn is sampled so that the
         fan moves at most this far at gain_range_m (thesis 4.5.4: the path-segment gain).
@@ -56,7 +58,7 @@ class PlannerConfig(Config):
     tolerance_nodes: int = integer(60, low=1, high=100_000)
     attempts_per_node: int = integer(8, low=1, high=1000)
     discount: float = non_negative(0.5)
-    turn_cost_m_per_rad: float = non_negative(0.25 / 0.15)
+    turn_cost_m_per_rad: float = non_negative(ControllerConfig().max_speed_mps / ControllerConfig().max_yaw_rate_rps)
     gain_range_m: float = positive(5.0)
     gain_step_m: float = positive(0.1)
     gain_unknown: float = non_negative(1.0)
