@@ -153,6 +153,15 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
             true = scans.world(np.linalg.inv(truth[k]) @ scans.pose_truth, 1e9)[1][~scans.no_return]
             np.testing.assert_allclose(rigid[k], fit(built, true, truth[k]), atol=1e-9)
     assert metrics["trajectory_rmse_m"]["rigid_truth"] > 0
+    # the aligned errors: the same poses after the x-y-yaw fit, which can only lower them
+    from vogjax.geometry import align_xy_yaw
+
+    for name, poses in (("navigation", result.navigation), ("optimized", result.optimized)):
+        T = align_xy_yaw(poses[:, :3, 3], truth[:, :3, 3])
+        offsets = poses[:, :3, 3] @ T[:3, :3].T + T[:3, 3] - truth[:, :3, 3]
+        aligned = metrics["trajectory_rmse_m"][name + "_aligned"]
+        assert aligned == pytest.approx(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+        assert aligned <= metrics["trajectory_rmse_m"][name] + 1e-12
 
 
 def test_rigid_truth_map_scores_the_true_pose_map_without_drift(tmp_path):

@@ -173,6 +173,23 @@ def euler_rates(rotation: np.ndarray) -> np.ndarray:
                      [1.0, sr * tp, cr * tp]])
 
 
+def align_xy_yaw(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(4,4) rotation about z and x-y translation taking `positions` (N,3) closest to
+    `reference` (N,3) in least squares; z is left as it is.
+
+    These are the directions a pose graph with absolute depth, pitch and roll cannot observe:
+    its whole solution inherits them from where the first pose was anchored. The yaw has a
+    closed form (the angle of the summed cross and dot products of the centred x-y points)."""
+    a = np.asarray(positions, dtype=np.float64)[:, :2]
+    b = np.asarray(reference, dtype=np.float64)[:, :2]
+    a_mean, b_mean = a.mean(axis=0), b.mean(axis=0)
+    a_c, b_c = a - a_mean, b - b_mean
+    yaw = np.arctan2(np.sum(a_c[:, 0] * b_c[:, 1] - a_c[:, 1] * b_c[:, 0]), np.sum(a_c * b_c))
+    T = pose_from_xyz_yaw(0.0, 0.0, 0.0, yaw)
+    T[:2, 3] = b_mean - T[:2, :2] @ a_mean
+    return T
+
+
 def pose_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> np.ndarray:
     """(4,4) T_world_body of a level body at (x, y, z) heading `yaw`."""
     T = np.eye(4)

@@ -8,7 +8,7 @@ import functools
 import numpy as np
 
 from vogjax.config import PipelineConfig
-from vogjax.geometry import inverse, log_se3
+from vogjax.geometry import align_xy_yaw, inverse, log_se3
 from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.slam import LoopClosure, Rejection
 
@@ -99,7 +99,8 @@ class Result:
     @property
     def metrics(self) -> dict:
         """What needs no ground-truth map: base-pose RMS error of navigation and optimised poses
-        (m; when the run has true poses) and loop closures by verdict."""
+        (m; when the run has true poses), as they are and after the best x-y-yaw rigid fit to
+        the truth (`*_aligned`), and loop closures by verdict."""
         errors = {}
         truth = self.truth
         if truth is not None:
@@ -110,6 +111,13 @@ class Result:
             for name, (poses, reference) in pairs.items():
                 offsets = poses[:, :3, 3] - reference[:, :3, 3]
                 errors[name] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+            # ... and after the best x-y-yaw fit to the truth: the graph's anchor (the first base
+            # pose, already drifted) sets where the whole solution sits; the rest is its shape
+            for name in ("navigation", "optimized"):
+                positions, reference = pairs[name][0][:, :3, 3], truth[:, :3, 3]
+                T = align_xy_yaw(positions, reference)
+                offsets = positions @ T[:3, :3].T + T[:3, 3] - reference
+                errors[name + "_aligned"] = float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
         rejected = {}
         for r in self.rejected:
             rejected[r.reason] = rejected.get(r.reason, 0) + 1
