@@ -247,6 +247,50 @@ def lowest_bit(x: wp.uint64) -> wp.uint64:
     return x & (~x + wp.uint64(1))
 
 
+@wp.func
+def replay_word(value: wp.float32, m: wp.uint64, log_hit: wp.float32, log_miss: wp.float32,
+                clamp_min: wp.float32, clamp_max: wp.float32) -> wp.float32:
+    """`value` after the scans marked in word `m` (two bits per scan, free then occupied), in
+    order, with OctoMap's clamped update."""
+    touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order
+    hits = (m >> wp.uint64(1)) & PAIR_MASK  # occupied wins over free within a scan
+    while touched != wp.uint64(0):
+        # At a clamp, the updates pushing further out leave the value as it is: go on from the
+        # next scan that pulls it back.
+        if value == clamp_min:
+            touched = touched & ~(lowest_bit(touched & hits) - wp.uint64(1))
+        elif value == clamp_max:
+            touched = touched & ~(lowest_bit(touched & ~hits) - wp.uint64(1))
+        low = lowest_bit(touched)
+        if low != wp.uint64(0):
+            touched = touched ^ low
+            update = wp.where((hits & low) != wp.uint64(0), log_hit, log_miss)
+            # OctoMap clamps after every update (lower bound first: the same as min(max(.))
+            # for clamp_min < clamp_max)
+            value = wp.min(wp.max(value + update, clamp_min), clamp_max)
+    return value
+
+
+@wp.func
+def value_before(slot: int, log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
+    value = log_odds[slot]
+    if not observed(value):
+        value = wp.float32(0.0)
+    return value
+
+
+@wp.func
+def release_entries(u: int, part_blocks: wp.array2d(dtype=wp.int32), table_keys: wp.array2d(dtype=wp.int64),
+                    table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32)):
+    """Empty the scratch table entries of touched block u, in every part that numbered it."""
+    for part in range(part_blocks.shape[1]):
+        c = part_blocks[u, part]
+        if c >= 0:
+            position = table_position[part, c]
+            table_keys[part, position] = EMPTY_KEY
+            table_index[part, position] = UNCLAIMED
+
+
 @wp.kernel
 def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(dtype=wp.int32),
                 first: int, words_per_voxel: int, capacity: int, log_hit: wp.float32,
@@ -277,31 +321,68 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
             if not marked:  # the map is read only for voxels the pass marked
                 marked = True
                 i = block_slots[u] * BLOCK_VOXELS + voxel
-                value = log_odds[i]
-                if not observed(value):
-                    value = wp.float32(0.0)
-            touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order
-            hits = (m >> wp.uint64(1)) & PAIR_MASK  # occupied wins over free within a scan
-            while touched != wp.uint64(0):
-                # At a clamp, the updates pushing further out leave the value as it is: go on
-                # from the next scan that pulls it back.
-                if value == clamp_min:
-                    touched = touched & ~(lowest_bit(touched & hits) - wp.uint64(1))
-                elif value == clamp_max:
-                    touched = touched & ~(lowest_bit(touched & ~hits) - wp.uint64(1))
-                low = lowest_bit(touched)
-                if low != wp.uint64(0):
-                    touched = touched ^ low
-                    update = wp.where((hits & low) != wp.uint64(0), log_hit, log_miss)
-                    # OctoMap clamps after every update (lower bound first: the same as
-                    # min(max(.)) for clamp_min < clamp_max)
-                    value = wp.min(wp.max(value + update, clamp_min), clamp_max)
+                value = value_before(i, log_odds)
+            value = replay_word(value, m, log_hit, log_miss, clamp_min, clamp_max)
     if marked:
         log_odds[i] = value
     if voxel == 0:
-        for part in range(part_blocks.shape[1]):
-            c = part_blocks[u, part]
-            if c >= 0:
-                position = table_position[part, c]
-                table_keys[part, position] = EMPTY_KEY
-                table_index[part, position] = UNCLAIMED
+        release_entries(u, part_blocks, table_keys, table_index, table_position)
+
+
+# The most words per voxel apply_marks_few_words takes (CPU passes of up to 128 scans).
+FEW_WORDS = 4
+
+
+@wp.kernel
+def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(dtype=wp.int32),
+                          first: int, words_per_voxel: int, capacity: int, log_hit: wp.float32,
+                          log_miss: wp.float32, clamp_min: wp.float32, clamp_max: wp.float32,
+                          marks: wp.array2d(dtype=wp.uint64), table_keys: wp.array2d(dtype=wp.int64),
+                          table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
+                          log_odds: wp.array(dtype=wp.float32)):
+    """apply_marks for passes of at most FEW_WORDS words per voxel: each part's block number is
+    read once and its words gathered into four registers, then replayed in order. Most voxels
+    of a touched block carry no mark, so the gathering is most of the work (a CPU thread took
+    about half the time per voxel this way)."""
+    tid = first + wp.tid()
+    u = tid // BLOCK_VOXELS
+    voxel = tid - u * BLOCK_VOXELS
+    plane = capacity * BLOCK_VOXELS
+    m0 = wp.uint64(0)
+    m1 = wp.uint64(0)
+    m2 = wp.uint64(0)
+    m3 = wp.uint64(0)
+    zero = wp.uint64(0)
+    for part in range(part_blocks.shape[1]):
+        c = part_blocks[u, part]
+        if c >= 0:
+            j = c * BLOCK_VOXELS + voxel
+            bits = marks[part, j]
+            if bits != zero:
+                m0 = m0 | bits
+                marks[part, j] = zero
+            if words_per_voxel > 1:
+                bits = marks[part, j + plane]
+                if bits != zero:
+                    m1 = m1 | bits
+                    marks[part, j + plane] = zero
+            if words_per_voxel > 2:
+                bits = marks[part, j + 2 * plane]
+                if bits != zero:
+                    m2 = m2 | bits
+                    marks[part, j + 2 * plane] = zero
+            if words_per_voxel > 3:
+                bits = marks[part, j + 3 * plane]
+                if bits != zero:
+                    m3 = m3 | bits
+                    marks[part, j + 3 * plane] = zero
+    if (m0 | m1 | m2 | m3) != zero:  # the map is read only for voxels the pass marked
+        i = block_slots[u] * BLOCK_VOXELS + voxel
+        value = value_before(i, log_odds)
+        value = replay_word(value, m0, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m1, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m2, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m3, log_hit, log_miss, clamp_min, clamp_max)
+        log_odds[i] = value
+    if voxel == 0:
+        release_entries(u, part_blocks, table_keys, table_index, table_position)

@@ -76,23 +76,28 @@ def test_matches_octomap_on_random_scans():
     assert diff <= 1e-5
 
 
-def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch):
-    # several passes on either device (a GPU takes 2048 scans per pass by default)
-    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", 16)
-    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", 16)
+@pytest.mark.parametrize("scans_per_pass, num_scans", [(16, 4 * 16 + 9), (128, 300), (160, 170)])
+def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, scans_per_pass, num_scans):
+    # several passes on either device (a GPU takes 2048 scans per pass by default); the CPU
+    # replays passes of up to 128 scans (4 words per voxel) with apply_marks_few_words, those of
+    # 160 (5 words) with apply_marks, the GPU's kernel
+    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", scans_per_pass)
+    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", scans_per_pass)
     rng = np.random.default_rng(3)
-    origins, points, scan = ref.random_scans(rng, 4 * 16 + 9, 40, far=0.1)
+    origins, points, scan = ref.random_scans(rng, num_scans, 40, far=0.1)
     sequential = vj.VoxelMap()
     for s in range(origins.shape[0]):
         sequential.integrate_scan(origins[s], points[scan == s])
     batch = vj.VoxelMap()
     order = rng.permutation(points.shape[0])  # scan_index need not be sorted
     batch.integrate_scans(origins, points[order], scan[order])
-    monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting
-    monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES_CUDA", 1 << 16)
-    split = vj.VoxelMap()
-    split.integrate_scans(origins, points, scan)
-    for other in (batch, split):
+    others = [batch]
+    if scans_per_pass == 16:  # budget splits (slow for long passes: each split marks again)
+        monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting
+        monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES_CUDA", 1 << 16)
+        others.append(vj.VoxelMap())
+        others[-1].integrate_scans(origins, points, scan)
+    for other in others:
         a, b = sequential.voxels(), other.voxels()
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 

@@ -266,8 +266,11 @@ def _apply(store: BlockStore, config: MapConfig, scratch: Scratch, numbered: np.
     inputs = [words, capacity, config.log_hit, config.log_miss, config.log_clamp_min, config.log_clamp_max,
               scratch.marks, scratch.table_keys, scratch.table_index, scratch.table_position]
     voxels = count * BLOCK_VOXELS
+    # on a GPU, passes have many words per voxel, and a thread's registers are few
+    kernel = integration.apply_marks_few_words if words <= integration.FEW_WORDS and not device.is_cuda \
+        else integration.apply_marks
     parallel.split_launch(lambda part, a, b: wp.launch(
-        integration.apply_marks, dim=b - a, inputs=[slots, d_part_blocks, a, *inputs],
+        kernel, dim=b - a, inputs=[slots, d_part_blocks, a, *inputs],
         outputs=[store.layers["log_odds"]], device=device), voxels, parallel.num_parts(device, voxels))
     scratch.counters.zero_()
 
