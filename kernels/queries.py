@@ -151,7 +151,6 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     t_after = span[1]
     base = int(-1)  # states index of the current block; -1: no block there
     crossed = bool(True)
-    walk_start = steps  # every voxel walked before the hit is free or unknown: unknown is counted at the end
     while t_entry < t_end and steps <= w.max_steps:
         if t_entry > t_after:  # past the map: count the rest of a long stretch
             t_after = FAR
@@ -173,7 +172,10 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
             found = True
             t_hit = t_entry
             break
-        free += wp.where(state == 1, 1, 0)  # no branch on a coin flip
+        if state == 1:
+            free += 1
+        else:
+            unknown += 1
         if tx < ty and tx < tz:
             t_entry = tx
             x += sx
@@ -192,7 +194,7 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
         steps += 1
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)
-    num_unknown[tid] = unknown + (steps - walk_start) - free
+    num_unknown[tid] = unknown
     num_free[tid] = free
 
 
