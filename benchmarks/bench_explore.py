@@ -366,18 +366,22 @@ def plot(report: dict, folder: Path) -> None:
         fig.tight_layout()
         fig.savefig(folder / "explore_timing.png", dpi=120)
         plt.close(fig)
-    # 3. explored volume against time and against path length
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
-    for r in runs:
-        e = r["explored"]
-        style = "-" if r["arm"] == "global" else "--"
-        for ax, x in zip(axes, ("time_s", "path_m")):
-            ax.plot(e[x], e["region_m3"], style, label=f"planner, {r['arm']} map, seed {r['seed']}")
-    for ax, x in zip(axes, ("time_s", "path_m")):
-        ax.plot(report["survey"][x], report["survey"]["region_m3"], "k-", lw=2, label="scripted survey")
-        ax.set_xlabel({"time_s": "mission time [s]", "path_m": "path length [m]"}[x])
-        ax.set_ylabel("explored volume of the scene [m^3]")
-    axes[0].legend(fontsize=7)
+    # 3. explored volume against time and against path length: the scene's region, and the
+    # exploration bounds the planner flies in
+    fig, axes = plt.subplots(2, 2, figsize=(9, 7))
+    volumes = (("region_m3", "explored volume of the scene [m^3]"),
+               ("bounds_m3", "explored volume inside the bounds [m^3]"))
+    for row, (key, label) in zip(axes, volumes):
+        for r in runs:
+            e = r["explored"]
+            style = "-" if r["arm"] == "global" else "--"
+            for ax, x in zip(row, ("time_s", "path_m")):
+                ax.plot(e[x], e[key], style, label=f"planner, {r['arm']} map, seed {r['seed']}")
+        for ax, x in zip(row, ("time_s", "path_m")):
+            ax.plot(report["survey"][x], report["survey"][key], "k-", lw=2, label="scripted survey")
+            ax.set_xlabel({"time_s": "mission time [s]", "path_m": "path length [m]"}[x])
+            ax.set_ylabel(label)
+    axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(folder / "explore_volume.png", dpi=120)
     plt.close(fig)
