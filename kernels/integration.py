@@ -329,8 +329,8 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
         release_entries(u, part_blocks, table_keys, table_index, table_position)
 
 
-# The most words per voxel apply_marks_few_words takes (CPU passes of up to 128 scans).
-FEW_WORDS = 4
+# The most words per voxel apply_marks_few_words takes (CPU passes of up to 256 scans).
+FEW_WORDS = 8
 
 
 @wp.kernel
@@ -341,18 +341,22 @@ def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp
                           table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
                           log_odds: wp.array(dtype=wp.float32)):
     """apply_marks for passes of at most FEW_WORDS words per voxel: each part's block number is
-    read once and its words gathered into four registers, then replayed in order. Most voxels
-    of a touched block carry no mark, so the gathering is most of the work (a CPU thread took
-    about half the time per voxel this way)."""
+    read once and its words gathered into registers, then replayed in order. Most voxels of a
+    touched block carry no mark, so the gathering is most of the work (a CPU thread took about
+    half the time per voxel this way)."""
     tid = first + wp.tid()
     u = tid // BLOCK_VOXELS
     voxel = tid - u * BLOCK_VOXELS
     plane = capacity * BLOCK_VOXELS
+    zero = wp.uint64(0)
     m0 = wp.uint64(0)
     m1 = wp.uint64(0)
     m2 = wp.uint64(0)
     m3 = wp.uint64(0)
-    zero = wp.uint64(0)
+    m4 = wp.uint64(0)
+    m5 = wp.uint64(0)
+    m6 = wp.uint64(0)
+    m7 = wp.uint64(0)
     for part in range(part_blocks.shape[1]):
         c = part_blocks[u, part]
         if c >= 0:
@@ -362,10 +366,10 @@ def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp
                 m0 = m0 | bits
                 marks[part, j] = zero
             if words_per_voxel > 1:
-                bits = marks[part, j + plane]
+                bits = marks[part, j + 1 * plane]
                 if bits != zero:
                     m1 = m1 | bits
-                    marks[part, j + plane] = zero
+                    marks[part, j + 1 * plane] = zero
             if words_per_voxel > 2:
                 bits = marks[part, j + 2 * plane]
                 if bits != zero:
@@ -376,13 +380,37 @@ def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp
                 if bits != zero:
                     m3 = m3 | bits
                     marks[part, j + 3 * plane] = zero
-    if (m0 | m1 | m2 | m3) != zero:  # the map is read only for voxels the pass marked
+            if words_per_voxel > 4:
+                bits = marks[part, j + 4 * plane]
+                if bits != zero:
+                    m4 = m4 | bits
+                    marks[part, j + 4 * plane] = zero
+            if words_per_voxel > 5:
+                bits = marks[part, j + 5 * plane]
+                if bits != zero:
+                    m5 = m5 | bits
+                    marks[part, j + 5 * plane] = zero
+            if words_per_voxel > 6:
+                bits = marks[part, j + 6 * plane]
+                if bits != zero:
+                    m6 = m6 | bits
+                    marks[part, j + 6 * plane] = zero
+            if words_per_voxel > 7:
+                bits = marks[part, j + 7 * plane]
+                if bits != zero:
+                    m7 = m7 | bits
+                    marks[part, j + 7 * plane] = zero
+    if (m0 | m1 | m2 | m3 | m4 | m5 | m6 | m7) != zero:  # the map is read only for voxels the pass marked
         i = block_slots[u] * BLOCK_VOXELS + voxel
         value = value_before(i, log_odds)
         value = replay_word(value, m0, log_hit, log_miss, clamp_min, clamp_max)
         value = replay_word(value, m1, log_hit, log_miss, clamp_min, clamp_max)
         value = replay_word(value, m2, log_hit, log_miss, clamp_min, clamp_max)
         value = replay_word(value, m3, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m4, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m5, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m6, log_hit, log_miss, clamp_min, clamp_max)
+        value = replay_word(value, m7, log_hit, log_miss, clamp_min, clamp_max)
         log_odds[i] = value
     if voxel == 0:
         release_entries(u, part_blocks, table_keys, table_index, table_position)

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import vogjax as vj
-from vogjax.maps import voxelmap
+from vogjax.maps import integrator, voxelmap
 
 from . import reference as ref
 
@@ -76,21 +76,29 @@ def test_matches_octomap_on_random_scans():
     assert diff <= 1e-5
 
 
-@pytest.mark.parametrize("scans_per_pass, num_scans", [(16, 4 * 16 + 9), (128, 300), (160, 170)])
+@pytest.mark.parametrize("scans_per_pass, num_scans", [(16, 4 * 16 + 9), (256, 300), (288, 300)])
 def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, scans_per_pass, num_scans):
     # several passes on either device (a GPU takes 2048 scans per pass by default); the CPU
-    # replays passes of up to 128 scans (4 words per voxel) with apply_marks_few_words, those of
-    # 160 (5 words) with apply_marks, the GPU's kernel
+    # replays passes of up to 256 scans (8 words per voxel) with apply_marks_few_words, those of
+    # 288 (9 words) with apply_marks, the GPU's kernel
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", scans_per_pass)
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", scans_per_pass)
+    replayed = []  # words per voxel of each replay: long passes must not have been split
+    apply = integrator._apply
+    monkeypatch.setattr(integrator, "_apply", lambda *args, **kw: replayed.append(args[4]) or apply(*args, **kw))
     rng = np.random.default_rng(3)
-    origins, points, scan = ref.random_scans(rng, num_scans, 40, far=0.1)
+    if scans_per_pass == 16:
+        origins, points, scan = ref.random_scans(rng, num_scans, 40, far=0.1)
+    else:  # a small box: few blocks per pass, no split by the budget
+        origins, points, scan = ref.random_scans(rng, num_scans, 40, spread=1.5)
     sequential = vj.VoxelMap()
     for s in range(origins.shape[0]):
         sequential.integrate_scan(origins[s], points[scan == s])
     batch = vj.VoxelMap()
     order = rng.permutation(points.shape[0])  # scan_index need not be sorted
+    replayed.clear()
     batch.integrate_scans(origins, points[order], scan[order])
+    assert max(replayed) == -(-scans_per_pass // 32)
     others = [batch]
     if scans_per_pass == 16:  # budget splits (slow for long passes: each split marks again)
         monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting
