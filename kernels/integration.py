@@ -330,7 +330,8 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
 
 
 # The most words per voxel apply_marks_few_words takes (CPU passes of up to 256 scans).
-FEW_WORDS = 8
+FEW_WORDS = wp.constant(8)
+few_words = wp.types.vector(length=8, dtype=wp.uint64)
 
 
 @wp.kernel
@@ -341,76 +342,33 @@ def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp
                           table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
                           log_odds: wp.array(dtype=wp.float32)):
     """apply_marks for passes of at most FEW_WORDS words per voxel: each part's block number is
-    read once and its words gathered into registers, then replayed in order. Most voxels of a
-    touched block carry no mark, so the gathering is most of the work (a CPU thread took about
-    half the time per voxel this way)."""
+    read once and its words gathered into registers (loops unrolled), then replayed in order.
+    Most voxels of a touched block carry no mark, so the gathering is most of the work (a CPU
+    thread took about half the time per voxel this way)."""
     tid = first + wp.tid()
     u = tid // BLOCK_VOXELS
     voxel = tid - u * BLOCK_VOXELS
     plane = capacity * BLOCK_VOXELS
     zero = wp.uint64(0)
-    m0 = wp.uint64(0)
-    m1 = wp.uint64(0)
-    m2 = wp.uint64(0)
-    m3 = wp.uint64(0)
-    m4 = wp.uint64(0)
-    m5 = wp.uint64(0)
-    m6 = wp.uint64(0)
-    m7 = wp.uint64(0)
+    m = few_words()
     for part in range(part_blocks.shape[1]):
         c = part_blocks[u, part]
         if c >= 0:
             j = c * BLOCK_VOXELS + voxel
-            bits = marks[part, j]
-            if bits != zero:
-                m0 = m0 | bits
-                marks[part, j] = zero
-            if words_per_voxel > 1:
-                bits = marks[part, j + 1 * plane]
-                if bits != zero:
-                    m1 = m1 | bits
-                    marks[part, j + 1 * plane] = zero
-            if words_per_voxel > 2:
-                bits = marks[part, j + 2 * plane]
-                if bits != zero:
-                    m2 = m2 | bits
-                    marks[part, j + 2 * plane] = zero
-            if words_per_voxel > 3:
-                bits = marks[part, j + 3 * plane]
-                if bits != zero:
-                    m3 = m3 | bits
-                    marks[part, j + 3 * plane] = zero
-            if words_per_voxel > 4:
-                bits = marks[part, j + 4 * plane]
-                if bits != zero:
-                    m4 = m4 | bits
-                    marks[part, j + 4 * plane] = zero
-            if words_per_voxel > 5:
-                bits = marks[part, j + 5 * plane]
-                if bits != zero:
-                    m5 = m5 | bits
-                    marks[part, j + 5 * plane] = zero
-            if words_per_voxel > 6:
-                bits = marks[part, j + 6 * plane]
-                if bits != zero:
-                    m6 = m6 | bits
-                    marks[part, j + 6 * plane] = zero
-            if words_per_voxel > 7:
-                bits = marks[part, j + 7 * plane]
-                if bits != zero:
-                    m7 = m7 | bits
-                    marks[part, j + 7 * plane] = zero
-    if (m0 | m1 | m2 | m3 | m4 | m5 | m6 | m7) != zero:  # the map is read only for voxels the pass marked
+            for word in range(FEW_WORDS):
+                if word < words_per_voxel:
+                    bits = marks[part, j + word * plane]
+                    if bits != zero:
+                        m[word] = m[word] | bits
+                        marks[part, j + word * plane] = zero
+    marked = zero
+    for word in range(FEW_WORDS):
+        marked = marked | m[word]
+    if marked != zero:  # the map is read only for voxels the pass marked
         i = block_slots[u] * BLOCK_VOXELS + voxel
         value = value_before(i, log_odds)
-        value = replay_word(value, m0, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m1, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m2, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m3, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m4, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m5, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m6, log_hit, log_miss, clamp_min, clamp_max)
-        value = replay_word(value, m7, log_hit, log_miss, clamp_min, clamp_max)
+        for word in range(FEW_WORDS):
+            value = replay_word(value, m[word], log_hit, log_miss, clamp_min, clamp_max)
         log_odds[i] = value
     if voxel == 0:
         release_entries(u, part_blocks, table_keys, table_index, table_position)

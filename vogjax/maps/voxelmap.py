@@ -14,7 +14,9 @@ from vogjax.validation import float_array, index_array
 # Scans integrated per pass: each voxel a pass touches carries two bits per scan. A GPU takes
 # more per pass: its time goes to the host work of each pass (launches, block allocation,
 # read-backs), and it has memory to spare (`bench_profile.py --pass-sweep`).
-SCANS_PER_PASS = 256  # 8 words per voxel: apply_marks_few_words (pass_sweep_cpu.json)
+# On 2 CPU cores passes of 128 scans took 19 % longer, of 512 46 % (pass_sweep_cpu.json); 256 is
+# the most apply_marks_few_words replays.
+SCANS_PER_PASS = 256
 SCANS_PER_PASS_CUDA = 2048
 # Bound on the per-pass mark scratch; a pass above it is split in two. Passes of 2048 of the
 # pier benchmark's scans took a 148 MiB scratch (64 words, 256 KiB, per block touched). The
