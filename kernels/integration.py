@@ -331,7 +331,7 @@ def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(d
 
 # The most words per voxel apply_marks_few_words takes (CPU passes of up to 256 scans).
 FEW_WORDS = wp.constant(8)
-few_words = wp.types.vector(length=8, dtype=wp.uint64)
+few_words = wp.types.vector(length=FEW_WORDS, dtype=wp.uint64)
 
 
 @wp.kernel
