@@ -1,23 +1,24 @@
 """Scan integration with OctoMap `insertPointCloud` semantics, batched over many scans.
 
-A pass integrates up to a few dozen scans in two launches:
+A pass integrates up to a few hundred scans (256 on a CPU, 2048 on a GPU) in two launches:
 1. `mark_beams`, over rays: walk each beam once and set, per voxel and scan, a "free" or
    "occupied" bit (two bits per scan, 32 scans per uint64 word) in the scratch marks of the
    voxel's block. OR-ing bits gives every voxel at most one update per scan with occupied
    winning, whatever order the rays run in. Blocks are numbered as the pass meets them, found by
    their cell in the pass's bounding box (one load), or, when the box is too large to index,
    in an open-addressing table.
-2. `apply_marks`, over the voxels of the blocks the pass numbered (the host allocates their map
-   blocks in between): replay the scans in order per voxel, adding the hit or miss log-odds and
-   clamping after each, exactly the sequence single-scan integration would apply (a voxel held
-   at a clamp skips the updates that cannot move it). It clears the marks and table entries it
-   read, so the scratch is clean for the next pass without a memset.
+2. `apply_marks` (`apply_marks_few_words` on a CPU, for up to 8 words per voxel), over the
+   voxels of the blocks the pass numbered (the host allocates their map blocks in between):
+   replay the scans in order per voxel, adding the hit or miss log-odds and clamping after each,
+   exactly the sequence single-scan integration would apply (a voxel held at a clamp skips the
+   updates that cannot move it). It clears the marks and table entries it read, so the scratch
+   is clean for the next pass without a memset.
 
 Marks are stored word-plane by word-plane (`(word * capacity + block) * 512 + voxel`): the rays
-run in scan order, so the first 32 scans of a pass touch one plane only, half the cache footprint.
+run in scan order, so 32 scans at a time touch one plane only.
 
 On the CPU a launch is split over threads, each with a scratch of its own (`part`): CPU atomics
-are plain read-modify-writes. `apply_marks` ORs the parts' marks of a block before replaying.
+are plain read-modify-writes. The replay ORs the parts' marks of a block before replaying.
 """
 
 import warp as wp

@@ -5,8 +5,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import warp as wp
+
 import vogjax as vj
-from vogjax.maps import integrator, voxelmap
+from vogjax.kernels import integration
+from vogjax.maps import integrator, parallel, voxelmap
 
 from . import reference as ref
 
@@ -83,9 +86,13 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
     # 288 (9 words) with apply_marks, the GPU's kernel
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", scans_per_pass)
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", scans_per_pass)
+    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 4)  # parts to OR even on a one-core runner
     replayed = []  # words per voxel of each replay: long passes must not have been split
     apply = integrator._apply
     monkeypatch.setattr(integrator, "_apply", lambda *args, **kw: replayed.append(args[4]) or apply(*args, **kw))
+    kernels = set()  # which replay kernels ran
+    launch = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda kernel, *args, **kw: kernels.add(kernel.key) or launch(kernel, *args, **kw))
     rng = np.random.default_rng(3)
     if scans_per_pass == 16:
         origins, points, scan = ref.random_scans(rng, num_scans, 40, far=0.1)
@@ -97,8 +104,13 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
     batch = vj.VoxelMap()
     order = rng.permutation(points.shape[0])  # scan_index need not be sorted
     replayed.clear()
+    kernels.clear()
     batch.integrate_scans(origins, points[order], scan[order])
-    assert max(replayed) == -(-scans_per_pass // 32)
+    if scans_per_pass > 16:
+        assert max(replayed) == -(-scans_per_pass // 32)
+        cuda = batch.device.is_cuda
+        assert ("apply_marks" in kernels) == (cuda or max(replayed) > integration.FEW_WORDS)
+        assert ("apply_marks_few_words" in kernels) == (not cuda)
     others = [batch]
     if scans_per_pass == 16:  # budget splits (slow for long passes: each split marks again)
         monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting

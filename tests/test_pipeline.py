@@ -153,14 +153,18 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
             true = scans.world(np.linalg.inv(truth[k]) @ scans.pose_truth, 1e9)[1][~scans.no_return]
             np.testing.assert_allclose(rigid[k], fit(built, true, truth[k]), atol=1e-9)
     assert metrics["trajectory_rmse_m"]["rigid_truth"] > 0
-    # the aligned errors: the same poses after the x-y-yaw fit, which can only lower them
-    from vogjax.geometry import align_xy_yaw
-
+    # the aligned errors: the least RMS error over every turn about z (a 0.05 degree grid) with
+    # its best x-y shift, z left as it is; never above the absolute error
     for name, poses in (("navigation", result.navigation), ("optimized", result.optimized)):
-        T = align_xy_yaw(poses[:, :3, 3], truth[:, :3, 3])
-        offsets = poses[:, :3, 3] @ T[:3, :3].T + T[:3, 3] - truth[:, :3, 3]
+        p, q = poses[:, :3, 3], truth[:, :3, 3]
+        best = np.inf
+        for yaw in np.linspace(-np.pi, np.pi, 7201):
+            c, s = np.cos(yaw), np.sin(yaw)
+            turned = p[:, :2] @ np.array([[c, -s], [s, c]]).T
+            offsets = turned + (q[:, :2].mean(axis=0) - turned.mean(axis=0)) - q[:, :2]
+            best = min(best, np.sqrt(np.mean(np.sum(offsets**2, axis=1) + (p[:, 2] - q[:, 2]) ** 2)))
         aligned = metrics["trajectory_rmse_m"][name + "_aligned"]
-        assert aligned == pytest.approx(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+        assert aligned <= best + 1e-9 and best <= aligned + 1e-3
         assert aligned <= metrics["trajectory_rmse_m"][name] + 1e-12
 
 
