@@ -115,8 +115,13 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
     if scans_per_pass == 16:  # budget splits (slow for long passes: each split marks again)
         monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES", 1 << 16)  # forces recursive splitting
         monkeypatch.setattr(voxelmap, "MARK_BUDGET_BYTES_CUDA", 1 << 16)
+        discarded = []  # markings thrown away (over the budget or the scratch)
+        clear = integrator.Scratch.clear
+        monkeypatch.setattr(integrator.Scratch, "clear", lambda self: discarded.append(1) or clear(self))
         others.append(vj.VoxelMap())
         others[-1].integrate_scans(origins, points, scan)
+        # after the first pass, the blocks per scan it found split the passes before they are marked
+        assert 0 < len(discarded) < -(-num_scans // scans_per_pass)
     for other in others:
         a, b = sequential.voxels(), other.voxels()
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])

@@ -141,22 +141,29 @@ def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass
     parts = parallel.num_parts(store.device, int(np.diff(bounds).max()))
     scratch = _take(store.device, parts)
     try:
+        blocks_per_scan = 0.0
         for k, first in enumerate(firsts.tolist()):
             if bounds[k + 1] > bounds[k]:
                 last = min(first + scans_per_pass, num_scans)
-                _pass(store, config, batch, scratch, first, last, int(bounds[k]), int(bounds[k + 1]),
-                      budget_bytes, boxes[k])
+                blocks_per_scan = _pass(store, config, batch, scratch, first, last, int(bounds[k]),
+                                        int(bounds[k + 1]), budget_bytes, boxes[k], blocks_per_scan)
     finally:
         _give(scratch)
 
 
 def _pass(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, first: int, last: int,
-          lo: int, hi: int, budget_bytes: int, box: tuple) -> None:
+          lo: int, hi: int, budget_bytes: int, box: tuple, blocks_per_scan: float = 0.0) -> float:
     """Scans [first, last), whose beams are rows [lo, hi) of the batch, inside `box`:
-    (lowest block (3,), blocks per axis (3,)), a box holding every block the pass can touch."""
+    (lowest block (3,), blocks per axis (3,)), a box holding every block the pass can touch.
+
+    Returns the blocks per scan a part numbered, the estimate for the next pass: a pass that the
+    estimate puts over the budget is split before it is marked, not after (marking it first
+    would double the work of every pass in a wide scene)."""
     if hi == lo:
-        return
+        return blocks_per_scan
     words = (last - first + integration.SCANS_PER_WORD - 1) // integration.SCANS_PER_WORD
+    if last - first > 1 and scratch.bytes_for(int(blocks_per_scan * (last - first)), words) > budget_bytes:
+        return _halves(store, config, batch, scratch, first, last, lo, hi, budget_bytes, box, blocks_per_scan)
     box_lo, box_dims = box
     cells = int(np.prod(box_dims))
     dense = cells <= DENSE_CELLS
@@ -171,16 +178,24 @@ def _pass(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, 
         if numbered <= capacity and not missed and not over_budget:
             break
         scratch.clear()
-        if over_budget:  # two half passes give the same map: scans replay in order either way
-            middle = (first + last) // 2
-            split = lo + int(np.searchsorted(batch.scan_index[lo:hi], middle))
-            _pass(store, config, batch, scratch, first, middle, lo, split, budget_bytes, box)
-            _pass(store, config, batch, scratch, middle, last, split, hi, budget_bytes, box)
-            return
+        if over_budget:
+            return _halves(store, config, batch, scratch, first, last, lo, hi, budget_bytes, box,
+                           numbered / (last - first))
         if missed and dense:
             dense = False  # a walk left the box (round-off past its margin): look blocks up by hash
         blocks = numbered + numbered // 4 + (capacity if missed else 0)
     _apply(store, config, scratch, counters[:, 0], words, capacity)
+    return numbered / (last - first)
+
+
+def _halves(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, first: int, last: int,
+            lo: int, hi: int, budget_bytes: int, box: tuple, blocks_per_scan: float) -> float:
+    """The pass as two half passes: the same map, as the scans replay in order either way."""
+    middle = (first + last) // 2
+    split = lo + int(np.searchsorted(batch.scan_index[lo:hi], middle))
+    blocks_per_scan = _pass(store, config, batch, scratch, first, middle, lo, split, budget_bytes, box,
+                            blocks_per_scan)
+    return _pass(store, config, batch, scratch, middle, last, split, hi, budget_bytes, box, blocks_per_scan)
 
 
 def _boxes(batch: Beams, firsts: np.ndarray, bounds: np.ndarray, voxel_size: float) -> list:
