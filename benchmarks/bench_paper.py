@@ -138,7 +138,7 @@ def evaluate(scene_name: str, path: Path, name: str, config: PipelineConfig, arg
     reapplied = np.asarray(fig9["reapplied"])
     thirds = [float(part.mean()) for part in np.array_split(reapplied, 3)]
     report = {"config": name, "submaps": len(result.submaps), "scans": result.scans,
-              "auc": metrics["auc"], "auc_vs_reference": metrics["auc_vs_reference"], "rmse_m": metrics["rmse_m"],
+              "auc": metrics["auc"], "auc_aligned": metrics["auc_aligned"], "auc_vs_reference": metrics["auc_vs_reference"], "rmse_m": metrics["rmse_m"],
               **result.metrics, "fig9": fig9, "fig9_last_half_slope_s_per_submap": slopes,
               "online_slope_over_baseline": slopes["online_s"] / slopes["full_merge_s"],
               "reapplied_per_submap_by_thirds": thirds, "pipeline_s": seconds,

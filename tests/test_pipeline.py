@@ -140,6 +140,18 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
         assert report["precision" + suffix] == np.mean(good)
     metrics = result.metrics
     assert metrics["loop_closures"]["precision_rigid"] == report["precision_rigid"]
+    # the ceiling: a registration that found every pair's rigid truths exactly scores it, and
+    # is perfect against the rigid truths
+    import dataclasses
+
+    bends = [e["translation_m_bend"] <= 0.2 and e["rotation_deg_bend"] <= 1.0 for e in report["errors"]]
+    assert report["precision_ceiling"] == np.mean(bends)
+    perfect = dataclasses.replace(result, loop_closures=tuple(
+        dataclasses.replace(c, T_i_k=inverse(rigid[c.i]) @ rigid[c.k]) for c in result.loop_closures))
+    ideal = perfect.closure_errors()
+    assert ideal["precision_rigid"] == 1.0
+    assert ideal["precision"] == report["precision_ceiling"]
+    assert max(e["translation_m_rigid"] for e in ideal["errors"]) < 1e-9
     # each rigid truth from the submap's own returns: in its frame by navigation, and by the truth
     from vogjax.io.dataset import Dataset
     from vogjax.pipeline.mapper import rigid_truth as fit
@@ -183,3 +195,35 @@ def test_rigid_truth_map_scores_the_true_pose_map_without_drift(tmp_path):
     auc = vj_eval.evaluate_run(result, scenes.load("boxes"), surface_points=5_000)[0]["auc"]
     assert np.max(np.abs(result.rigid_truth[:, :3, 3] - result.truth[:, :3, 3])) < 1e-4
     assert auc["rigid_truth"] == pytest.approx(auc["true_pose"], abs=2e-3)
+
+
+def test_aligned_auc_takes_out_where_the_anchor_put_the_map(boxes_run):
+    """Registered to the truth, the maps score the same wherever the graph's anchor put them:
+    the run moved as a whole by a quarter turn about z and a whole number of voxels (a motion
+    that maps the voxel grid onto itself, so the moved maps are the same maps, moved) loses its
+    plain AUC and keeps its aligned one."""
+    import dataclasses
+
+    from vogjax import report as vj_eval
+    from vogjax import scenes
+
+    config = pipeline.PipelineConfig(scans_per_submap=100)
+    result = pipeline.run(boxes_run, config, progress=False)
+    turn = np.eye(4)
+    turn[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]
+    turn[:3, 3] = np.array([12, -7, 0]) * config.map.voxel_size
+    poses = turn @ result.optimized
+    vog = result.vog.view(poses=poses)
+    online = vj.GlobalMap(config.map)
+    online.merge(vog)
+    moved = dataclasses.replace(result, vog=vog, global_map=online, optimized=poses)
+    scene = scenes.load("boxes")
+    before = vj_eval.evaluate_run(result, scene, surface_points=5_000)[0]
+    after = vj_eval.evaluate_run(moved, scene, surface_points=5_000)[0]
+    assert after["auc"]["full_merge"] < before["auc"]["full_merge"] - 0.03
+    for name in ("virtual", "full_merge", "true_pose"):
+        assert after["auc_aligned"][name] == pytest.approx(before["auc_aligned"][name], abs=1e-4)
+    # the online map kept online lags a full merge a little; moved, it is one
+    assert after["auc_aligned"]["online"] == pytest.approx(before["auc_aligned"]["full_merge"], abs=1e-4)
+    # registering takes out only what the anchor can move: never much worse than as it is
+    assert before["auc_aligned"]["full_merge"] > before["auc"]["full_merge"] - 0.02

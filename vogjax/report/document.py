@@ -38,6 +38,7 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         "scans": result.scans,
         "duration_s": duration_s, "submaps": result.vog.num_submaps,
         "auc": metrics.get("auc", empty),
+        "auc_aligned": metrics.get("auc_aligned", {}),
         "auc_vs_reference": metrics.get("auc_vs_reference", {}),
         "confidence_map": metrics.get("confidence_map", {}),
         "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),

@@ -18,6 +18,10 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     the optimised poses, a full merge, the standard map and (with true poses) `true_pose`, the
     same submaps built and placed by the truth, and `rigid_truth`, the pipeline's own submaps
     at their rigid truths (one good placement of these rigid, navigation-bent submaps);
+    `auc_aligned`, the online, virtual and full-merge maps registered to the truth by the best
+    x-y-yaw fit of the optimised base poses (`Result.gauge_alignment`), and `true_pose` as it
+    is, over the voxels the registered online map or the standard map observed (empty without
+    truth);
     `auc_vs_reference`, the same maps scored against the true-pose map's states instead of the
     mesh; `rmse_m` for the standard map and the virtual map without and with loop closures;
     `agreement` of the online map with the full merge. curves holds the ROC curves (for plots).
@@ -32,10 +36,9 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     centres = truth.centres(FREE), truth.centres(TRUE_OCCUPIED)
     centres = np.concatenate(centres)
     occupied = np.r_[np.zeros(len(truth.keys(FREE)), bool), np.ones(len(truth.keys(TRUE_OCCUPIED)), bool)]
-    observed = np.zeros(len(centres), bool)
-    for name in ("online", "standard"):
-        if name in maps:
-            observed |= maps[name].log_odds(centres) != 0  # 0.0: never observed
+    standard_seen = maps["standard"].log_odds(centres) != 0 if "standard" in maps else np.zeros(len(centres), bool)
+    observed = (maps["online"].log_odds(centres) != 0) | standard_seen  # 0.0: never observed
+    all_centres, all_occupied = centres, occupied
     centres, occupied = centres[observed], occupied[observed]
     if result.truth_merge is not None:
         maps["true_pose"] = result.truth_merge
@@ -54,6 +57,20 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
             p = maps["standard"].probability(centres).astype(np.float64)
             confidence["standard_mean_error"] = float(np.mean(np.abs(p - truth_level)))
             confidence["standard_inconsistency_per_voxel"] = inconsistency(p, p * (1 - p), truth_level) / len(centres)
+    # registered to the truth as the thesis registers its reconstructions: each SLAM map read
+    # where the best x-y-yaw fit of the optimised base poses to the true ones puts it, so the
+    # anchor's drift (unobservable to the graph) is taken out and what is left is the shape
+    aligned = {}
+    T = result.gauge_alignment()
+    if T is not None:
+        # T^-1 applied: where each truth voxel sits in the maps; scored over the truth voxels
+        # the registered online map or the standard map observed
+        sampled = (all_centres - T[:3, 3]) @ T[:3, :3]
+        seen = (result.global_map.log_odds(sampled) != 0) | standard_seen
+        aligned = {name: roc(maps[name].probability(sampled[seen]), all_occupied[seen]).auc
+                   for name in ("online", "virtual", "full_merge")}
+        if "true_pose" in maps:  # the ceiling over the same voxels, where it already is
+            aligned["true_pose"] = roc(maps["true_pose"].probability(all_centres[seen]), all_occupied[seen]).auc
     # against the map this sensor gives from true poses (as the thesis registers against a
     # true-odometry reconstruction): the discretisation of the surface cancels out
     vs_reference = {}
@@ -74,7 +91,8 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
             "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
     if "standard" in maps:
         rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
-    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "auc_vs_reference": vs_reference, "rmse_m": rmse,
+    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "auc_aligned": aligned,
+               "auc_vs_reference": vs_reference, "rmse_m": rmse,
                "confidence_map": confidence,
                "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
                "evaluated_voxels": int(len(centres))}
