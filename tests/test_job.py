@@ -180,3 +180,21 @@ def test_a_run_without_the_standard_map_reports_without_it(boxes_run, tmp_path, 
     assert "standard" not in report["auc"] and report["auc"]["online"] > 0.5
     assert report["fig9"] is None and "update_per_submap" not in report["timing_s"]
     assert "boxes" in capsys.readouterr().out  # the summary table
+
+
+def test_paper_preset_is_sodhi_with_the_bounded_rule(tmp_path):
+    """`--preset paper` holds Sodhi et al.'s IV-C settings and keeps the half-voxel eps_move_m
+    rule; a settings file setting it to 0 gives Algorithm 1 to the letter."""
+    from vogjax.config import PipelineConfig
+
+    paper = JobConfig.preset("paper").pipeline
+    assert paper == PipelineConfig.paper()
+    assert (paper.scans_per_submap, paper.eps_rot, paper.eps_trans, paper.eps_cov) == (200, 1e-2, 2e-3, "auto")
+    m = paper.map
+    assert (m.voxel_size, m.prob_hit, m.prob_miss, m.occupied_threshold, m.free_threshold, m.clamp_min,
+            m.clamp_max) == (0.1, 0.75, 0.2, 0.7, 0.3, 0.0, 1.0)
+    assert paper.eps_move_m == PipelineConfig().eps_move_m == 0.05
+    settings = tmp_path / "literal.toml"
+    settings.write_text("[pipeline]\neps_move_m = 0\n")
+    literal = JobConfig.from_toml(settings, JobConfig.preset("paper")).pipeline
+    assert literal == PipelineConfig.paper(eps_move_m=0.0) != paper
