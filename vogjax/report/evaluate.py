@@ -19,9 +19,9 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
     same submaps built and placed by the truth, and `rigid_truth`, the pipeline's own submaps
     at their rigid truths (one good placement of these rigid, navigation-bent submaps);
     `auc_aligned`, the online, virtual and full-merge maps registered to the truth by the best
-    x-y-yaw fit of the optimised base poses (`Result.gauge_alignment`), and `true_pose` as it
-    is, over the voxels the registered online map or the standard map observed (empty without
-    truth);
+    x-y-yaw fit of the optimised base poses (`Result.gauge_alignment`), and `true_pose` and
+    `rigid_truth` as they are, over the voxels the registered online map or the standard map
+    observed (empty without truth, or when those voxels hold one class only);
     `auc_vs_reference`, the same maps scored against the true-pose map's states instead of the
     mesh; `rmse_m` for the standard map and the virtual map without and with loop closures;
     `agreement` of the online map with the full merge. curves holds the ROC curves (for plots).
@@ -67,10 +67,13 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         # the registered online map or the standard map observed
         sampled = (all_centres - T[:3, 3]) @ T[:3, :3]
         seen = (result.global_map.log_odds(sampled) != 0) | standard_seen
-        aligned = {name: roc(maps[name].probability(sampled[seen]), all_occupied[seen]).auc
-                   for name in ("online", "virtual", "full_merge")}
-        if "true_pose" in maps:  # the ceiling over the same voxels, where it already is
-            aligned["true_pose"] = roc(maps["true_pose"].probability(all_centres[seen]), all_occupied[seen]).auc
+        labels = all_occupied[seen]
+        if labels.any() and not labels.all():
+            aligned = {name: roc(maps[name].probability(sampled[seen]), labels).auc
+                       for name in ("online", "virtual", "full_merge")}
+            # the maps already in the true frame, over the same voxels where they are
+            aligned.update({name: roc(maps[name].probability(all_centres[seen]), labels).auc
+                            for name in ("true_pose", "rigid_truth") if name in maps})
     # against the map this sensor gives from true poses (as the thesis registers against a
     # true-odometry reconstruction): the discretisation of the surface cancels out
     vs_reference = {}
