@@ -1,7 +1,7 @@
 """Sodhi et al.'s protocol at paper scale: propeller and pilings runs of >= 100 submaps x 200
-scans, mapped with the `paper` preset and with Algorithm 1 to the letter (no eps_move_m); Figs. 9 and 10, the
-trade-off of Algorithm 1's thresholds, and the thesis's Figs. 3.3, 3.4 and 4.18. Writes JSON
-and PNGs.
+scans, mapped with the `paper` preset and with Algorithm 1 to the letter (`literal`: no
+eps_move_m); Figs. 9 and 10, the trade-off of Algorithm 1's thresholds, and the thesis's Figs.
+3.3, 3.4 and 4.18. Writes JSON and PNGs.
 
     python benchmarks/bench_paper.py --out benchmarks/results [--scenes propeller pilings] [--scans 20000]
     python benchmarks/bench_paper.py --quick      # 2000 scans of the boxes scene: a smoke run
@@ -138,7 +138,8 @@ def evaluate(scene_name: str, path: Path, name: str, config: PipelineConfig, arg
     reapplied = np.asarray(fig9["reapplied"])
     thirds = [float(part.mean()) for part in np.array_split(reapplied, 3)]
     report = {"config": name, "submaps": len(result.submaps), "scans": result.scans,
-              "auc": metrics["auc"], "auc_aligned": metrics["auc_aligned"], "auc_vs_reference": metrics["auc_vs_reference"], "rmse_m": metrics["rmse_m"],
+              "auc": metrics["auc"], "auc_aligned": metrics["auc_aligned"],
+              "auc_vs_reference": metrics["auc_vs_reference"], "rmse_m": metrics["rmse_m"],
               **result.metrics, "fig9": fig9, "fig9_last_half_slope_s_per_submap": slopes,
               "online_slope_over_baseline": slopes["online_s"] / slopes["full_merge_s"],
               "reapplied_per_submap_by_thirds": thirds, "pipeline_s": seconds,

@@ -145,9 +145,9 @@ class Result:
         within `max_translation_m` and `max_rotation_deg` (NaN without closures). The same
         against the submaps' rigid truths (`*_rigid`, `precision_rigid`): what is left is mostly
         the registration's own error, the bends drift put inside the two submaps taken out.
-        And `precision_ceiling`, what a perfect registration would score: the share of the
-        accepted pairs whose rigid truths relate within the same bounds of the true relative
-        pose (`*_bend` per closure), however exactly a registration finds them."""
+        And `precision_ceiling`, what a registration that recovered each pair's rigid truths
+        exactly would score: the share of the accepted pairs whose rigid truths relate within
+        the same bounds of the true relative pose (`*_bend` per closure)."""
         errors = []
         truth, rigid = self.truth, self.rigid_truth
 
