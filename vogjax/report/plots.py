@@ -66,7 +66,8 @@ def roc_curves(curves: dict, path, title: str = "") -> None:
     """ROC of each map's occupancy against ground truth, AUC in the legend."""
     fig, ax = plt.subplots(figsize=(5.5, 5), dpi=120)
     for name, curve in curves.items():
-        ax.plot(curve.false_positive_rate, curve.true_positive_rate, label=f"{name} (AUC {curve.auc:.3f})")
+        ax.plot(curve.false_positive_rate, curve.true_positive_rate, label=f"{name} (AUC {curve.auc:.3f})",
+                ls="--" if "registered" in name else "-")
     ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":")
     ax.set_xlabel("false positive rate")
     ax.set_ylabel("true positive rate")
