@@ -57,7 +57,9 @@ class Mapper:
         self.standard_map = VoxelMap(config.map) if config.standard_map else None
         self.confidence_map = self._confidence_map() if config.confidence_map else None
         self.graph: PoseGraph | None = None
-        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure)
+        # on a GPU the front end's searches run beside the maps; on the CPU the FFTs and trees win
+        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure,
+                                            self.global_map.device if self.global_map.device.is_cuda else None)
         self.cutter = SubmapCutter(config)
         self.timings = defaultdict(list)
         self.submaps: list[SubmapRecord] = []

@@ -3,7 +3,7 @@
 from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import PoseGraph
-from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh
+from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch
 from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 
@@ -19,6 +19,7 @@ __all__ = [
     "PoseGraph",
     "Rejection",
     "correlative_xyh",
+    "correlative_xyh_batch",
     "icp",
     "icp_batch",
     "pose_deltas",

@@ -15,8 +15,12 @@ import dataclasses
 import numpy as np
 from scipy import fft, ndimage
 
+import warp as wp
+
+from vogjax import devices
 from vogjax.config import CorrelativeConfig
 from vogjax.geometry import rigid_pose, rotation_from_ypr
+from vogjax.kernels import registration
 from vogjax.validation import real_array
 
 # Bounds on one search: its grid (float32, plus its FFT), and its work, grid cells times yaw
@@ -25,6 +29,11 @@ MAX_GRID_CELLS = 5e7
 MAX_SEARCH_WORK = 1e9
 MAX_RADIUS_M = 1000.0
 MAX_COORDINATE_M = 1e7  # beyond it float64 keeps no sub-voxel digits of a grid index
+# One device launch's share of a batch of searches: its targets' fields (1 GiB), its source
+# cells (192 MiB) and its scores (512 MiB), which also keeps the kernel's int32 indices in range.
+MAX_FIELD_FLOATS = 2**28
+MAX_LAUNCH_CELLS = 2**24
+MAX_LAUNCH_SCORES = 2**26
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +58,60 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     The correction rotates about the source cloud's centroid (in the target frame) and then
     shifts by whole voxels in x and y.
     """
+    return correlative_xyh_batch([(source, target, T_init, radius_m, yaw_radius_rad)], config)[0]
+
+
+def correlative_xyh_batch(searches: list, config: CorrelativeConfig = CorrelativeConfig(),
+                          device=None) -> list[CorrelativeMatch]:
+    """`correlative_xyh` for many (source, target, T_init, radius_m, yaw_radius_rad) at once.
+
+    device None: FFT correlation on the host, one search after the other. A Warp device (a
+    CUDA GPU; "cpu" runs the same kernel on the host, slower than the FFTs): every yaw and
+    offset of every search scored by direct correlation in one launch. The two agree to
+    float32 rounding of the scores, so they find the same peaks but at near-exact ties.
+    """
+    device = None if device is None else devices.resolve(device)
+    plans = [_plan(*search, config) for search in searches]
+    pending = [plan for plan in plans if isinstance(plan, _Plan)]
+    # each plan's windows arrive yaw after yaw; only the best so far is kept
+    peaks = [_Peak() for _ in pending]
+    if device is None:
+        windows = ((p, n, window) for p, plan in enumerate(pending) for n, window in enumerate(_fft_windows(plan)))
+    else:
+        windows = _device_windows(pending, device)
+    for p, n, window in windows:
+        peaks[p].offer(pending[p].yaws[n], window / len(pending[p].moved))
+    found = iter(peak.match(plan, config) for plan, peak in zip(pending, peaks))
+    return [next(found) if isinstance(plan, _Plan) else plan for plan in plans]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """One search set up: the blurred target `field` (nx, ny, nz: the grid's layers the source
+    can reach, from layer z_lo), the source `moved` by T_init and turned about `pivot` by each
+    of `yaws`, `shift_cells` each way in x and y, and the grid's corner `lo`."""
+
+    T_init: np.ndarray
+    moved: np.ndarray
+    pivot: np.ndarray
+    lo: np.ndarray
+    z_lo: int
+    resolution_m: float
+    shift_cells: int
+    field: np.ndarray
+    yaws: np.ndarray
+
+    def cells(self, n: int) -> np.ndarray:
+        """The source's cells (N,3) on the field at yaws[n], made one yaw at a time: all yaws
+        of a large cloud at once could outgrow memory."""
+        points = (self.moved - self.pivot) @ rotation_from_ypr(self.yaws[n]).T + self.pivot
+        cells = np.floor((points - self.lo) / self.resolution_m).astype(int)
+        cells[:, 2] -= self.z_lo
+        return cells
+
+
+def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeConfig) -> _Plan | CorrelativeMatch:
+    """The search's grid, field and source cells, or its answer when no target point is in reach."""
     source, target = real_array("source", source), real_array("target", target)
     for name, cloud in (("source", source), ("target", target)):
         if cloud.ndim != 2 or cloud.shape[1] != 3 or len(cloud) == 0 or not np.all(np.isfinite(cloud)):
@@ -84,40 +147,101 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     shape = extent.astype(int)
     steps = int(yaw_steps) // 2
     # Only the layers the source occupies enter the sum over z (a yaw keeps every z; one more
-    # layer either side, as rotating about the pivot can round a z across a face), and the
-    # transforms run on x-y sizes FFTs are fast at: the padding only adds zeros beyond a grid
-    # whose margins already keep every window offset from wrapping. One thread per transform:
-    # on grids of these sizes more threads cost more than they save (the bits are the same).
+    # layer either side, as rotating about the pivot can round a z across a face).
     z_lo = max(int(np.floor((moved[:, 2].min() - lo[2]) / res)) - 1, 0)
     z_hi = min(int(np.floor((moved[:, 2].max() - lo[2]) / res)) + 2, int(shape[2]))
     field = _target_field(np.floor((target - lo) / res).astype(int), shape, z_lo, z_hi, config.blur_voxels)
-    fft_shape = (fft.next_fast_len(int(shape[0])), fft.next_fast_len(int(shape[1]), real=True))
-    field_spectrum = fft.rfft2(field, s=fft_shape, axes=(0, 1))
-    layer_shape = (int(shape[0]), int(shape[1]), z_hi - z_lo)
-    best = (-np.inf, None, None, None)
-    for yaw in config.yaw_step_rad * np.arange(-steps, steps + 1):
-        rotation = rotation_from_ypr(yaw)
-        points = (moved - pivot) @ rotation.T + pivot
-        cells = np.floor((points - lo) / res).astype(int)
-        cells[:, 2] -= z_lo
+    return _Plan(T_init, moved, pivot, lo, z_lo, res, shift_cells, field, config.yaw_step_rad * np.arange(-steps, steps + 1))
+
+
+def _fft_windows(plan: _Plan):
+    """Each yaw's scores over the offsets, by FFT: score(d) = sum_x counts(x) field(x + d) for
+    every x-y offset d at once. The transforms run on x-y sizes FFTs are fast at: the padding
+    only adds zeros beyond a grid whose margins already keep every window offset from wrapping.
+    One thread per transform: on grids of these sizes more threads cost more than they save (the
+    bits are the same)."""
+    layer_shape = plan.field.shape
+    fft_shape = (fft.next_fast_len(layer_shape[0]), fft.next_fast_len(layer_shape[1], real=True))
+    field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
+    for n in range(len(plan.yaws)):
+        cells = plan.cells(n)
         counts = np.bincount(np.ravel_multi_index(cells.T, layer_shape), minlength=int(np.prod(layer_shape)))
         counts = counts.reshape(layer_shape).astype(np.float32)
-        # score(d) = sum_x counts(x) field(x + d), for every x-y offset d at once
         spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1))) * field_spectrum).sum(axis=2)
-        scores = fft.irfft2(spectrum, s=fft_shape)
-        window = _window(scores, shift_cells) / len(points)
-        peak = np.unravel_index(np.argmax(window), window.shape)
-        if window[peak] > best[0]:
-            best = (float(window[peak]), yaw, peak, window)
-    score, yaw, peak, window = best
-    offsets = (np.array(peak) - shift_cells) * res
-    ii, jj = np.meshgrid(np.arange(window.shape[0]), np.arange(window.shape[1]), indexing="ij")
-    far = np.hypot(ii - peak[0], jj - peak[1]) * res >= config.exclusion_m
-    runner_up = float(window[far].max()) if far.any() else 0.0
-    correction = np.eye(4)
-    correction[:3, :3] = rotation_from_ypr(yaw)
-    correction[:3, 3] = pivot - correction[:3, :3] @ pivot + np.array([offsets[0], offsets[1], 0.0])
-    return CorrelativeMatch(correction @ T_init, score, runner_up)
+        yield _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
+
+
+def _device_windows(plans: list[_Plan], device):
+    """(plan, yaw, window) for every plan and yaw, in that order, the windows as `_fft_windows`
+    gives them, by direct correlation on `device`. The slots go in as few launches as the
+    budgets allow: a launch's target fields within MAX_FIELD_FLOATS, its source cells within
+    MAX_LAUNCH_CELLS and its scores within MAX_LAUNCH_SCORES (a launch takes at least one)."""
+    launch, fields, cells, scores = [], set(), 0, 0
+    slots = [(p, n) for p, plan in enumerate(plans) for n in range(len(plan.yaws))]
+    for slot in slots + [None]:
+        if slot is not None:
+            plan = plans[slot[0]]
+            more_fields = 0 if slot[0] in fields else plan.field.size
+            more_cells, more_scores = len(plan.moved), (2 * plan.shift_cells + 1) ** 2
+        if launch and (slot is None or sum(plans[q].field.size for q in fields) + more_fields > MAX_FIELD_FLOATS or
+                       cells + more_cells > MAX_LAUNCH_CELLS or scores + more_scores > MAX_LAUNCH_SCORES):
+            yield from ((p, n, window) for (p, n), window in zip(launch, _correlate_on_device(plans, launch, device)))
+            launch, fields, cells, scores = [], set(), 0, 0
+        if slot is not None:
+            launch.append(slot)
+            fields.add(slot[0])
+            cells += more_cells
+            scores += more_scores
+
+
+def _correlate_on_device(plans: list[_Plan], slots: list, device) -> list[np.ndarray]:
+    """The windows of `slots` ((plan, yaw) pairs) from one launch."""
+    used = sorted({p for p, _ in slots})
+    field_index = {p: k for k, p in enumerate(used)}
+    field_sizes = np.array([plans[p].field.size for p in used])
+    widths = np.array([2 * plans[p].shift_cells + 1 for p, _ in slots])
+    counts = np.array([len(plans[p].moved) for p, _ in slots])
+    window_start = np.concatenate([[0], np.cumsum(widths ** 2)])
+    with wp.ScopedDevice(device):
+        windows = wp.zeros(int(window_start[-1]), dtype=wp.float64)
+        wp.launch(registration.correlate_shifted_cells, dim=(len(slots), int(widths.max()), int(widths.max())), inputs=[
+            wp.array(np.concatenate([plans[p].field.ravel() for p in used]), dtype=wp.float32),
+            wp.array(np.concatenate([[0], np.cumsum(field_sizes)[:-1]]).astype(np.int32), dtype=wp.int32),
+            wp.array(np.array([plans[p].field.shape for p in used], np.int32), dtype=wp.vec3i),
+            wp.array(np.array([plans[p].shift_cells for p in used], np.int32), dtype=wp.int32),
+            wp.array(np.array([field_index[p] for p, _ in slots], np.int32), dtype=wp.int32),
+            wp.array(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), dtype=wp.int32),
+            wp.array(counts.astype(np.int32), dtype=wp.int32),
+            wp.array(window_start[:-1].astype(np.int32), dtype=wp.int32),
+            wp.array(np.concatenate([plans[p].cells(n) for p, n in slots]).astype(np.int32), dtype=wp.vec3i),
+        ], outputs=[windows])
+        flat = windows.numpy()
+    return [flat[first:first + width * width].reshape(width, width)
+            for width, first in zip(widths, window_start)]
+
+
+class _Peak:
+    """The best score over a search's yaws so far (the first yaw wins a tie), with its window."""
+
+    def __init__(self):
+        self.score, self.yaw, self.index, self.window = -np.inf, None, None, None
+
+    def offer(self, yaw: float, window: np.ndarray) -> None:
+        index = np.unravel_index(np.argmax(window), window.shape)
+        if window[index] > self.score:
+            self.score, self.yaw, self.index, self.window = float(window[index]), yaw, index, window
+
+    def match(self, plan: _Plan, config: CorrelativeConfig) -> CorrelativeMatch:
+        """The peak's pose and its runner-up: the best score at least exclusion_m away."""
+        res, window, peak = plan.resolution_m, self.window, self.index
+        offsets = (np.array(peak) - plan.shift_cells) * res
+        ii, jj = np.meshgrid(np.arange(window.shape[0]), np.arange(window.shape[1]), indexing="ij")
+        far = np.hypot(ii - peak[0], jj - peak[1]) * res >= config.exclusion_m
+        runner_up = float(window[far].max()) if far.any() else 0.0
+        correction = np.eye(4)
+        correction[:3, :3] = rotation_from_ypr(self.yaw)
+        correction[:3, 3] = plan.pivot - correction[:3, :3] @ plan.pivot + np.array([offsets[0], offsets[1], 0.0])
+        return CorrelativeMatch(correction @ plan.T_init, self.score, runner_up)
 
 
 def _target_field(cells: np.ndarray, shape: np.ndarray, z_lo: int, z_hi: int, blur_voxels: float) -> np.ndarray:

@@ -14,10 +14,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import warp as wp
 from scipy.spatial import cKDTree
 
+from vogjax import devices
 from vogjax.config import IcpConfig
 from vogjax.geometry import exp_se3, rigid_poses
+from vogjax.kernels import registration
 from vogjax.validation import real_array
 
 MAX_COORDINATE_M = 1e7  # clouds farther out lose their metres in float64 squares
@@ -108,14 +111,21 @@ def icp(source, target, T_init=None, method: str = "point_to_plane",
 
 
 def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
-              config: IcpConfig | None = None) -> list[IcpResult]:
+              config: IcpConfig | None = None, device=None) -> list[IcpResult]:
     """Align many (source, target) pairs at once: the neighbour searches run per pair, the normal
     equations, eigen-decompositions and updates for all pairs together (padded arrays). A
     target may be an `IcpTarget` (`prepare_target`): its tree and normals are used as they are,
-    so a cloud that is a target many times is prepared once, with the same results."""
+    so a cloud that is a target many times is prepared once, with the same results.
+
+    device None: each iteration's nearest neighbours from the k-d trees. A Warp device (a CUDA
+    GPU; "cpu" runs the same kernel on the host): from one hash grid over every target, all
+    pairs in one launch. Both find the nearest point strictly within max_correspondence_m, so
+    the results are the same but where two target points are equally near (the tree may pick
+    either; the grid picks the lower index)."""
     config = config or IcpConfig()
     if method not in ("point_to_plane", "point_to_point_xyh"):
         raise ValueError(f"method must be 'point_to_plane' or 'point_to_point_xyh', got {method!r}")
+    device = None if device is None else devices.resolve(device)
     if len(sources) != len(targets):
         raise ValueError("sources and targets must pair up (same length)")
     sources = [_cloud("source", c) for c in sources]
@@ -129,6 +139,8 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     targets = [t.points for t in prepared]
     trees = [t.tree for t in prepared]
     normals = [t.normals for t in prepared]
+    nearest = (_tree_neighbours(trees, config.max_correspondence_m) if device is None
+               else _GridNeighbours(targets, config.max_correspondence_m, device))
     width = max(len(s) for s in sources)
     active = np.ones(count, bool)
     converged = np.zeros(count, bool)
@@ -141,11 +153,10 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         p = np.zeros((len(ids), width, 3))
         q, n, moved = np.zeros_like(p), np.zeros_like(p), np.zeros_like(p)
         weight = np.zeros((len(ids), width))
-        for row, pair in enumerate(ids):
+        moved_points = [sources[pair] @ T[pair, :3, :3].T + T[pair, :3, 3] for pair in ids]
+        for row, (pair, m, index) in enumerate(zip(ids, moved_points, nearest(ids, moved_points))):
             source = sources[pair]
-            m = source @ T[pair, :3, :3].T + T[pair, :3, 3]
-            distance, index = trees[pair].query(m, distance_upper_bound=config.max_correspondence_m)
-            inlier = np.isfinite(distance)
+            inlier = index >= 0
             size = int(inlier.sum())
             p[row, :size], moved[row, :size] = source[inlier], m[inlier]
             q[row, :size] = targets[pair][index[inlier]]
@@ -175,6 +186,45 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     return [_result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]),
                     config)
             for k in range(count)]
+
+
+def _tree_neighbours(trees: list, max_distance_m: float):
+    """nearest(pairs, moved): per pair, the index of each moved point's nearest target point
+    within max_distance_m, -1 where there is none, from the pair's k-d tree."""
+    def nearest(pairs, moved):
+        for pair, points in zip(pairs, moved):
+            distance, index = trees[pair].query(points, distance_upper_bound=max_distance_m)
+            yield np.where(np.isfinite(distance), index, -1)
+    return nearest
+
+
+class _GridNeighbours:
+    """`_tree_neighbours` on a Warp device: every target in one hash grid (cells of the bound,
+    so a query visits 27 cells at most), the pairs told apart by the grid's groups."""
+
+    def __init__(self, targets: list, max_distance_m: float, device):
+        self.device, self.max_distance_m = device, max_distance_m
+        starts = np.concatenate([[0], np.cumsum([len(t) for t in targets])])
+        self.starts = starts
+        with wp.ScopedDevice(device):
+            self.points = wp.array(np.concatenate(targets), dtype=wp.vec3d)
+            self.grid = wp.HashGrid(128, 128, 128, dtype=wp.float64)
+            self.grid.build(self.points, max_distance_m,
+                            groups=wp.array(np.repeat(np.arange(len(targets), dtype=np.int32), np.diff(starts)),
+                                            dtype=wp.int32))
+
+    def __call__(self, pairs, moved):
+        counts = [len(points) for points in moved]
+        with wp.ScopedDevice(self.device):
+            found = wp.empty(sum(counts), dtype=wp.int32)
+            wp.launch(registration.find_nearest_points, dim=sum(counts), inputs=[
+                self.grid.id, self.points, wp.array(np.concatenate(moved), dtype=wp.vec3d),
+                wp.array(np.repeat(np.asarray(pairs, np.int32), counts), dtype=wp.int32),
+                wp.float64(self.max_distance_m)], outputs=[found])
+            index = found.numpy()
+        # back to each target's own numbering
+        return [np.where(part >= 0, part - self.starts[pair], -1)
+                for pair, part in zip(pairs, np.split(index, np.cumsum(counts)[:-1]))]
 
 
 def _xyh_steps(moved: np.ndarray, matched: np.ndarray, weight: np.ndarray) -> np.ndarray:

@@ -20,9 +20,10 @@ import time
 
 import numpy as np
 
+from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
 from vogjax.geometry import inverse
-from vogjax.slam.correlative import correlative_xyh
+from vogjax.slam.correlative import correlative_xyh_batch
 from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
 
 
@@ -62,21 +63,22 @@ class Alignment:
     ambiguity: float
 
 
-def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict) -> list[Alignment]:
+def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, device=None) -> list[Alignment]:
     """The default aligner. pairs: (source (N,3), target (an IcpTarget: submap i's cloud
     prepared once for every alignment it takes part in), T_init (4,4), radius_m,
     yaw_radius_rad) per candidate, source = submap k's cloud; `seconds` collects the time per
-    phase."""
+    phase; device: where the searches and ICP's neighbour queries run (None: on the host)."""
     start = time.perf_counter()
-    seeds = [correlative_xyh(source, target.points, T_init, radius_m, yaw_radius_rad, config.correlative)
-             for source, target, T_init, radius_m, yaw_radius_rad in pairs]
+    seeds = correlative_xyh_batch([(source, target.points, T_init, radius_m, yaw_radius_rad)
+                                   for source, target, T_init, radius_m, yaw_radius_rad in pairs],
+                                  config.correlative, device)
     seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
     # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
     refine = [n for n, seed in enumerate(seeds)
               if seed.score >= config.min_overlap_score and seed.ratio <= config.max_ambiguity]
     start = time.perf_counter()
     results = icp_batch([pairs[n][0] for n in refine], [pairs[n][1] for n in refine],
-                        [seeds[n].T_target_source for n in refine], config.method, config.icp) if refine else []
+                        [seeds[n].T_target_source for n in refine], config.method, config.icp, device) if refine else []
     seconds["icp"] = seconds.get("icp", 0.0) + time.perf_counter() - start
     refined = dict(zip(refine, results))
     return [Alignment(refined.get(n), seed.T_target_source, seed.score, seed.ratio) for n, seed in enumerate(seeds)]
@@ -86,9 +88,15 @@ ALIGNERS = {"correlative_icp": correlative_then_icp}
 
 
 class LoopClosureDetector:
-    def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None):
+    """Finds loop closures of each new submap with earlier ones. device: None aligns on the host
+    (FFTs and k-d trees); a Warp device runs the correlative searches and ICP's neighbour
+    queries there (`correlative_xyh_batch`, `icp_batch`), with the same closures but at
+    near-exact ties."""
+
+    def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None, device=None):
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
+        self.device = None if device is None else devices.resolve(device)
         self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # per phase, in the last detect call
         self._targets: dict[int, IcpTarget] = {}  # submap -> its cloud, prepared for ICP
 
@@ -143,7 +151,7 @@ class LoopClosureDetector:
             yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if cfg.icp.free == "all" else 0.0
             pairs.append((clouds[k], self._target(i, clouds[i]), inverse(poses[i]) @ poses[k],
                           min(self._drift_bound(elapsed), cfg.max_search_m), yaw_radius))
-        alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds)
+        alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device)
         for i, alignment in zip(found, alignments):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             result = alignment.icp
