@@ -26,9 +26,10 @@ step 60 "$python" -c "import warp as wp; wp.init(); print(wp.get_cuda_devices())
 workers=$("$python" -c "import xdist" 2>/dev/null && echo "-n 8")  # pytest-xdist when installed
 step 120 "$python" -m pytest -q -x -p no:cacheprovider $workers tests/test_kernels_integration.py \
     tests/test_kernels_queries.py tests/test_kernels_accumulation.py tests/test_integration.py \
-    tests/test_globalmap.py tests/test_queries.py tests/test_crm.py tests/test_planner.py
+    tests/test_globalmap.py tests/test_queries.py tests/test_crm.py tests/test_planner.py tests/test_slam_device.py
 step 90 "$python" benchmarks/bench_voxelmap.py --out "$out" --device cuda:0 --scans 10000 --repeats 3
 step 90 "$python" benchmarks/bench_globalmap.py --out "$out" --device cuda:0 --repeats 3
+step 120 "$python" benchmarks/bench_slam.py --out "$out" --device cuda:0
 step 180 "$python" benchmarks/bench_pipeline.py --out "$out" ${run:+--run "$run"}
 step 60 "$python" benchmarks/bench_profile.py --out "$out" --device cuda:0 --repeats 3
 step 90 "$python" benchmarks/bench_profile.py --out "$out" --device cuda:0 --repeats 3 --scans 10000 \

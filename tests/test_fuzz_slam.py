@@ -16,12 +16,14 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 import vogjax as vj
-from vogjax import slam
+from vogjax import devices, slam
 from vogjax.config import CorrelativeConfig, IcpConfig
 from vogjax.geometry import exp_se3, log_se3
 from vogjax.slam import backend, correlative
 
 from .test_fuzz_maps import JUNK, REFUSED, SPECIALS, attempt, combined, fuzz, hostile_array, poses, refuses
+
+DEVICE = str(devices.resolve(None))  # the front end's kernels, on the GPU where there is one
 
 # ------------------------------------------------------------------------------ PoseGraph
 
@@ -271,6 +273,11 @@ def test_icp(data):
     if result is REFUSED:
         return
     well_formed_icp(result, len(np.asarray(source)))
+    on_device = slam.icp_batch([source], [target], None if T_init is None else [T_init], method, config, DEVICE)[0]
+    well_formed_icp(on_device, len(np.asarray(source)))
+    if e1 == e2 == "valid":  # clouds without ties (tiny ones round distances to ties): the same bits
+        assert np.array_equal(on_device.T_target_source, result.T_target_source)
+        assert (on_device.iterations, on_device.fitness) == (result.iterations, result.fitness)
     clean = e1 == e2 == e3 == "valid" and method == "point_to_plane" and config.max_correspondence_m == 0.5 \
         and config.max_iterations == 50
     if clean:
@@ -366,6 +373,12 @@ def test_correlative_search(data):
     correction = T @ np.linalg.inv(np.asarray(T_init, np.float64))
     yaw_moved = abs(math.atan2(correction[1, 0], correction[0, 0]))
     assert yaw_moved <= float(yaw) + 1e-9
+    # the device's direct correlation peaks where the FFT does, to rounding: at a tie (blocky
+    # clouds have many) it may pick the other peak, of the same score
+    on_device = slam.correlative_xyh_batch([(source, target, T_init, radius, yaw)], config, DEVICE)[0]
+    assert abs(on_device.score - match.score) <= 1e-5 * max(match.score, 1e-2)
+    if np.array_equal(on_device.T_target_source, T):
+        assert abs(on_device.runner_up - match.runner_up) <= 1e-5 * max(match.runner_up, 1e-2)
     whole = len(source) == len(source_good) and len(target) == len(target_good)
     if e1 == e2 == e3 == e4 == e5 == e6 == "valid" and whole and float(radius) >= 1.0 and float(yaw) == 0.0 and \
             config == CorrelativeConfig():

@@ -12,7 +12,7 @@ from vogjax.slam.icp import _GridNeighbours
 
 from .test_slam import small_motion, structured_cloud
 
-DEVICE = "cpu"
+DEVICE = str(devices.resolve(None))  # the GPU where there is one
 
 
 def planar_motion(rng, yaw_rad, shift_m):
