@@ -9,7 +9,9 @@ index, as the k-d tree finds it.
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+# No fused multiply-adds: a squared distance must round as NumPy's and the k-d tree's do, or a
+# near tie could go the other way on a GPU (Warp fuses by default there, not on the CPU).
+wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.kernel
@@ -18,16 +20,27 @@ def correlate_shifted_cells(field: wp.array(dtype=wp.float32), search_field_star
                             slot_search: wp.array(dtype=wp.int32), slot_cell_start: wp.array(dtype=wp.int32),
                             slot_cell_count: wp.array(dtype=wp.int32), slot_window_start: wp.array(dtype=wp.int32),
                             cells: wp.array(dtype=wp.vec3i), windows: wp.array(dtype=wp.float64)):
-    """windows[slot](i, j) = sum over the slot's cells c of field[c + (i - shift, j - shift, 0)]:
-    one slot is one (search, yaw); its field is that search's blurred target, (nx, ny, nz) in C
-    order from search_field_start; cells beyond the field add nothing (the host's margins keep
-    every real overlap inside it)."""
-    slot, i, j = wp.tid()
+    """One thread per score: windows[slot](i, j) = sum over the slot's cells c of
+    field[c + (i - shift, j - shift, 0)]. A slot is one (search, yaw), its window (2 shift + 1)^2
+    scores from slot_window_start[slot] (one more entry: the total); its field is the search's
+    blurred target, (nx, ny, nz) in C order from search_field_start; cells beyond the field add
+    nothing (the host's margins keep every real overlap inside it)."""
+    tid = wp.tid()
+    # the slot whose window holds this score: the last one starting at or before it
+    slot = int(0)
+    end = slot_window_start.shape[0] - 1
+    while end - slot > 1:
+        middle = (slot + end) // 2
+        if slot_window_start[middle] <= tid:
+            slot = middle
+        else:
+            end = middle
     search = slot_search[slot]
     shift = search_shift[search]
     width = 2 * shift + 1
-    if i >= width or j >= width:
-        return
+    local = tid - slot_window_start[slot]
+    i = local // width
+    j = local - i * width
     dims = search_dims[search]
     start = search_field_start[search]
     dx = i - shift
@@ -40,7 +53,7 @@ def correlate_shifted_cells(field: wp.array(dtype=wp.float32), search_field_star
         y = c[1] + dy
         if x >= 0 and x < dims[0] and y >= 0 and y < dims[1] and c[2] >= 0 and c[2] < dims[2]:
             total += wp.float64(field[start + (x * dims[1] + y) * dims[2] + c[2]])
-    windows[slot_window_start[slot] + i * width + j] = total
+    windows[tid] = total
 
 
 @wp.kernel

@@ -52,27 +52,61 @@ def test_device_correlative_searches_find_the_host_peaks(seed):
     assert [slam.correlative_xyh(*s, config).score for s in searches] == [m.score for m in host]
     assert host[-1].score == 0.0  # nothing in reach: the initial guess as it is
     assert_same_matches(host, slam.correlative_xyh_batch(searches, config, device=DEVICE))
+    # every score of every yaw and offset, not only the peaks
+    plans = [correlative._plan(*search, config) for search in searches[:3]]
+    scored = list(correlative._device_windows(plans, devices.resolve(DEVICE)))
+    assert [(p, n) for p, n, _ in scored] == [(p, n) for p, plan in enumerate(plans) for n in range(len(plan.yaws))]
+    for p, n, window in scored:
+        expected = list(correlative._fft_windows(plans[p]))[n]
+        assert window.shape == expected.shape
+        np.testing.assert_allclose(window, expected, rtol=0, atol=1e-5 * max(expected.max(), 1.0))
 
 
-def test_device_searches_split_over_launches_give_the_same_peaks(monkeypatch):
-    """Budgets too small for one launch: every (search, yaw) goes in a launch of its own or
-    with a few others, and the peaks are those of one launch."""
+@pytest.mark.parametrize("budget, value", [("MAX_LAUNCH_CELLS", 1), ("MAX_LAUNCH_CELLS", 3000),
+                                           ("MAX_LAUNCH_SCORES", 700), ("MAX_FIELD_FLOATS", 1)])
+def test_device_searches_split_over_launches_give_the_same_peaks(monkeypatch, budget, value):
+    """Budgets too small for one launch: every (search, yaw) slot is scored once, in order, in
+    launches within the budget (but those of a single slot), with the bits of one launch."""
     config = slam.CorrelativeConfig(yaw_step_rad=0.004)
     searches = search_batch(np.random.default_rng(7))
     whole = slam.correlative_xyh_batch(searches, config, device=DEVICE)
     launches = []
     real = correlative._correlate_on_device
     monkeypatch.setattr(correlative, "_correlate_on_device",
-                        lambda plans, slots, device: launches.append(len(slots)) or real(plans, slots, device))
-    for budget in ("MAX_LAUNCH_CELLS", "MAX_FIELD_FLOATS", "MAX_LAUNCH_SCORES"):
-        launches.clear()
-        with monkeypatch.context() as limits:
-            limits.setattr(correlative, budget, 1)
-            split = slam.correlative_xyh_batch(searches, config, device=DEVICE)
-        slots = sum(2 * int(np.floor(s[4] / config.yaw_step_rad)) + 1 for s in searches[:3])
-        assert launches == [1] * slots or budget == "MAX_FIELD_FLOATS" and sum(launches) == slots < 3 * len(launches)
-        for a, b in zip(whole, split, strict=True):
-            assert np.array_equal(a.T_target_source, b.T_target_source) and (a.score, a.runner_up) == (b.score, b.runner_up)
+                        lambda plans, slots, device: launches.append((plans, list(slots))) or real(plans, slots, device))
+    monkeypatch.setattr(correlative, budget, value)
+    split = slam.correlative_xyh_batch(searches, config, device=DEVICE)
+    plans = launches[0][0]
+    assert [slot for _, slots in launches for slot in slots] == [(p, n) for p, plan in enumerate(plans)
+                                                                 for n in range(len(plan.yaws))]
+    use = {"MAX_LAUNCH_CELLS": lambda slots: sum(len(plans[p].moved) for p, _ in slots),
+           "MAX_LAUNCH_SCORES": lambda slots: sum((2 * plans[p].shift_cells + 1) ** 2 for p, _ in slots),
+           "MAX_FIELD_FLOATS": lambda slots: sum(plans[p].field.size for p in {p for p, _ in slots})}[budget]
+    assert len(launches) > 2 and all(len(slots) == 1 or use(slots) <= value for _, slots in launches)
+    assert any(len(slots) > 1 for _, slots in launches) == (value > 1)
+    for a, b in zip(whole, split, strict=True):
+        assert np.array_equal(a.T_target_source, b.T_target_source) and (a.score, a.runner_up) == (b.score, b.runner_up)
+
+
+def test_searches_beyond_the_direct_work_bound_run_on_the_host(monkeypatch):
+    """A search whose direct correlation would take too long is the host's FFT search, bit for
+    bit; the others still run on the device."""
+    config = slam.CorrelativeConfig(yaw_step_rad=0.004)
+    searches = search_batch(np.random.default_rng(8))
+    host = slam.correlative_xyh_batch(searches, config)
+    plans = [correlative._plan(*search, config) for search in searches[:3]]
+    works = sorted(correlative._direct_work(plan) for plan in plans)
+    monkeypatch.setattr(correlative, "MAX_DIRECT_WORK", works[1])  # the largest one is too much
+    launched = []
+    real = correlative._correlate_on_device
+    monkeypatch.setattr(correlative, "_correlate_on_device",
+                        lambda plans, slots, device: launched.extend(plans) or real(plans, slots, device))
+    mixed = slam.correlative_xyh_batch(searches, config, device=DEVICE)
+    largest = int(np.argmax([correlative._direct_work(plan) for plan in plans]))
+    assert len({id(plan) for plan in launched}) == 2
+    assert np.array_equal(mixed[largest].T_target_source, host[largest].T_target_source)
+    assert (mixed[largest].score, mixed[largest].runner_up) == (host[largest].score, host[largest].runner_up)
+    assert_same_matches(host, mixed)
 
 
 def brute_force_nearest(points, queries, max_distance):

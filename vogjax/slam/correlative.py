@@ -34,6 +34,9 @@ MAX_COORDINATE_M = 1e7  # beyond it float64 keeps no sub-voxel digits of a grid 
 MAX_FIELD_FLOATS = 2**28
 MAX_LAUNCH_CELLS = 2**24
 MAX_LAUNCH_SCORES = 2**26
+# A search whose direct correlation takes more field lookups (points x offsets x yaws) runs as
+# FFTs on the host: a few seconds of a GPU at most, where the FFTs' cost grows far slower.
+MAX_DIRECT_WORK = 1e11
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,22 +70,36 @@ def correlative_xyh_batch(searches: list, config: CorrelativeConfig = Correlativ
 
     device None: FFT correlation on the host, one search after the other. A Warp device (a
     CUDA GPU; "cpu" runs the same kernel on the host, slower than the FFTs): every yaw and
-    offset of every search scored by direct correlation in one launch. The two agree to
-    float32 rounding of the scores, so they find the same peaks but at near-exact ties.
+    offset of the searches scored by direct correlation, in as few launches as the budgets
+    allow; a search whose direct correlation would take more than MAX_DIRECT_WORK lookups runs
+    on the host instead. The two agree to the FFT's float32 rounding of the scores, so they
+    find the same peaks but at near-exact ties.
     """
     device = None if device is None else devices.resolve(device)
+    if device is None:  # one search at a time: only one field is held
+        return [_search_on_host(_plan(*search, config), config) for search in searches]
     plans = [_plan(*search, config) for search in searches]
-    pending = [plan for plan in plans if isinstance(plan, _Plan)]
-    # each plan's windows arrive yaw after yaw; only the best so far is kept
-    peaks = [_Peak() for _ in pending]
-    if device is None:
-        windows = ((p, n, window) for p, plan in enumerate(pending) for n, window in enumerate(_fft_windows(plan)))
-    else:
-        windows = _device_windows(pending, device)
-    for p, n, window in windows:
-        peaks[p].offer(pending[p].yaws[n], window / len(pending[p].moved))
-    found = iter(peak.match(plan, config) for plan, peak in zip(pending, peaks))
-    return [next(found) if isinstance(plan, _Plan) else plan for plan in plans]
+    direct = [p for p, plan in enumerate(plans) if isinstance(plan, _Plan) and _direct_work(plan) <= MAX_DIRECT_WORK]
+    # each search's windows arrive yaw after yaw; only the best so far is kept
+    peaks = {p: _Peak() for p in direct}
+    for p, n, window in _device_windows([plans[p] for p in direct], device):
+        peaks[direct[p]].offer(plans[direct[p]].yaws[n], window / len(plans[direct[p]].moved))
+    return [peaks[p].match(plan, config) if p in peaks else _search_on_host(plan, config)
+            for p, plan in enumerate(plans)]
+
+
+def _search_on_host(plan: "_Plan | CorrelativeMatch", config: CorrelativeConfig) -> CorrelativeMatch:
+    if not isinstance(plan, _Plan):
+        return plan
+    peak = _Peak()
+    for yaw, window in zip(plan.yaws, _fft_windows(plan)):
+        peak.offer(yaw, window / len(plan.moved))
+    return peak.match(plan, config)
+
+
+def _direct_work(plan: "_Plan") -> float:
+    """Field lookups of the search by direct correlation: source points x offsets x yaws."""
+    return float(len(plan.moved)) * (2 * plan.shift_cells + 1) ** 2 * len(plan.yaws)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,48 +193,47 @@ def _device_windows(plans: list[_Plan], device):
     gives them, by direct correlation on `device`. The slots go in as few launches as the
     budgets allow: a launch's target fields within MAX_FIELD_FLOATS, its source cells within
     MAX_LAUNCH_CELLS and its scores within MAX_LAUNCH_SCORES (a launch takes at least one)."""
-    launch, fields, cells, scores = [], set(), 0, 0
-    slots = [(p, n) for p, plan in enumerate(plans) for n in range(len(plan.yaws))]
-    for slot in slots + [None]:
-        if slot is not None:
-            plan = plans[slot[0]]
-            more_fields = 0 if slot[0] in fields else plan.field.size
-            more_cells, more_scores = len(plan.moved), (2 * plan.shift_cells + 1) ** 2
-        if launch and (slot is None or sum(plans[q].field.size for q in fields) + more_fields > MAX_FIELD_FLOATS or
-                       cells + more_cells > MAX_LAUNCH_CELLS or scores + more_scores > MAX_LAUNCH_SCORES):
-            yield from ((p, n, window) for (p, n), window in zip(launch, _correlate_on_device(plans, launch, device)))
-            launch, fields, cells, scores = [], set(), 0, 0
-        if slot is not None:
-            launch.append(slot)
-            fields.add(slot[0])
-            cells += more_cells
-            scores += more_scores
+    launch, fields, field_floats, cells, scores = [], set(), 0, 0, 0
+    for p, plan in enumerate(plans):
+        more_cells, more_scores = len(plan.moved), (2 * plan.shift_cells + 1) ** 2
+        for n in range(len(plan.yaws)):
+            more_floats = 0 if p in fields else plan.field.size
+            if launch and (field_floats + more_floats > MAX_FIELD_FLOATS or cells + more_cells > MAX_LAUNCH_CELLS or
+                           scores + more_scores > MAX_LAUNCH_SCORES):
+                yield from _correlate_on_device(plans, launch, device)
+                launch, fields, field_floats, cells, scores = [], set(), 0, 0, 0
+                more_floats = plan.field.size
+            launch.append((p, n))
+            fields.add(p)
+            field_floats, cells, scores = field_floats + more_floats, cells + more_cells, scores + more_scores
+    if launch:
+        yield from _correlate_on_device(plans, launch, device)
 
 
-def _correlate_on_device(plans: list[_Plan], slots: list, device) -> list[np.ndarray]:
-    """The windows of `slots` ((plan, yaw) pairs) from one launch."""
+def _correlate_on_device(plans: list[_Plan], slots: list, device) -> list:
+    """(plan, yaw, window) of `slots` ((plan, yaw) pairs) from one launch, a thread per score."""
     used = sorted({p for p, _ in slots})
     field_index = {p: k for k, p in enumerate(used)}
     field_sizes = np.array([plans[p].field.size for p in used])
     widths = np.array([2 * plans[p].shift_cells + 1 for p, _ in slots])
     counts = np.array([len(plans[p].moved) for p, _ in slots])
-    window_start = np.concatenate([[0], np.cumsum(widths ** 2)])
+    window_start = np.concatenate([[0], np.cumsum(widths ** 2)]).astype(np.int32)
     with wp.ScopedDevice(device):
-        windows = wp.zeros(int(window_start[-1]), dtype=wp.float64)
-        wp.launch(registration.correlate_shifted_cells, dim=(len(slots), int(widths.max()), int(widths.max())), inputs=[
-            wp.array(np.concatenate([plans[p].field.ravel() for p in used]), dtype=wp.float32),
-            wp.array(np.concatenate([[0], np.cumsum(field_sizes)[:-1]]).astype(np.int32), dtype=wp.int32),
-            wp.array(np.array([plans[p].field.shape for p in used], np.int32), dtype=wp.vec3i),
-            wp.array(np.array([plans[p].shift_cells for p in used], np.int32), dtype=wp.int32),
-            wp.array(np.array([field_index[p] for p, _ in slots], np.int32), dtype=wp.int32),
-            wp.array(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), dtype=wp.int32),
-            wp.array(counts.astype(np.int32), dtype=wp.int32),
-            wp.array(window_start[:-1].astype(np.int32), dtype=wp.int32),
-            wp.array(np.concatenate([plans[p].cells(n) for p, n in slots]).astype(np.int32), dtype=wp.vec3i),
-        ], outputs=[windows])
+        field = wp.array(np.concatenate([plans[p].field.ravel() for p in used]), dtype=wp.float32)
+        field_start = wp.array(np.concatenate([[0], np.cumsum(field_sizes)[:-1]]).astype(np.int32), dtype=wp.int32)
+        field_dims = wp.array(np.array([plans[p].field.shape for p in used], np.int32), dtype=wp.vec3i)
+        shift = wp.array(np.array([plans[p].shift_cells for p in used], np.int32), dtype=wp.int32)
+        slot_field = wp.array(np.array([field_index[p] for p, _ in slots], np.int32), dtype=wp.int32)
+        cell_start = wp.array(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), dtype=wp.int32)
+        cell_count = wp.array(counts.astype(np.int32), dtype=wp.int32)
+        cells = wp.array(np.concatenate([plans[p].cells(n) for p, n in slots]).astype(np.int32), dtype=wp.vec3i)
+        windows = wp.empty(int(window_start[-1]), dtype=wp.float64)
+        wp.launch(registration.correlate_shifted_cells, dim=int(window_start[-1]),
+                  inputs=[field, field_start, field_dims, shift, slot_field, cell_start, cell_count,
+                          wp.array(window_start, dtype=wp.int32), cells], outputs=[windows])
         flat = windows.numpy()
-    return [flat[first:first + width * width].reshape(width, width)
-            for width, first in zip(widths, window_start)]
+    return [(p, n, flat[first:first + width * width].reshape(width, width))
+            for (p, n), width, first in zip(slots, widths, window_start)]
 
 
 class _Peak:

@@ -200,7 +200,7 @@ def _tree_neighbours(trees: list, max_distance_m: float):
 
 class _GridNeighbours:
     """`_tree_neighbours` on a Warp device: every target in one hash grid (cells of the bound,
-    so a query visits 27 cells at most), the pairs told apart by the grid's groups."""
+    so a query visits at most 4 cells per axis), the pairs told apart by the grid's groups."""
 
     def __init__(self, targets: list, max_distance_m: float, device):
         self.device, self.max_distance_m = device, max_distance_m

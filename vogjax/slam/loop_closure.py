@@ -2,7 +2,8 @@
 
 For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
 centroid of k's cloud (moved by the current relative estimate) is a candidate; the nearest few
-are aligned. The aligner (`ALIGNERS`, chosen by `LoopClosureConfig.aligner`) turns a candidate
+are aligned. The aligner (`ALIGNERS`, chosen by `LoopClosureConfig.aligner`; called with the
+pairs, the settings, a dict for its phases' seconds and the detector's device) turns a candidate
 pair into an `Alignment`; the default, `correlative_then_icp`, searches x, y and yaw over the
 navigation's possible drift first (`correlative.py`: navigation can drift metres between two
 visits, beyond ICP's reach) and refines the peak with ICP. The detector then accepts or
