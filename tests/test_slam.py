@@ -1,5 +1,7 @@
 """SLAM backend: factor Jacobians, ICP, partial factors, loop closures, marginals, bad input."""
 
+import sys
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 import pytest
@@ -207,6 +209,48 @@ def test_prepared_targets_give_the_same_alignments(monkeypatch):
     with pytest.raises(ValueError, match="do not belong together"):
         slam.icp_batch(sources[:1], [mixed])
     assert not prepared.points.flags.writeable and not prepared.normals.flags.writeable
+
+
+def swath(rng, shape, first_line_m):
+    """A profiling sonar's swath of a rough seabed with a step: lines 0.25 m apart, a point every
+    5 cm along them, 2 cm noise (thin and anisotropic, where point-to-plane ICP can cycle)."""
+    x, y = np.meshgrid(np.arange(0, 3, 0.05), np.arange(first_line_m, 3, 0.25))
+    x, y = x.ravel(), y.ravel()
+    z = 0.4 * np.sin(shape[0] * x + shape[1]) + 0.3 * np.cos(shape[2] * y + shape[3]) + 0.5 * (x > shape[4])
+    return np.c_[x, y, z] + rng.normal(0, 0.02, (x.size, 3))
+
+
+def test_icp_stops_where_its_correspondences_can_only_cycle(monkeypatch):
+    """Holding the rotation, a pair whose correspondences come back after well-conditioned
+    steps stops there: run on to max_iterations instead, the same pairs never converge, and
+    every other pair ends exactly as it would have."""
+    rng = np.random.default_rng(0)
+    sources, targets, starts = [], [], []
+    for _ in range(40):
+        shape = rng.uniform(0.5, 3, 5)
+        targets.append(swath(rng, shape, 0.0))
+        source = swath(rng, shape, 0.12)  # other lines, over part of the swath
+        sources.append(source[source[:, 0] > 0.5])
+        start = np.eye(4)
+        start[:3, 3] = rng.normal(0, 0.1, 3)
+        starts.append(start)
+    icp_module = sys.modules["vogjax.slam.icp"]
+    for free in ("translation", "all"):
+        config = slam.IcpConfig(free=free)
+        stopping = slam.icp_batch(sources, targets, starts, config=config)
+        with monkeypatch.context() as never:
+            never.setattr(icp_module, "_returned", lambda cycles, pairs, matches, good: np.zeros(len(pairs), bool))
+            running_on = slam.icp_batch(sources, targets, starts, config=config)
+        early = 0
+        for a, b in zip(stopping, running_on, strict=True):
+            assert a.converged == b.converged
+            if a.converged or free == "all":  # no cycle argument with a free rotation: no stop
+                assert np.array_equal(a.T_target_source, b.T_target_source)
+                assert (a.iterations, a.fitness) == (b.iterations, b.fitness)
+            elif a.iterations < b.iterations:
+                assert b.iterations == config.max_iterations
+                early += 1
+        assert early >= 5 if free == "translation" else early == 0
 
 
 def test_degenerate_scenes_give_a_reduced_basis():

@@ -145,6 +145,12 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     active = np.ones(count, bool)
     converged = np.zeros(count, bool)
     iterations = np.zeros(count, int)
+    # Holding the rotation, a step that is well conditioned in x, y and z lands on the least-
+    # squares translation of the correspondences, wherever it started. So once a pair's
+    # correspondences come back after such steps only, it goes round the same cycle (none of
+    # its steps below the tolerance, or it would have stopped) and never converges: it stops
+    # there instead of at max_iterations (a third of ICP's work on a propeller survey).
+    cycles = [{} for _ in range(count)] if method == "point_to_plane" and config.free != "all" else None
     for _ in range(config.max_iterations):
         ids = np.flatnonzero(active)
         if len(ids) == 0:
@@ -154,7 +160,9 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         q, n, moved = np.zeros_like(p), np.zeros_like(p), np.zeros_like(p)
         weight = np.zeros((len(ids), width))
         moved_points = [sources[pair] @ T[pair, :3, :3].T + T[pair, :3, 3] for pair in ids]
+        matches = []
         for row, (pair, m, index) in enumerate(zip(ids, moved_points, nearest(ids, moved_points))):
+            matches.append(index)
             source = sources[pair]
             inlier = index >= 0
             size = int(inlier.sum())
@@ -181,11 +189,27 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
         done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
         starved = inliers < config.min_inliers
+        cycling = np.zeros(len(ids), bool) if cycles is None else \
+            _returned(cycles, ids, matches, good.sum(axis=1) == 3)
         converged[ids] = done & ~starved
-        active[ids] = ~(done | starved)
+        active[ids] = ~(done | starved | cycling)
     return [_result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]),
                     config)
             for k in range(count)]
+
+
+def _returned(cycles: list, pairs: np.ndarray, matches: list, well_conditioned: np.ndarray) -> np.ndarray:
+    """Per pair: did its correspondences (nearest indices) come back since its last step that
+    was not well conditioned? `cycles[pair]` remembers those since then."""
+    back = np.zeros(len(pairs), bool)
+    for row, (pair, index) in enumerate(zip(pairs, matches)):
+        if not well_conditioned[row]:
+            cycles[pair].clear()  # such a step keeps part of where it started: no cycle follows
+            continue
+        key = index.tobytes()
+        back[row] = key in cycles[pair]
+        cycles[pair][key] = True
+    return back
 
 
 def _tree_neighbours(trees: list, max_distance_m: float):
