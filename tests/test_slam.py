@@ -320,26 +320,30 @@ def test_default_closures_constrain_translation_only_with_the_estimated_rotation
     np.testing.assert_allclose(closure.T_i_k[:3, 3], truth_k[:3, 3], atol=0.02)
 
 
-def test_detector_finds_closures_beyond_icps_reach():
-    """Navigation 1.5 m and 0.8 degrees off after 30 min: the correlative search brings ICP home."""
+def revisit_beyond_icps_reach():
+    """Submap 2 revisits submap 0 (submap 1 is far away) after 30 min, navigation 1.5 m and 0.8
+    degrees off: (clouds, bounds, navigation poses, times, the true T_0_2)."""
     rng = np.random.default_rng(4)
     cloud = np.floor(structured_cloud(rng, 6000) / 0.1) * 0.1 + 0.05  # occupied voxel centres
     truth_k = np.eye(4)
     truth_k[:3, 3] = [0.3, -0.2, 0.0]
     clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
     bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
-    poses = np.stack([np.eye(4), np.eye(4), truth_k])
-    poses[1, :3, 3] = [20.0, 0, 0]
+    nav = np.stack([np.eye(4), np.eye(4), truth_k])
+    nav[1, :3, 3] = [20.0, 0, 0]
     off = np.eye(4)
     off[:3, :3] = Rotation.from_euler("z", 0.014).as_matrix()
     off[:3, 3] = [1.2, 0.9, 0.0]
-    nav = poses.copy()
     nav[2] = truth_k @ off
-    times = np.array([0.0, 900.0, 1800.0])
-    assert slam.icp(clouds[2], cloud, nav[2]).T_target_source[0, 3] > truth_k[0, 3] + 0.2  # ICP alone fails
+    return clouds, [bounds, None, bounds], nav, np.array([0.0, 900.0, 1800.0]), truth_k
+
+
+def test_detector_finds_closures_beyond_icps_reach():
+    """The correlative search brings ICP home from beyond its reach."""
+    clouds, bounds, nav, times, truth_k = revisit_beyond_icps_reach()
+    assert slam.icp(clouds[2], clouds[0], nav[2]).T_target_source[0, 3] > truth_k[0, 3] + 0.2  # ICP alone fails
     six_dof = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="all"))
-    accepted, rejected = slam.LoopClosureDetector(config=six_dof).detect(2, clouds, [bounds, None, bounds], nav,
-                                                                         nav, times)
+    accepted, rejected = slam.LoopClosureDetector(config=six_dof).detect(2, clouds, bounds, nav, nav, times)
     assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
     np.testing.assert_allclose(accepted[0].T_i_k, truth_k, atol=0.02)
 
