@@ -19,8 +19,8 @@ from scipy.spatial.transform import Rotation
 
 import vogjax as vj
 from vogjax import devices, slam
-from vogjax.slam import loop_closure
 from vogjax.geometry import inverse, pose_deltas
+from vogjax.slam import loop_closure
 
 
 def lawnmower(num_submaps: int, rng) -> tuple[np.ndarray, np.ndarray]:

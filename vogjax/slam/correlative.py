@@ -88,7 +88,7 @@ def correlative_xyh_batch(searches: list, config: CorrelativeConfig = Correlativ
             for p, plan in enumerate(plans)]
 
 
-def _search_on_host(plan: "_Plan | CorrelativeMatch", config: CorrelativeConfig) -> CorrelativeMatch:
+def _search_on_host(plan: _Plan | CorrelativeMatch, config: CorrelativeConfig) -> CorrelativeMatch:
     if not isinstance(plan, _Plan):
         return plan
     peak = _Peak()
@@ -97,7 +97,7 @@ def _search_on_host(plan: "_Plan | CorrelativeMatch", config: CorrelativeConfig)
     return peak.match(plan, config)
 
 
-def _direct_work(plan: "_Plan") -> float:
+def _direct_work(plan: _Plan) -> float:
     """Field lookups of the search by direct correlation: source points x offsets x yaws."""
     return float(len(plan.moved)) * (2 * plan.shift_cells + 1) ** 2 * len(plan.yaws)
 
