@@ -16,15 +16,17 @@ class IcpConfig(Config):
     when an update moves less than this (rad and m); normal_neighbours: target points used to
     fit each normal; lambda_min: directions whose eigenvalue of J^T J is below lambda_min times
     the number of inliers are degenerate (per inlier, so the threshold does not depend on the
-    cloud's size; a unit normal contributes at most 1 to a translation direction); min_inliers;
+    cloud's size; a unit normal contributes at most 1 to a translation direction; above zero:
+    a direction with no information at all must never count as constrained); min_inliers;
     free: the directions point-to-plane ICP solves for, "all" six or only the "translation"
-    (the rotation held where it starts: when navigation knows it better than the clouds do)."""
+    (the rotation held where it starts: when navigation knows it better than the clouds do).
+    A translation-only pair that can only cycle stops before max_iterations, unconverged."""
 
     max_iterations: int = integer(50, low=1, high=10_000)
     max_correspondence_m: float = positive(1.0)
     tolerance: float = positive(1e-6)
     normal_neighbours: int = integer(10, low=3, high=1000)
-    lambda_min: float = non_negative(0.01)
+    lambda_min: float = positive(0.01)
     min_inliers: int = integer(10, low=3)
     free: str = text("all", ("all", "translation"))
 

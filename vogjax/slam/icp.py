@@ -12,6 +12,7 @@ eigenvalue reaches `lambda_min` per inlier.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numpy as np
 import warp as wp
@@ -117,6 +118,9 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     target may be an `IcpTarget` (`prepare_target`): its tree and normals are used as they are,
     so a cloud that is a target many times is prepared once, with the same results.
 
+    With the rotation held (point-to-plane, free="translation"), a pair whose correspondences
+    can only cycle stops there, unconverged, before max_iterations (see below).
+
     device None: each iteration's nearest neighbours from the k-d trees. A Warp device (a CUDA
     GPU; "cpu" runs the same kernel on the host): from one hash grid over every target, all
     pairs in one launch. Both find the nearest point strictly within max_correspondence_m, so
@@ -147,9 +151,10 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     iterations = np.zeros(count, int)
     # Holding the rotation, a step that is well conditioned in x, y and z lands on the least-
     # squares translation of the correspondences, wherever it started. So once a pair's
-    # correspondences come back after such steps only, it goes round the same cycle (none of
-    # its steps below the tolerance, or it would have stopped) and never converges: it stops
-    # there instead of at max_iterations (a third of ICP's work on a propeller survey).
+    # correspondences come back after such steps only (and not from the step just before: that
+    # is a fixed point), it goes round the same cycle (none of its steps below the tolerance,
+    # or it would have stopped) and never converges: it stops there instead of at
+    # max_iterations (a third of ICP's work on a propeller survey).
     cycles = [{} for _ in range(count)] if method == "point_to_plane" and config.free != "all" else None
     for _ in range(config.max_iterations):
         ids = np.flatnonzero(active)
@@ -190,7 +195,7 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
         starved = inliers < config.min_inliers
         cycling = np.zeros(len(ids), bool) if cycles is None else \
-            _returned(cycles, ids, matches, good.sum(axis=1) == 3)
+            _returned(cycles, ids, matches, good.sum(axis=1) == 3, iterations[ids])
         converged[ids] = done & ~starved
         active[ids] = ~(done | starved | cycling)
     return [_result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]),
@@ -198,17 +203,23 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
             for k in range(count)]
 
 
-def _returned(cycles: list, pairs: np.ndarray, matches: list, well_conditioned: np.ndarray) -> np.ndarray:
-    """Per pair: did its correspondences (nearest indices) come back since its last step that
-    was not well conditioned? `cycles[pair]` remembers those since then."""
+def _returned(cycles: list, pairs: np.ndarray, matches: list, well_conditioned: np.ndarray,
+              iteration: np.ndarray) -> np.ndarray:
+    """Per pair: did its correspondences (nearest indices) come back, two or more iterations
+    after they were last used, since its last step that was not well conditioned?
+    `cycles[pair]` remembers since then each set's digest and last iteration. The set of the
+    iteration just before is no cycle but a fixed point, left to the tolerance: there the
+    held rotation's round-off (R R^-1 is not exactly I) can keep a step above a tiny tolerance
+    for one more iteration."""
     back = np.zeros(len(pairs), bool)
     for row, (pair, index) in enumerate(zip(pairs, matches)):
         if not well_conditioned[row]:
             cycles[pair].clear()  # such a step keeps part of where it started: no cycle follows
             continue
-        key = index.tobytes()
-        back[row] = key in cycles[pair]
-        cycles[pair][key] = True
+        key = hashlib.blake2b(index.tobytes(), digest_size=16).digest()
+        last = cycles[pair].get(key)
+        back[row] = last is not None and iteration[row] - last >= 2
+        cycles[pair][key] = iteration[row]
     return back
 
 
