@@ -1,7 +1,8 @@
 """ICP between submap point clouds: the thesis's 2D point-to-point (x, y, yaw; Ho, Algorithm 6)
 and point-to-plane with degeneracy-aware updates (Zhang et al.'s solution remapping; Ho,
-Algorithm 7). Nearest neighbours come from a k-d tree; the normal equations are batched NumPy.
-A target's tree and normals can be prepared once (`prepare_target`) and reused.
+Algorithm 7). Nearest neighbours come from a k-d tree (or, on a Warp device, a hash grid: the
+same neighbours); the normal equations are batched NumPy. A target's tree and normals can be
+prepared once (`prepare_target`) and reused.
 
 The Hessian reported is the Gauss-Newton J^T J of point-to-plane residuals at the result (with
 respect to GTSAM's Pose3 tangent of T_target_source: rotation, then translation), so both
@@ -119,7 +120,8 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     so a cloud that is a target many times is prepared once, with the same results.
 
     With the rotation held (point-to-plane, free="translation"), a pair whose correspondences
-    can only cycle stops there, unconverged, before max_iterations (see below).
+    can only cycle stops there, unconverged, before max_iterations (why: the comment at
+    `cycles` below).
 
     device None: each iteration's nearest neighbours from the k-d trees. A Warp device (a CUDA
     GPU; "cpu" runs the same kernel on the host): from one hash grid over every target, all
