@@ -285,11 +285,31 @@ def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int
 
 
 @wp.kernel
-def sort_keys_of_steps(first: int, step_voxel: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
+def sort_keys_of_steps(step_voxel: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
                        order: wp.array(dtype=wp.int32)):
     tid = wp.tid()
-    keys[tid] = step_voxel[first + tid]
-    order[tid] = first + tid
+    keys[tid] = step_voxel[tid]
+    order[tid] = tid
+
+
+@wp.kernel
+def flag_scan_groups(keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                     step_scan: wp.array(dtype=wp.int32), no_group: int, group_scan: wp.array(dtype=wp.int32),
+                     group_entry: wp.array(dtype=wp.int32), scan_groups: wp.array(dtype=wp.int32)):
+    """A pass's steps sorted (stably) by voxel: the first entry of each (voxel, scan) run starts a
+    group, keyed by its scan (no_group for the other entries, which sort after every scan);
+    scan_groups counts each scan's groups."""
+    tid = wp.tid()
+    scan = step_scan[order[tid]]
+    start = tid == 0
+    if not start:
+        start = keys[tid - 1] != keys[tid] or step_scan[order[tid - 1]] != scan
+    group_entry[tid] = tid
+    if start:
+        group_scan[tid] = scan
+        wp.atomic_add(scan_groups, scan, 1)
+    else:
+        group_scan[tid] = no_group
 
 
 # ---------------------------------------------------------------- per number of bins
@@ -348,7 +368,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
                            pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
-        compute_beam_factors and apply_sorted_factors, in the same order per voxel."""
+        compute_beam_factors and apply_scan_groups, in the same order per voxel."""
         _tid = wp.tid()
         keep = wp.float64(1.0) - spurious
         beam = int(0)
@@ -382,19 +402,18 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 pending[v] = wp.uint8(0)
 
     @wp.kernel(module=module)
-    def apply_sorted_factors(keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), count: int,
-                             step_factor: wp.array(dtype=wp.vec2f), floor: wp.float32, bins: wp.array(dtype=Bins),
-                             mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
-        """One scan's factors sorted by voxel (stable: beam order kept); the first entry of each
-        voxel's run applies the whole run, then renormalises (the parallel path)."""
+    def apply_scan_groups(first_group: int, group_entry: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
+                          order: wp.array(dtype=wp.int32), step_scan: wp.array(dtype=wp.int32), count: int,
+                          step_factor: wp.array(dtype=wp.vec2f), floor: wp.float32, bins: wp.array(dtype=Bins),
+                          mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+        """One scan's groups of a pass sorted once (the parallel path): each applies its voxel's
+        factors of the scan in beam order (the sort is stable), then renormalises."""
         tid = wp.tid()
-        v = keys[tid]
-        if tid > 0:
-            if keys[tid - 1] == v:
-                return
-        j = tid
+        j = group_entry[first_group + tid]
+        v = keys[j]
+        scan = step_scan[order[j]]
         while j < count:
-            if keys[j] != v:
+            if keys[j] != v or step_scan[order[j]] != scan:
                 break
             apply_factor(bins, v, step_factor[order[j]])
             j += 1
@@ -426,5 +445,5 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
     return types.SimpleNamespace(Bins=Bins, integrate_in_order=integrate_in_order,
-                                 apply_sorted_factors=apply_sorted_factors, compute_moments=compute_moments,
+                                 apply_scan_groups=apply_scan_groups, compute_moments=compute_moments,
                                  lookup_bins=lookup_bins)

@@ -61,7 +61,7 @@ from vogjax.validation import float_array, index_array, within_key_range
 
 # Scans integrated per pass (a pass lists, allocates and walks its beams' cones together).
 SCANS_PER_PASS = 64
-# Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 52 on CUDA).
+# Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 88 on CUDA).
 STEP_BUDGET = 1 << 21
 # Passes whose cones' blocks are listed in one launch are merged while their beams times the
 # blocks a cone may cross stay below this (8 bytes of scratch each; one pass may exceed it).
@@ -344,7 +344,7 @@ class ConfidenceMap:
         step_voxel, step_likelihood = cones.step_voxel, cones.step_likelihood
         total = int(first_step[-1])
 
-        # the scans one after the other: on the CPU in one launch, on CUDA a few launches per scan
+        # the scans one after the other: on the CPU in one launch, on CUDA two launches per scan
         model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability),
                  np.float64(1.0 / cfg.max_range)]
         layers = store.layers
@@ -363,27 +363,39 @@ class ConfidenceMap:
             return
         if before_launch is not None:
             before_launch()
+        # The pass's steps sorted once, stably by voxel: each voxel's steps of a scan form a run in
+        # beam order. Each (voxel, scan) run is a group, and the groups are sorted by scan, so a
+        # scan is one launch for its factors and one over its groups (no sort per scan).
+        scan_steps = first_step[np.r_[0, scan_ends]]
+        num_scans = len(scan_ends)
+        keys = wp.empty(2 * total, dtype=wp.int32, device=device)
+        order = wp.empty(2 * total, dtype=wp.int32, device=device)
+        wp.launch(confidence.sort_keys_of_steps, dim=total, inputs=[step_voxel], outputs=[keys, order], device=device)
+        wp.utils.radix_sort_pairs(keys, order, total)
+        step_scan = wp.array(np.repeat(np.arange(num_scans, dtype=np.int32), np.diff(scan_steps)), dtype=wp.int32,
+                             device=device)
+        group_scan = wp.empty(2 * total, dtype=wp.int32, device=device)
+        group_entry = wp.empty(2 * total, dtype=wp.int32, device=device)
+        scan_groups = wp.zeros(num_scans, dtype=wp.int32, device=device)
+        wp.launch(confidence.flag_scan_groups, dim=total, inputs=[keys, order, step_scan, num_scans],
+                  outputs=[group_scan, group_entry, scan_groups], device=device)
+        wp.utils.radix_sort_pairs(group_scan, group_entry, total, end_bit=max(int(num_scans).bit_length(), 1))
+        first_group = np.zeros(num_scans + 1, np.int64)
+        np.cumsum(scan_groups.numpy(), out=first_group[1:])
         scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
                    wp.empty(total, dtype=wp.float64, device=device)]  # S_i
-        scan_steps = first_step[np.r_[0, scan_ends]]
-        widest = int(np.diff(scan_steps).max())
-        keys = wp.empty(2 * widest, dtype=wp.int32, device=device)
-        order = wp.empty(2 * widest, dtype=wp.int32, device=device)
         factors = wp.empty(total, dtype=wp.vec2f, device=device)
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends):
-            step_lo, step_hi = int(scan_steps[scan]), int(scan_steps[scan + 1])
             if beam_hi > beam_lo:
                 wp.launch(confidence.compute_beam_factors, dim=int(beam_hi) - beam_lo,
                           inputs=[beam_lo, d_first, d_returned, step_voxel, step_likelihood, layers["mean"],
                                   *model], outputs=[*scratch, factors], device=device)
-            n = step_hi - step_lo
-            if n:
-                wp.launch(confidence.sort_keys_of_steps, dim=n, inputs=[step_lo, step_voxel],
-                          outputs=[keys, order], device=device)
-                wp.utils.radix_sort_pairs(keys, order, n)
-                wp.launch(self._kernels.apply_sorted_factors, dim=n,
-                          inputs=[keys, order, n, factors, np.float32(cfg.bin_floor)],
+            groups = int(first_group[scan + 1] - first_group[scan])
+            if groups:
+                wp.launch(self._kernels.apply_scan_groups, dim=groups,
+                          inputs=[int(first_group[scan]), group_entry, keys, order, step_scan, total, factors,
+                                  np.float32(cfg.bin_floor)],
                           outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device)
             beam_lo = int(beam_hi)
 
