@@ -402,14 +402,19 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 pending[v] = wp.uint8(0)
 
     @wp.kernel(module=module)
-    def apply_scan_groups(first_group: int, group_entry: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
-                          order: wp.array(dtype=wp.int32), step_scan: wp.array(dtype=wp.int32), count: int,
-                          step_factor: wp.array(dtype=wp.vec2f), floor: wp.float32, bins: wp.array(dtype=Bins),
-                          mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
-        """One scan's groups of a pass sorted once (the parallel path): each applies its voxel's
-        factors of the scan in beam order (the sort is stable), then renormalises."""
+    def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),
+                          keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                          step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
+                          floor: wp.float32, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
+                          variance: wp.array(dtype=wp.float32)):
+        """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
+        first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
+        beam order (the sort is stable), then renormalises. Launched over the scan's steps, an
+        upper bound the host knows (the group counts stay on the device)."""
         tid = wp.tid()
-        j = group_entry[first_group + tid]
+        if tid >= first_group[scan + 1] - first_group[scan]:
+            return
+        j = group_entry[first_group[scan] + tid]
         v = keys[j]
         scan = step_scan[order[j]]
         while j < count:

@@ -61,7 +61,7 @@ from vogjax.validation import float_array, index_array, within_key_range
 
 # Scans integrated per pass (a pass lists, allocates and walks its beams' cones together).
 SCANS_PER_PASS = 64
-# Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 88 on CUDA).
+# Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 80 on CUDA).
 STEP_BUDGET = 1 << 21
 # Passes whose cones' blocks are listed in one launch are merged while their beams times the
 # blocks a cone may cross stay below this (8 bytes of scratch each; one pass may exceed it).
@@ -365,23 +365,25 @@ class ConfidenceMap:
             before_launch()
         # The pass's steps sorted once, stably by voxel: each voxel's steps of a scan form a run in
         # beam order. Each (voxel, scan) run is a group, and the groups are sorted by scan, so a
-        # scan is one launch for its factors and one over its groups (no sort per scan).
+        # scan is one launch for its factors and one over its groups (no sort per scan), and
+        # nothing is read back: the groups' ranges stay on the device.
         scan_steps = first_step[np.r_[0, scan_ends]]
         num_scans = len(scan_ends)
         keys = wp.empty(2 * total, dtype=wp.int32, device=device)
         order = wp.empty(2 * total, dtype=wp.int32, device=device)
         wp.launch(confidence.sort_keys_of_steps, dim=total, inputs=[step_voxel], outputs=[keys, order], device=device)
-        wp.utils.radix_sort_pairs(keys, order, total)
+        wp.utils.radix_sort_pairs(keys, order, total,
+                                  end_bit=max(int(store.block_capacity * BLOCK_VOXELS - 1).bit_length(), 1))
         step_scan = wp.array(np.repeat(np.arange(num_scans, dtype=np.int32), np.diff(scan_steps)), dtype=wp.int32,
                              device=device)
         group_scan = wp.empty(2 * total, dtype=wp.int32, device=device)
         group_entry = wp.empty(2 * total, dtype=wp.int32, device=device)
-        scan_groups = wp.zeros(num_scans, dtype=wp.int32, device=device)
+        scan_groups = wp.zeros(num_scans + 1, dtype=wp.int32, device=device)  # the last one stays 0
         wp.launch(confidence.flag_scan_groups, dim=total, inputs=[keys, order, step_scan, num_scans],
                   outputs=[group_scan, group_entry, scan_groups], device=device)
         wp.utils.radix_sort_pairs(group_scan, group_entry, total, end_bit=max(int(num_scans).bit_length(), 1))
-        first_group = np.zeros(num_scans + 1, np.int64)
-        np.cumsum(scan_groups.numpy(), out=first_group[1:])
+        first_group = wp.empty(num_scans + 1, dtype=wp.int32, device=device)
+        wp.utils.array_scan(scan_groups, first_group, inclusive=False)
         scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
                    wp.empty(total, dtype=wp.float64, device=device)]  # S_i
         factors = wp.empty(total, dtype=wp.vec2f, device=device)
@@ -391,10 +393,10 @@ class ConfidenceMap:
                 wp.launch(confidence.compute_beam_factors, dim=int(beam_hi) - beam_lo,
                           inputs=[beam_lo, d_first, d_returned, step_voxel, step_likelihood, layers["mean"],
                                   *model], outputs=[*scratch, factors], device=device)
-            groups = int(first_group[scan + 1] - first_group[scan])
-            if groups:
-                wp.launch(self._kernels.apply_scan_groups, dim=groups,
-                          inputs=[int(first_group[scan]), group_entry, keys, order, step_scan, total, factors,
+            steps_of_scan = int(scan_steps[scan + 1] - scan_steps[scan])
+            if steps_of_scan:
+                wp.launch(self._kernels.apply_scan_groups, dim=steps_of_scan,
+                          inputs=[scan, first_group, group_entry, keys, order, step_scan, total, factors,
                                   np.float32(cfg.bin_floor)],
                           outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device)
             beam_lo = int(beam_hi)
