@@ -416,7 +416,6 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             return
         j = group_entry[first_group[scan] + tid]
         v = keys[j]
-        scan = step_scan[order[j]]
         while j < count:
             if keys[j] != v or step_scan[order[j]] != scan:
                 break
