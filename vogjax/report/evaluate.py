@@ -67,7 +67,7 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         # T^-1 applied: where each truth voxel sits in the maps; scored over the truth voxels
         # the registered online map or the standard map observed
         sampled = (all_centres - T[:3, 3]) @ T[:3, :3]
-        seen = (result.global_map.log_odds(sampled) != 0) | standard_seen
+        seen = (maps["online"].log_odds(sampled) != 0) | standard_seen
         labels = all_occupied[seen]
         if labels.any() and not labels.all():
             aligned_online = roc(maps["online"].probability(sampled[seen]), labels)
