@@ -44,6 +44,13 @@ def test_matches_brute_force_reference(changes):
     np.testing.assert_allclose(variance, moments[:, 1], atol=2e-6)
 
 
+@pytest.mark.parametrize("num_bins", [3, 13])
+def test_bin_counts_off_the_sums_four_lanes_match_the_reference(num_bins):
+    """bin_sum adds bins in four lanes: counts that leave one to three bins over (13), or that
+    fill no lane group at all (3), sum every bin once."""
+    test_matches_brute_force_reference({"num_bins": num_bins})
+
+
 def test_reference_with_the_sensor_model_of_the_paper():
     """cause_range "centre" and no spurious readings: exactly the paper's Eqs. 14-27."""
     test_matches_brute_force_reference({"cause_range": "centre", "spurious_probability": 0.0, "num_bins": 16})
