@@ -14,6 +14,8 @@ import numpy as np
 
 # Below this many items a launch is not worth splitting.
 MIN_ITEMS_PER_PART = 2048
+# The most threads a launch is split across (os.cpu_count() asked once, not at every launch).
+CPU_THREADS = min(os.cpu_count() or 1, 8)
 
 _executor: concurrent.futures.ThreadPoolExecutor | None = None
 
@@ -22,7 +24,7 @@ def num_parts(device, count: int) -> int:
     """How many parts a launch over `count` items is split into on `device`."""
     if device.is_cuda:
         return 1
-    return int(max(1, min(os.cpu_count() or 1, 8, count // MIN_ITEMS_PER_PART)))
+    return int(max(1, min(CPU_THREADS, count // MIN_ITEMS_PER_PART)))
 
 
 def split_launch(launch, count: int, parts: int) -> None:
@@ -36,7 +38,7 @@ def split_launch(launch, count: int, parts: int) -> None:
     if _executor is None:
         _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1,
                                                           thread_name_prefix="vogjax")
-    edges = np.linspace(0, count, parts + 1).astype(int)
+    edges = [count * part // parts for part in range(parts + 1)]  # integers: no float rounding
     futures = [_executor.submit(launch, part, lo, hi)
                for part, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))]
     for future in futures:
