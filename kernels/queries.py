@@ -101,13 +101,15 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
               inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
               table_slots: wp.array(dtype=wp.int32), grid_lo: wp.vec3i, grid_hi: wp.vec3i,
               grid_dims: wp.vec3i, grid: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
-              hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+              look_up_every_step: int, hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
               num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
     """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range
     (max_ranges: one per ray, or one for all), and the FREE and UNKNOWN voxels passed before it.
 
     Voxel states come from classify_blocks. The map's blocks lie in [grid_lo, grid_hi] (block
-    coordinates); with grid_dims > 0 a dense grid gives each block's slot in one load. Outside
+    coordinates); with grid_dims > 0 a dense grid gives each block's slot in one load, and with
+    look_up_every_step that load is made at every step instead of on entering a block (on a
+    CPU, a branch mispredicted at every block crossing costs more than the load). Outside
     that box every voxel is unknown: a ray
     skips a long stretch before it (`ray_voxel_at`) and counts the rest after it
     (`ray_voxels_until`) without walking, so its cost is bounded by the map, not the range.
@@ -129,12 +131,11 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     found = bool(False)
     t_hit = max_range
     # ray_walk_begin's walk and walk_step's choice, on scalars; the block's states are looked up
-    # only when a step crosses into another block
+    # at every step (look_up_every_step) or when the walk is in another block than before
     x, y, z = w.voxel[0], w.voxel[1], w.voxel[2]
     tx, ty, tz = w.t_max[0], w.t_max[1], w.t_max[2]
     dx, dy, dz = w.t_delta[0], w.t_delta[1], w.t_delta[2]
     sx, sy, sz = w.step[0], w.step[1], w.step[2]
-    ex, ey, ez = (sx >> 1) & 7, (sy >> 1) & 7, (sz >> 1) & 7  # local coordinate on entering a block
     t_entry = wp.float64(0.0)
     steps = int(0)
     if span[0] > wp.float64(0.0) and span[0] < t_end:  # a long unknown stretch before the map: skip it
@@ -150,7 +151,10 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
             tx, ty, tz = t[0], t[1], t[2]
     t_after = span[1]
     base = int(-1)  # states index of the current block; -1: no block there
-    crossed = bool(True)
+    block = wp.vec3i(x >> 3, y >> 3, z >> 3)
+    looked_up = bool(False)
+    dense = grid_dims[0] > 0
+    every_step = dense and look_up_every_step != 0
     while t_entry < t_end and steps <= w.max_steps:
         if t_entry > t_after:  # past the map: count the rest of a long stretch
             t_after = FAR
@@ -158,10 +162,15 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
             if n > SKIP_VOXELS:
                 unknown += n
                 break
-        if crossed:
-            slot = int(-1)
-            if grid_dims[0] > 0:
-                slot = grid_slot(wp.vec3i(x >> 3, y >> 3, z >> 3), grid_lo, grid_dims, grid)
+        slot = int(-1)
+        if every_step:
+            slot = grid_slot(wp.vec3i(x >> 3, y >> 3, z >> 3), grid_lo, grid_dims, grid)
+            base = wp.where(slot < 0, -1, slot * 32)
+        elif not looked_up or (x >> 3) != block[0] or (y >> 3) != block[1] or (z >> 3) != block[2]:
+            block = wp.vec3i(x >> 3, y >> 3, z >> 3)
+            looked_up = True
+            if dense:
+                slot = grid_slot(block, grid_lo, grid_dims, grid)
             else:
                 slot = find_voxel_slot(table_keys, table_slots, wp.vec3i(x, y, z))
             base = wp.where(slot < 0, -1, slot * 32)
@@ -172,25 +181,21 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
             found = True
             t_hit = t_entry
             break
-        if state == 1:
-            free += 1
-        else:
-            unknown += 1
+        # counted without a branch: free and unknown voxels alternate unpredictably
+        free += wp.where(state == 1, 1, 0)
+        unknown += wp.where(state == 1, 0, 1)
         if tx < ty and tx < tz:
             t_entry = tx
             x += sx
             tx += dx
-            crossed = (x & 7) == ex
         elif ty < tz:
             t_entry = ty
             y += sy
             ty += dy
-            crossed = (y & 7) == ey
         else:
             t_entry = tz
             z += sz
             tz += dz
-            crossed = (z & 7) == ez
         steps += 1
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)

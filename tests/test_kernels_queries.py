@@ -1,5 +1,6 @@
-"""Ray casts through the block grid and through the hash table agree with the step-by-step
-reference, and the grid follows the blocks as the map grows."""
+"""Ray casts through the block grid (read at every step, as on a CPU, or on entering a block, as on
+a GPU) and through the hash table agree with the step-by-step reference, and the grid follows the
+blocks as the map grows."""
 
 import numpy as np
 
@@ -23,6 +24,9 @@ def test_grid_and_hash_paths_match_the_reference_as_the_map_grows(monkeypatch):
             ref.insert_scan(cells, o[k], p[s == k], cfg)
         expected = [ref.raycast(cells, a, b, r, cfg) for a, b, r in zip(origins, directions, ranges)]
         results = [vmap.raycast(origins, directions, ranges)]
+        with monkeypatch.context() as m:
+            m.setattr(vmap, "_look_up_every_step", not vmap._look_up_every_step)  # the other device's way
+            results.append(vmap.raycast(origins, directions, ranges))
         with monkeypatch.context() as m:
             m.setattr(blocks, "GRID_CELLS", 0)  # no dense grid: blocks found by hashing
             vmap.store._grid = None

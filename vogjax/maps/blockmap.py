@@ -55,6 +55,11 @@ class BlockMap:
         self._values_revision = 0  # counts writes of log-odds, for the ray-cast state cache
         self._states = None  # (key, uint32 array): voxel states packed for ray casts
         self._states_lock = threading.Lock()
+        # Ray casts read the block grid at every step on a CPU (a branch at each block crossing
+        # mispredicts there and costs more than the load), on entering a block on a GPU (where
+        # the load would be a second dependent read per step). Both give the same bits; tests
+        # run both on the CPU.
+        self._look_up_every_step = not self.device.is_cuda
 
     @property
     def store(self) -> BlockStore:
@@ -198,7 +203,8 @@ class BlockMap:
             wp.launch(queries.cast_rays, dim=hi - lo,
                       inputs=[origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
                               np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
-                              store.table_keys, store.table_slots, *grid_inputs, states],
+                              store.table_keys, store.table_slots, *grid_inputs, states,
+                              int(self._look_up_every_step)],
                       outputs=[a[lo:hi] for a in out.values()], device=device)
 
         with self._lock.reading():
