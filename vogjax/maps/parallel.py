@@ -29,33 +29,32 @@ def num_parts(device, count: int) -> int:
 
 def split_launch(launch, count: int, parts: int) -> None:
     """Call launch(part, lo, hi) for `parts` contiguous ranges of [0, count), concurrently."""
-    global _executor
     if count == 0:
         return
-    if parts <= 1:
-        launch(0, 0, count)
-        return
-    if _executor is None:
-        _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1,
-                                                          thread_name_prefix="vogjax")
+    parts = max(parts, 1)
     edges = [count * part // parts for part in range(parts + 1)]  # integers: no float rounding
-    futures = [_executor.submit(launch, part, lo, hi)
-               for part, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))]
-    for future in futures:
-        future.result()
+    _run(launch, [(part, lo, hi) for part, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))])
 
 
 def launch_ranges(launch, ranges: list) -> None:
     """Call launch(part, lo, hi) for each (lo, hi) of `ranges`, concurrently."""
+    _run(launch, [(part, int(lo), int(hi)) for part, (lo, hi) in enumerate(ranges) if hi > lo])
+
+
+def _run(launch, ranges: list) -> None:
+    """launch(part, lo, hi) for each range: the first on the calling thread, which would only wait
+    otherwise (a hand-off to a pool thread and back costs about 0.1 ms a launch), the others on
+    the pool. Every one has finished when this returns, also when one raised."""
     global _executor
-    ranges = [(part, int(lo), int(hi)) for part, (lo, hi) in enumerate(ranges) if hi > lo]
-    if len(ranges) <= 1:
-        for part, lo, hi in ranges:
-            launch(part, lo, hi)
+    if not ranges:
         return
-    if _executor is None:
+    if len(ranges) > 1 and _executor is None:
         _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
-    futures = [_executor.submit(launch, part, lo, hi) for part, lo, hi in ranges]
+    futures = [_executor.submit(launch, *r) for r in ranges[1:]]
+    try:
+        launch(*ranges[0])
+    finally:
+        concurrent.futures.wait(futures)  # no launch left running into arrays the caller drops
     for future in futures:
         future.result()
 

@@ -1,0 +1,53 @@
+"""Splitting CPU launches across threads: every item once, and nothing left running on return."""
+
+import threading
+import time
+
+import pytest
+
+from vogjax.maps import parallel
+
+
+@pytest.mark.parametrize("count, parts", [(1, 1), (7, 3), (10, 4), (2048, 2), (5, 8), (100, 0)])
+def test_split_launch_covers_every_item_once_in_contiguous_parts(count, parts):
+    calls = []
+    lock = threading.Lock()
+
+    def launch(part, lo, hi):
+        with lock:
+            calls.append((part, lo, hi, threading.current_thread()))
+
+    parallel.split_launch(launch, count, parts)
+    calls.sort()
+    covered = [i for _, lo, hi, _ in calls for i in range(lo, hi)]
+    assert covered == list(range(count))
+    assert [c[0] for c in calls] == list(range(max(parts, 1)))
+    assert calls[0][3] is threading.current_thread()  # the first part runs on the caller's thread
+
+
+def test_a_failing_part_is_raised_after_every_other_part_has_finished():
+    finished = []
+
+    def launch(part, lo, hi):
+        if part == 0:
+            raise RuntimeError("part 0 failed")
+        time.sleep(0.05)
+        finished.append(part)
+
+    with pytest.raises(RuntimeError, match="part 0"):
+        parallel.launch_ranges(launch, [(0, 1), (1, 2), (2, 3)])
+    assert sorted(finished) == [1, 2]
+
+
+def test_a_failing_pool_part_is_raised_once_all_have_finished():
+    finished = []
+
+    def launch(part, lo, hi):
+        if part == 1:
+            raise ValueError("part 1 failed")
+        time.sleep(0.05 * part)
+        finished.append(part)
+
+    with pytest.raises(ValueError, match="part 1"):
+        parallel.launch_ranges(launch, [(0, 1), (1, 2), (2, 3)])
+    assert sorted(finished) == [0, 2]
