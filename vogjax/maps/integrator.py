@@ -123,10 +123,12 @@ def _give(scratch: Scratch) -> None:
 
 
 def beams(device, origins: np.ndarray, points: np.ndarray, scan_index: np.ndarray) -> Beams:
-    """Device copies of a validated batch (scan_index sorted)."""
-    return Beams(wp.array(origins, dtype=wp.vec3f, device=device),
-                 wp.array(points, dtype=wp.vec3f, device=device),
-                 wp.array(scan_index, dtype=wp.int32, device=device), scan_index, points, origins)
+    """A validated batch (scan_index sorted) on the device: copies on a GPU; on a CPU, Warp
+    arrays over the contiguous float32 / int32 host arrays (the kernels only read them)."""
+    copy = device.is_cuda
+    return Beams(wp.array(origins, dtype=wp.vec3f, device=device, copy=copy),
+                 wp.array(points, dtype=wp.vec3f, device=device, copy=copy),
+                 wp.array(scan_index, dtype=wp.int32, device=device, copy=copy), scan_index, points, origins)
 
 
 def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass: int,
