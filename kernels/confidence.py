@@ -328,8 +328,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     @wp.func
     def bin_sum(b: Bins) -> wp.float32:
         """The sum of the bins in four interleaved running sums, added pairwise at the end: a
-        fixed order (the same bits on every device) with a quarter of the dependent additions
-        of one running sum, which made the end-of-scan renormalisation a third of the update."""
+        fixed order (both paths of a device give the same bits) with a quarter of the dependent
+        additions of one running sum, which made the end-of-scan renormalisation a third of the
+        update."""
         p = wp.vec4f(wp.float32(0.0))
         for j in range(QUADS):
             p = p + wp.vec4f(b[4 * j], b[4 * j + 1], b[4 * j + 2], b[4 * j + 3])

@@ -86,7 +86,7 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
     # 288 (9 words) with apply_marks, the GPU's kernel
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", scans_per_pass)
     monkeypatch.setattr(voxelmap, "SCANS_PER_PASS_CUDA", scans_per_pass)
-    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 4)  # parts to OR even on a one-core runner
+    monkeypatch.setattr(parallel, "CPU_THREADS", 4)  # parts to OR even on a one-core runner
     replayed = []  # words per voxel of each replay: long passes must not have been split
     apply = integrator._apply
     monkeypatch.setattr(integrator, "_apply", lambda *args, **kw: replayed.append(args[4]) or apply(*args, **kw))

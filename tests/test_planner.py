@@ -167,7 +167,7 @@ def test_view_gain_splits_across_cores_without_changing_counts(monkeypatch):
     monkeypatch.setattr(parallel, "MIN_ITEMS_PER_PART", 10**9)  # one part
     whole = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0)
     monkeypatch.setattr(parallel, "MIN_ITEMS_PER_PART", 16)
-    monkeypatch.setattr(parallel.os, "cpu_count", lambda: 4)
+    monkeypatch.setattr(parallel, "CPU_THREADS", 4)
     split = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0)
     np.testing.assert_array_equal(whole.unknown, split.unknown)
     np.testing.assert_array_equal(whole.free, split.free)
