@@ -51,3 +51,26 @@ def test_a_failing_pool_part_is_raised_once_all_have_finished():
     with pytest.raises(ValueError, match="part 1"):
         parallel.launch_ranges(launch, [(0, 1), (1, 2), (2, 3)])
     assert sorted(finished) == [0, 2]
+
+
+def test_a_part_that_splits_again_runs_its_parts_without_deadlocking_the_pool():
+    """Every pool thread busy with an outer part that splits again: the inner parts run on the
+    threads that asked for them (queued behind the busy workers they would wait forever)."""
+    outer = max(2, parallel.CPU_THREADS + 1)
+    seen = []
+    lock = threading.Lock()
+
+    def inner(part, lo, hi):
+        with lock:
+            seen.append((lo, hi))
+
+    def outer_part(part, lo, hi):
+        time.sleep(0.02)  # keep every worker busy at once
+        parallel.split_launch(inner, 8, 4)
+
+    done = threading.Event()
+    worker = threading.Thread(target=lambda: (parallel.split_launch(outer_part, outer, outer), done.set()),
+                              daemon=True)
+    worker.start()
+    assert done.wait(timeout=30), "nested split launches deadlocked"
+    assert sorted(seen) == sorted([(2 * i, 2 * i + 2) for i in range(4)] * outer)

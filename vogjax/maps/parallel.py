@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import os
+import threading
 
 import numpy as np
 
@@ -44,19 +45,36 @@ def launch_ranges(launch, ranges: list) -> None:
 def _run(launch, ranges: list) -> None:
     """launch(part, lo, hi) for each range: the first on the calling thread, which would only wait
     otherwise (a hand-off to a pool thread and back costs about 0.1 ms a launch), the others on
-    the pool. Every one has finished when this returns, also when one raised."""
+    the pool. Every one has finished when this returns, also when one raised. Called from a pool
+    thread (a part that splits again), every range runs on that thread: waiting there for parts
+    queued behind busy workers could deadlock the pool."""
     global _executor
     if not ranges:
         return
-    if len(ranges) > 1 and _executor is None:
+    if len(ranges) == 1 or getattr(_worker, "active", False):
+        for r in ranges:
+            launch(*r)
+        return
+    if _executor is None:
         _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
-    futures = [_executor.submit(launch, *r) for r in ranges[1:]]
+    futures = [_executor.submit(_on_worker, launch, r) for r in ranges[1:]]
     try:
         launch(*ranges[0])
     finally:
         concurrent.futures.wait(futures)  # no launch left running into arrays the caller drops
     for future in futures:
         future.result()
+
+
+_worker = threading.local()
+
+
+def _on_worker(launch, r: tuple) -> None:
+    _worker.active = True
+    try:
+        launch(*r)
+    finally:
+        _worker.active = False
 
 
 def disjoint_order(spans: np.ndarray, parts: int) -> tuple[np.ndarray, list]:
