@@ -387,19 +387,30 @@ class ConfidenceMap:
         scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
                    wp.empty(total, dtype=wp.float64, device=device)]  # S_i
         factors = wp.empty(total, dtype=wp.vec2f, device=device)
+        # Two launches a scan, of the same arguments but the scan's: recorded once, each scan then
+        # sets its numbers and dimension (about 5 us a launch instead of 29 for a full wp.launch,
+        # the host's share of a scan otherwise).
+        factors_of_scan = wp.launch(
+            confidence.compute_beam_factors, dim=1,
+            inputs=[0, 0, d_first, d_returned, step_voxel, step_likelihood, layers["mean"], *model],
+            outputs=[*scratch, factors], device=device, record_cmd=True)
+        groups_of_scan = wp.launch(
+            self._kernels.apply_scan_groups, dim=1,
+            inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor)],
+            outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device, record_cmd=True)
         beam_lo = 0
-        for scan, beam_hi in enumerate(scan_ends):
+        for scan, beam_hi in enumerate(scan_ends.tolist()):
             if beam_hi > beam_lo:
-                wp.launch(confidence.compute_beam_factors, dim=int(beam_hi) - beam_lo,
-                          inputs=[beam_lo, d_first, d_returned, step_voxel, step_likelihood, layers["mean"],
-                                  *model], outputs=[*scratch, factors], device=device)
+                factors_of_scan.set_dim(beam_hi - beam_lo)
+                factors_of_scan.set_param_at_index_from_ctype(0, beam_lo)
+                factors_of_scan.set_param_at_index_from_ctype(1, beam_hi)
+                factors_of_scan.launch()
             steps_of_scan = int(scan_steps[scan + 1] - scan_steps[scan])
             if steps_of_scan:
-                wp.launch(self._kernels.apply_scan_groups, dim=steps_of_scan,
-                          inputs=[scan, first_group, group_entry, keys, order, step_scan, total, factors,
-                                  np.float32(cfg.bin_floor)],
-                          outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device)
-            beam_lo = int(beam_hi)
+                groups_of_scan.set_dim(steps_of_scan)
+                groups_of_scan.set_param_at_index_from_ctype(0, scan)
+                groups_of_scan.launch()
+            beam_lo = beam_hi
 
     # ---------------------------------------------------------------- point queries
     def _moments(self, points) -> tuple[np.ndarray, np.ndarray]:
