@@ -259,18 +259,15 @@ def cause_factor(likelihood: wp.float64, tail: wp.float64, before: wp.float64, r
 
 
 @wp.kernel
-def compute_beam_factors(first_beam: int, end_beam: int, beam_first_step: wp.array(dtype=wp.int32),
+def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int32),
                          returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
                          step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
                          prior_mean: wp.float32, spurious: wp.float64, spurious_likelihood: wp.float64,
                          step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
                          step_factor: wp.array(dtype=wp.vec2f)):
-    """The factors of beams [first_beam, end_beam), one per thread (one scan's beams: they all
-    read the means before it). Launched over the most beams a scan of the pass has."""
+    """The factors of beams first_beam + tid (one scan's beams: they all read the means before it)."""
     tid = wp.tid()
     beam = first_beam + tid
-    if beam >= end_beam:
-        return
     lo = beam_first_step[beam]
     hi = beam_first_step[beam + 1]
     hit = returned[beam] != 0

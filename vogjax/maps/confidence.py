@@ -392,7 +392,7 @@ class ConfidenceMap:
         # the host's share of a scan otherwise).
         factors_of_scan = wp.launch(
             confidence.compute_beam_factors, dim=1,
-            inputs=[0, 0, d_first, d_returned, step_voxel, step_likelihood, layers["mean"], *model],
+            inputs=[0, d_first, d_returned, step_voxel, step_likelihood, layers["mean"], *model],
             outputs=[*scratch, factors], device=device, record_cmd=True)
         groups_of_scan = wp.launch(
             self._kernels.apply_scan_groups, dim=1,
@@ -403,7 +403,6 @@ class ConfidenceMap:
             if beam_hi > beam_lo:
                 factors_of_scan.set_dim(beam_hi - beam_lo)
                 factors_of_scan.set_param_at_index_from_ctype(0, beam_lo)
-                factors_of_scan.set_param_at_index_from_ctype(1, beam_hi)
                 factors_of_scan.launch()
             steps_of_scan = int(scan_steps[scan + 1] - scan_steps[scan])
             if steps_of_scan:
