@@ -1,14 +1,34 @@
-"""Warp kernels of vogjax, one module per family: hashing, traversal, integration, queries,
-fixed_point and submap_view (shared by the two maps over submaps), accumulation (global map),
-virtual (virtual map), ranging (simulated range sensors), ground_truth (scene labels),
-registration (the SLAM front end: correlative scores, ICP's nearest neighbours).
+"""Warp kernels of vogjax, one module per family (16 modules; 12 define kernels, the other four
+only Warp functions, structs and constants):
+
+- hashing, traversal: the block hash table and exact voxel walks, shared by every family;
+- integration, queries: the log-odds map's updates and look-ups and ray casts;
+- fixed_point and submap_view: shared by the two maps over submaps; accumulation (global map),
+  virtual (virtual map);
+- confidence, confidence_queries: the confidence-rich map's updates and queries;
+- planner_maps (how the planner reads any map), view_gain, planner_collision: the planner;
+- ranging (simulated range sensors), ground_truth (scene labels), registration (the SLAM front
+  end: correlative scores, ICP's nearest neighbours).
 
 Kernels take the map's arrays and write their outputs last; the Python classes in `vogjax`
-own the arrays and launch them.
+own the arrays and launch them. The planner's three modules are imported on first use
+(`vogjax.kernels.view_gain`, or `vogjax.planner`), the others with this package.
 """
 
-from . import (accumulation, fixed_point, ground_truth, hashing, integration, queries, ranging, registration,
-               submap_view, traversal, virtual)
+from . import (accumulation, confidence, confidence_queries, fixed_point, ground_truth, hashing, integration, queries,
+               ranging, registration, submap_view, traversal, virtual)
 
-__all__ = ["accumulation", "fixed_point", "ground_truth", "hashing", "integration", "queries", "ranging",
-           "registration", "submap_view", "traversal", "virtual"]
+_LAZY = ("planner_collision", "planner_maps", "view_gain")
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["accumulation", "confidence", "confidence_queries", "fixed_point", "ground_truth", "hashing", "integration",
+           "planner_collision", "planner_maps", "queries", "ranging", "registration", "submap_view", "traversal",
+           "view_gain", "virtual"]

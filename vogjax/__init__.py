@@ -6,11 +6,12 @@ from vogjax.maps import (FREE, OCCUPIED, UNKNOWN, ConfidenceMap, GlobalMap, Rayc
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("config", "devices", "geometry", "io", "maps", "pipeline", "report", "scenes", "sensors", "sim", "slam")
+_SUBPACKAGES = ("config", "devices", "geometry", "io", "kernels", "maps", "pipeline", "planner", "report", "scenes",
+                "sensors", "sim", "slam")
 
 
 def __getattr__(name):
-    # vj.slam, vj.sim, vj.pipeline, ...: imported on first use (GTSAM, MJX and h5py are heavy)
+    # vj.slam, vj.sim, vj.pipeline, vj.planner, ...: imported on first use (GTSAM, MJX and h5py are heavy)
     if name in _SUBPACKAGES:
         import importlib
 

@@ -11,7 +11,10 @@ from vogjax.commands.simulation import scene_help
 def add_parser(commands) -> None:
     explore = commands.add_parser("explore", help="explore a built-in scene with the next-best-view planner")
     explore.add_argument("--scene", required=True, help=scene_help())
-    explore.add_argument("--submaps", type=int, required=True, help="stop once this many submaps are finished")
+    explore.add_argument("--submaps", type=int, required=True,
+                         help="stop once this many submaps are finished, checked before each plan: the initial "
+                              "turn in place and each flown edge run in full first, and the submap being filled "
+                              "at the stop is finished too, so a run can end with more")
     explore.add_argument("--out", type=Path, required=True, help="run file to write (HDF5); RUN.explore.csv beside it")
     explore.add_argument("--map", default="global", choices=("global", "virtual", "standard"),
                          help="the map the planner plans on: the online global map (default), the virtual "
@@ -19,8 +22,9 @@ def add_parser(commands) -> None:
     explore.add_argument("--seed", type=int, default=0, help="seed of the planner, navigation and range noise")
     explore.add_argument("--config", type=Path, default=None,
                          help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
-                              "the scene) and the tables of `vogjax map` ([map], [nav_noise], [loop_closure], "
-                              "[pipeline])")
+                              "the scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
+                              "[loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [timing], "
+                              "[pipeline]; not [report]")
     explore.add_argument("--overwrite", action="store_true", help="replace --out (and its CSV) if it exists")
     explore.add_argument("--quiet", action="store_true", help="no progress bar")
 

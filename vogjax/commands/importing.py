@@ -16,12 +16,17 @@ def add_parser(commands) -> None:
                           "/tf_static or /tf (default: the points are in the child frame)")
     bag.add_argument("--max-range", type=float, default=None,
                      help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)")
+    bag.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     bag.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args) -> None:
     from vogjax.io.rosbag import import_bag
 
+    # as `vogjax simulate` does: an existing run is refused before the bag is read (import_bag
+    # then checks, with io.atomic.check_writable, that --out can be published)
+    if args.out.exists() and not args.overwrite:
+        raise ValueError(f"out {str(args.out)!r} exists (pass --overwrite to replace it)")
     summary = import_bag(args.bag, args.out, args.points, args.odometry, frame=args.frame,
                          max_range_m=args.max_range, progress=not args.quiet)
     dropped = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in summary.dropped.items()) or "none"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 
@@ -18,7 +19,16 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     from vogjax.report.viewer import view
 
-    logged = view(args.path, save=args.save)
+    try:
+        logged = view(args.path, save=args.save)
+    except RuntimeError as error:
+        # rerun spawns its viewer from PATH ("Failed to find Rerun Viewer executable in PATH"):
+        # with `.venv/bin/vogjax` run directly, the venv's bin (which holds `rerun`) is not on it
+        if args.save is not None or "rerun" not in str(error).lower():
+            raise
+        first = (str(error).strip().splitlines() or [""])[0].strip()  # rerun goes on with install hints
+        raise ValueError(f"cannot open the rerun viewer ({first}); write the recording with --save FILE.rrd "
+                         f"(`rerun FILE.rrd` shows it), or put {Path(sys.executable).parent} on PATH") from None
     boxes = sum(n for entity, n in logged.items() if entity.endswith("map/occupied"))
     where = f"wrote {args.save}" if args.save else "sent to the rerun viewer"
     print(f"{where}: {boxes} occupied voxels, entities: {', '.join(sorted(logged))}")

@@ -10,7 +10,7 @@ What is logged (entity paths):
   timeline (and `scan`, the submap's first scan), the newest base as a point;
 - `loop_closures`: a line between the optimised bases of each accepted closure (from
   loop_closures.csv, columns i and k, when the folder has one), shown from submap k on;
-- `timing/online_update_ms`, `timing/virtual_update_ms`, `timing/full_merge_ms`: the report's
+- `timing/online_update_ms`, `timing/virtual_update_ms`, `timing/full_merge_update_ms`: the report's
   cumulative average update time per submap, on the `submap` timeline;
 - `report`: the headline figures of report.json as text.
 A folder holding several runs' folders (the `--out` of `vogjax map` for many runs) logs each under
