@@ -512,7 +512,7 @@ def test_voxelmap_line_query(warm, args):
 # ------------------------------------------------------------------------------ MapConfig
 
 MAP_FIELDS = {
-    "voxel_size": st.sampled_from([0.1, 0.25, 1e-4, 9e-5, 0.0, -0.1, 1e300, 5e-324]),
+    "voxel_size": st.sampled_from([0.1, 0.25, 1e-4, 9e-5, 0.0, -0.1, 1e300, 5e-324, 1000.0, 1000.5]),
     "prob_hit": st.sampled_from([0.75, 0.5, 0.51, 1.0, 0.0, 0.99999, 1.5]),
     "prob_miss": st.sampled_from([0.2, 0.5, 0.49, 0.0, 1e-300, -0.1]),
     "occupied_threshold": st.sampled_from([0.7, 0.3, 1.0, 0.0, 0.5]),
@@ -528,7 +528,7 @@ def map_rules_hold(f: dict) -> bool:
     """MapConfig's documented rules, written out independently."""
     def p(x):
         return 0 < x < 1
-    return (f["voxel_size"] >= 1e-4 and p(f["prob_hit"]) and p(f["prob_miss"]) and p(f["occupied_threshold"])
+    return (1e-4 <= f["voxel_size"] <= 1000 and p(f["prob_hit"]) and p(f["prob_miss"]) and p(f["occupied_threshold"])
             and p(f["free_threshold"]) and 0 <= f["clamp_min"] < 1 and 0 < f["clamp_max"] <= 1
             and f["max_range"] > 0 and f["prob_miss"] < 0.5 < f["prob_hit"]
             and f["free_threshold"] <= f["occupied_threshold"] and f["clamp_min"] < f["clamp_max"]
@@ -977,8 +977,8 @@ def test_confidence_map_queries(warm, data):
 
 
 CRM_FIELDS = {
-    "voxel_size": st.sampled_from([0.1, 1e-4, 0.0, 1e300]),
-    "max_range": st.sampled_from([11.0, 0.0, 1e300, 7.2e7]),
+    "voxel_size": st.sampled_from([0.1, 1e-4, 0.0, 1e300, 1000.0, 1000.5]),
+    "max_range": st.sampled_from([11.0, 0.0, 1e300, 7.2e7, 409.6, 409.7]),
     "range_sigma_m": st.sampled_from([0.05, 0.0, 1e300, 1e-300]),
     "cause_range": st.sampled_from(["chord", "centre", "center", ""]),
     "num_bins": st.sampled_from([16, 2, 1, 64, 65, 16.0]),
@@ -991,7 +991,8 @@ CRM_FIELDS = {
 
 
 def crm_rules_hold(f: dict) -> bool:
-    return (f["voxel_size"] >= 1e-4 and f["max_range"] > 0 and f["range_sigma_m"] > 0
+    return (1e-4 <= f["voxel_size"] <= 1000 and 0 < f["max_range"] <= MAX_RANGE_VOXELS * f["voxel_size"]
+            and f["range_sigma_m"] > 0
             and f["cause_range"] in ("chord", "centre") and isinstance(f["num_bins"], int)
             and 2 <= f["num_bins"] <= 64 and 0 <= f["spurious_probability"] < 1 and 0.5 <= f["cone_sigmas"] <= 10
             and 0 < f["bin_floor"] <= 0.01 and 0 < f["occupied_threshold"] < 1 and 0 < f["free_threshold"] < 1

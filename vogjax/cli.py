@@ -23,6 +23,10 @@ def main(argv=None) -> int:
     except ValueError as error:
         print(f"vogjax {args.command}: error: {str(error).replace(chr(10), ' ')}", file=sys.stderr)
         raise SystemExit(2) from None
+    except OSError as error:  # what the early checks cannot foresee: a full disk, a read-only mount
+        where = f"{error.filename!r}: " if error.filename else ""
+        print(f"vogjax {args.command}: error: {where}{error.strerror or error}", file=sys.stderr)
+        raise SystemExit(2) from None
     return 0
 
 

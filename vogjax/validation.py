@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
+
+from vogjax.config.schema import finite_real
 
 
 def real_array(name: str, value, dtype=np.float64) -> np.ndarray:
@@ -29,7 +30,8 @@ def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
         raise ValueError(f"{name} must have shape {wanted}, got {array.shape}")
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{name} contains NaN or infinite values")
-    return np.ascontiguousarray(array, dtype=dtype)
+    with np.errstate(over="ignore"):  # beyond float32: inf, refused by key-range checks, unknown to look-ups
+        return np.ascontiguousarray(array, dtype=dtype)
 
 
 def positive_range(name: str, value, count: int) -> np.ndarray:
@@ -37,7 +39,7 @@ def positive_range(name: str, value, count: int) -> np.ndarray:
     if np.isscalar(value):
         if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
             raise ValueError(f"{name} must be a number or an array of numbers, got {value!r}")
-        if not (math.isfinite(value) and value > 0):
+        if not (finite_real(value) and value > 0):
             raise ValueError(f"{name} must be positive and finite, got {value!r}")
         return np.full(count, float(value), dtype=np.float64)
     array = float_array(name, value, (count,), np.float64)
@@ -52,7 +54,7 @@ def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
         array = np.asarray(value)
     except Exception as error:  # ragged lists
         raise ValueError(f"{name} could not be read as an array: {error}") from None
-    if array.dtype.kind not in "iu":
+    if array.dtype.kind not in "iu" and not (array.size == 0 and array.dtype.kind == "f"):  # [] reads as float
         raise ValueError(f"{name} must hold integers, got dtype {array.dtype}")
     if array.shape != (count,):
         raise ValueError(f"{name} must have shape ({count},), got {array.shape}")

@@ -7,6 +7,7 @@ import functools
 
 import numpy as np
 
+from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.config.schema import Config, integer, number, positive, probability, text
 
 
@@ -16,7 +17,8 @@ class CrmConfig(Config):
 
     voxel_size:           edge of a voxel, metres; voxel k covers [k*s, (k+1)*s) on each axis
     max_range:            readings longer than this are "no return" (the cause lies beyond the
-                          sensor's reach), metres
+                          sensor's reach), metres; at most MAX_RANGE_VOXELS (4096) voxels, as
+                          for MapConfig: a beam's cone is walked and stored voxel by voxel
     range_sigma_m:        standard deviation of the range noise, metres (the paper's R = sigma^2;
                           its 2D experiment: R = 0.04 m^2, sigma = 0.2 m)
     cause_range:          where along a beam a cause voxel puts its reading: "chord", anywhere on
@@ -42,7 +44,7 @@ class CrmConfig(Config):
     free_threshold:       mean occupancy at or below which a voxel is FREE (between: UNKNOWN)
     """
 
-    voxel_size: float = number(0.1, low=1e-4)
+    voxel_size: float = number(0.1, low=1e-4, high=1e3)
     max_range: float = positive(11.0)
     range_sigma_m: float = positive(0.05)
     cause_range: str = text("chord", ("chord", "centre"))
@@ -58,6 +60,10 @@ class CrmConfig(Config):
             raise ValueError("CrmConfig.free_threshold must not exceed CrmConfig.occupied_threshold")
         if not self.bin_floor * self.num_bins < 0.5:
             raise ValueError("CrmConfig.bin_floor times CrmConfig.num_bins must stay below 0.5")
+        if self.max_range > MAX_RANGE_VOXELS * self.voxel_size:
+            raise ValueError(f"CrmConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
+                             f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
+                             f"each beam's cone is stored voxel by voxel, got {self.max_range!r}")
 
     # ---------------------------------------------------------------- the discretisation
     @functools.cached_property

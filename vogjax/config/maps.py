@@ -38,7 +38,7 @@ class MapConfig(Config):
     max_range:           beams longer than this give free space up to it and no hit, metres
     """
 
-    voxel_size: float = number(0.1, low=1e-4)
+    voxel_size: float = number(0.1, low=1e-4, high=1e3)
     prob_hit: float = probability(0.75)
     prob_miss: float = probability(0.2)
     occupied_threshold: float = probability(0.7)

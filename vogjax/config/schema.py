@@ -69,7 +69,7 @@ class Rule:
             return False
         if self.kind == "integer" and not isinstance(value, numbers.Integral):
             return False
-        if not math.isfinite(value):
+        if not finite_real(value):
             return False
         if self.low is not None and (value < self.low or (self.low_open and value == self.low)):
             return False
@@ -82,6 +82,14 @@ class Rule:
         if not self.accepts(value):
             raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
         return value
+
+
+def finite_real(value) -> bool:
+    """Whether a real number is finite as a float (an integer too large for a float is not)."""
+    try:
+        return math.isfinite(float(value))
+    except (OverflowError, ValueError, TypeError):
+        return False
 
 
 def _setting(default, rule: Rule, doc: str):
@@ -151,6 +159,10 @@ class Config:
                                      f"got {type(value).__name__}")
             else:
                 rule.check(f"{where}.{field.name}", value)
+                # NumPy scalars, Fractions and the like stored as plain float/int: they compare,
+                # hash and serialise (a map file's JSON header) like the values they stand for
+                if rule.kind in ("number", "integer") and value is not None and not isinstance(value, str):
+                    object.__setattr__(self, field.name, float(value) if rule.kind == "number" else int(value))
         self.check()
 
     def check(self) -> None:
@@ -241,6 +253,8 @@ def _replaced(config: Config, values, where: str) -> Config:
         if rule.none_spelled is not None and value == rule.none_spelled:
             value = None
         elif rule.kind == "number" and isinstance(value, int) and not isinstance(value, bool):
+            if not finite_real(value):  # an integer too large for a float
+                raise ValueError(f"{name} must be {rule.describe()}, got an integer of {len(str(abs(value)))} digits")
             value = float(value)
         if value is not None and not (isinstance(value, str) and rule.options) and not _has_type(rule, value):
             raise ValueError(f"{name} must be {_TYPE_NAMES[rule.kind]}, got {value!r}")

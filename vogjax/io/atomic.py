@@ -20,7 +20,15 @@ import os
 import re
 import shutil
 import sys
+import tempfile
 from pathlib import Path
+
+
+def as_path(value, name: str = "path") -> Path:
+    """`value` (str or path-like) as a Path; ValueError naming `name` for anything else."""
+    if not isinstance(value, (str, os.PathLike)) or str(value) == "":
+        raise ValueError(f"{name} must be a file path (str or os.PathLike), got {value!r}")
+    return Path(value)
 
 
 class AtomicPath:
@@ -30,7 +38,7 @@ class AtomicPath:
     """
 
     def __init__(self, target, folder: bool = False):
-        self.target = Path(target)
+        self.target = as_path(target)
         self.folder = folder
         check_writable(self.target, folder)
         if not self.target.parent.is_dir():
@@ -91,6 +99,8 @@ def check_writable(target, folder: bool = False) -> None:
     if target.exists() and target.is_dir() != folder:
         kind = "a folder" if target.is_dir() else "a file"
         raise ValueError(f"{str(target)!r} is {kind}; cannot replace it")
+    if target.exists() and not folder and not target.is_file():  # renaming over it would replace the node
+        raise ValueError(f"{str(target)!r} is a device, pipe or socket, not a regular file; cannot replace it")
     ancestor = target.parent
     while not ancestor.exists():
         ancestor = ancestor.parent
@@ -98,6 +108,12 @@ def check_writable(target, folder: bool = False) -> None:
         raise ValueError(f"{str(target)!r}: {str(ancestor)!r} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable")
+    try:  # os.access trusts the permission bits: root passes them on /proc or a read-only mount
+        with tempfile.TemporaryFile(dir=ancestor):
+            pass
+    except OSError as error:
+        raise ValueError(f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} "
+                         f"({error.strerror or error})") from None
 
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?P<old>\.old)?\.tmp$")

@@ -211,7 +211,7 @@ class Dataset:
         self.path = Path(path)
         where = f"path {str(self.path)!r}"
         if not self.path.is_file():
-            raise ValueError(f"{where} does not exist")
+            raise ValueError(f"{where} {'is not a file' if self.path.exists() else 'does not exist'}")
         try:
             self._file = h5py.File(self.path, "r")
         except OSError as error:
@@ -223,6 +223,8 @@ class Dataset:
             version = attrs["format_version"]
             if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):
                 raise ValueError(f"{where} is damaged: format_version {version!r} is no integer")
+            if version < 1:
+                raise ValueError(f"{where} is damaged: format_version {version} (no vogjax wrote it)")
             if version > FORMAT_VERSION:
                 raise ValueError(f"{where} has run format version {version}; this vogjax reads up to "
                                  f"{FORMAT_VERSION}: upgrade vogjax")
@@ -242,12 +244,14 @@ class Dataset:
             names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"]
             lengths = {name: self._file[name].shape[0] for name in names}
             self.beams = int(self._file["ranges"].shape[1])
+            if not 1 <= self.beams <= MAX_BEAMS:  # a small file may declare any shape
+                raise ValueError(f"{where} is damaged: {self.beams} beams per scan (at most {MAX_BEAMS})")
             for name in names:
                 shape, dtype = _FIELDS[name]
                 if self._file[name].shape[1:] != shape(self.beams) or self._file[name].dtype != dtype:
                     raise ValueError(f"{where} is damaged: field {name} has shape {self._file[name].shape} "
                                      f"and type {self._file[name].dtype}")
-        except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError, UnicodeError) as error:
+        except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError, UnicodeError, RecursionError) as error:
             self._file.close()
             raise ValueError(f"{where} is damaged: {error}") from None
         except ValueError:

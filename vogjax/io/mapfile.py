@@ -16,23 +16,25 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import struct
 import zipfile
-from pathlib import Path
 
 import numpy as np
 
-from vogjax.io.atomic import AtomicPath
+from vogjax.io.atomic import AtomicPath, as_path
 
 MAGIC = b"VOGJAXMP"
 FORMAT_VERSION = 2
 _DIGEST = 32  # format 2 ends in the SHA-256 of every byte before it: header included
 _PREFIX = struct.Struct("<8sIQ")
 MAX_HEADER_BYTES = 1 << 26
+# the .npy header versions np.savez writes, and their readers
+_NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
 def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
-    path = Path(path)
+    path = as_path(path)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     payload = buffer.getvalue()
@@ -47,7 +49,7 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
 def map_kind(path) -> str:
     """The kind a map file's header names ("VoxelMap", "GlobalMap", ...), reading only the
     header; ValueError if it is no vogjax map file (the whole file is checked when loaded)."""
-    path = Path(path)
+    path = as_path(path)
     try:
         with open(path, "rb") as f:
             prefix = f.read(_PREFIX.size)
@@ -61,14 +63,14 @@ def map_kind(path) -> str:
         raise ValueError(f"path {str(path)!r} cannot be read: {error.strerror}") from None
     try:
         kind = json.loads(header)["kind"]
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):
         raise ValueError(f"path {str(path)!r} has a damaged header") from None
     return str(kind)
 
 
 def read_map_file(path, kind: str) -> tuple[dict, dict]:
     """(metadata, arrays) of a map file of the given kind; ValueError if it is not one, or damaged."""
-    path = Path(path)
+    path = as_path(path)
     try:
         data = path.read_bytes()
     except OSError as error:
@@ -78,6 +80,8 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
     magic, version, header_bytes = _PREFIX.unpack_from(data)
     if magic != MAGIC:
         raise ValueError(f"path {str(path)!r} is not a vogjax map file")
+    if version < 1:
+        raise ValueError(f"path {str(path)!r} has map format version {version}, which no vogjax wrote")
     if version > FORMAT_VERSION:
         raise ValueError(f"path {str(path)!r} has map format version {version}; this vogjax reads "
                          f"up to version {FORMAT_VERSION}: upgrade vogjax")
@@ -95,7 +99,7 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
         metadata = header["metadata"]
         if not isinstance(metadata, dict):
             raise TypeError("metadata is not an object")
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):
         raise ValueError(f"path {str(path)!r} has a damaged header") from None
     payload = data[end_of_header:]
     if len(payload) != payload_bytes:
@@ -106,8 +110,27 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
     if header.get("kind") != kind:
         raise ValueError(f"path {str(path)!r} holds a {header.get('kind')!r}, not a {kind!r}")
     try:
+        _check_members(payload)
         with np.load(io.BytesIO(payload), allow_pickle=False) as archive:
             arrays = {name: archive[name] for name in archive.files}
     except (ValueError, OSError, zipfile.BadZipFile) as error:
         raise ValueError(f"path {str(path)!r} has an unreadable payload: {error}") from None
     return metadata, arrays
+
+
+def _check_members(payload: bytes) -> None:
+    """Each array of the payload must hold the bytes its header promises, checked before
+    anything is allocated: a header may declare any shape (np.load would allocate it first)."""
+    with zipfile.ZipFile(io.BytesIO(payload)) as archive:
+        for info in archive.infolist():
+            if info.compress_type != zipfile.ZIP_STORED:  # np.savez stores; a compressed size proves nothing
+                raise ValueError(f"array {info.filename!r} is compressed")
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                if version not in _NPY_HEADERS:
+                    raise ValueError(f"array {info.filename!r} has .npy format version {version}")
+                shape, _, dtype = _NPY_HEADERS[version](member)
+                needed = math.prod(shape) * dtype.itemsize
+                if needed > info.file_size - member.tell():
+                    raise ValueError(f"array {info.filename!r} declares shape {shape} of {dtype}, "
+                                     f"more than its {info.file_size} bytes")

@@ -13,11 +13,12 @@ import numpy as np
 
 from vogjax.geometry import quaternions_from_rotations, rigid_poses, rotations_from_quaternions
 from vogjax.io.atomic import AtomicPath
+from vogjax.validation import real_array
 
 
 def save_tum(path, times_s, poses, comment: str = "") -> None:
     """Write poses (N,4,4) T_world_body at times_s (N,) (finite, increasing) to `path`."""
-    times = np.asarray(times_s, dtype=np.float64)
+    times = real_array("times_s", times_s)
     if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
         raise ValueError("times_s must be a finite, strictly increasing 1-D array")
     poses = rigid_poses("poses", poses, len(times))
@@ -37,6 +38,14 @@ def load_tum(path) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"path {str(path)!r} is not a readable TUM trajectory: {error}") from None
     if table.shape[1:] != (8,) or not np.all(np.isfinite(table)):
         raise ValueError(f"path {str(path)!r} is not a TUM trajectory (8 finite numbers per line)")
+    if np.any(np.diff(table[:, 0]) <= 0):
+        line = int(np.argmax(np.diff(table[:, 0]) <= 0)) + 2
+        raise ValueError(f"path {str(path)!r}: timestamps must increase (pose {line} does not)")
+    norms = np.linalg.norm(table[:, 4:], axis=1)
+    if not np.all(np.abs(norms - 1.0) < 1e-3):  # written with 9 digits, a unit quaternion is within 1e-8
+        line = int(np.argmax(np.abs(norms - 1.0) >= 1e-3)) + 1
+        raise ValueError(f"path {str(path)!r}: pose {line} has a quaternion of norm {norms[line - 1]:.6g}, "
+                         "not a unit quaternion")
     poses = np.tile(np.eye(4), (len(table), 1, 1))
     poses[:, :3, :3] = rotations_from_quaternions(table[:, [7, 4, 5, 6]])
     poses[:, :3, 3] = table[:, 1:4]

@@ -9,11 +9,11 @@ voxel centres with log-odds or occupancy probabilities (`VoxelSet.from_log_odds`
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from vogjax.config import MapConfig, logodds
+from vogjax.config.schema import finite_real
 from vogjax.io import mapfile
 
 # how far a centre may sit off its voxel's centre, in voxels (float rounding, not a wrong size)
@@ -52,7 +52,7 @@ class VoxelSet:
             raise ValueError("centres and log_odds must be finite (unobserved voxels do not belong in a VoxelSet)")
         size = self.voxel_size
         if isinstance(size, bool) or not isinstance(size, (int, float, np.integer, np.floating)) or \
-                not (math.isfinite(size) and size > 0):
+                not (finite_real(size) and size > 0):
             raise ValueError(f"voxel_size must be a positive number, got {size!r}")
         if not (np.isfinite(self.log_free) and np.isfinite(self.log_occupied) and self.log_free <= self.log_occupied):
             raise ValueError("log_free must not exceed log_occupied")

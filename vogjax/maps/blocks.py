@@ -108,6 +108,7 @@ class BlockStore:
         self._counters = wp.zeros(2, dtype=wp.int32, device=device)
         self._no_slots = wp.empty(0, dtype=wp.int32, device=device)  # no released slots to reuse
         self._grid: tuple | None = None  # (version, BlockGrid)
+        self._box: tuple | None = None  # (version, block_box())
         self._grid_lock = threading.Lock()
 
     @property
@@ -135,14 +136,26 @@ class BlockStore:
                 self._grid = (self.version, self._build_grid())
             return self._grid[1]
 
+    def block_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi): the lowest and highest block coordinates (3,) int64 of the blocks, None when
+        there are none (read back once per change to the set of blocks)."""
+        with self._grid_lock:
+            return self._current_box()
+
+    def _current_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        # under _grid_lock
+        if self._box is None or self._box[0] != self.version:
+            keys = self.slot_keys.numpy()[: self.num_blocks]
+            blocks = unpack_blocks(keys[keys != EMPTY_KEY])
+            self._box = (self.version, (blocks.min(axis=0), blocks.max(axis=0)) if len(blocks) else None)
+        return self._box[1]
+
     def _build_grid(self) -> BlockGrid:
-        keys = self.slot_keys.numpy()[: self.num_blocks]
-        keys = keys[keys != EMPTY_KEY]
         none = wp.full(1, -1, dtype=wp.int32, device=self.device)
-        if len(keys) == 0:
+        box = self._current_box()
+        if box is None:
             return BlockGrid((1, 1, 1), (0, 0, 0), (0, 0, 0), none)
-        blocks = unpack_blocks(keys)
-        lo, hi = blocks.min(axis=0), blocks.max(axis=0)
+        lo, hi = box
         dims = hi - lo + 1
         box = (tuple(lo.tolist()), tuple(hi.tolist()))
         if int(np.prod(dims)) > GRID_CELLS:

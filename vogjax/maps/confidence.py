@@ -54,7 +54,7 @@ from vogjax.config.crm import CrmConfig
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import confidence, confidence_queries, hashing
 from vogjax.maps import parallel
-from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN, ray_arguments
+from vogjax.maps.blockmap import FREE, MAX_LINE_VOXELS, OCCUPIED, UNKNOWN, ray_arguments
 from vogjax.maps.blocks import BLOCK_VOXELS, EMPTY_KEY, BlockStore, pack_blocks, unpack_blocks, voxel_keys
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.validation import float_array, index_array, within_key_range
@@ -474,6 +474,7 @@ class ConfidenceMap:
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         cfg, device, store = self.config, self.device, self._store
         within_key_range("origins", origins, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
+        check_walk_length("max_range", ranges, cfg.voxel_size)
         within_key_range("max_range", origins + directions * ranges[:, None], cfg.voxel_size,
                          hashing.VOXEL_KEY_LIMIT)
         count = origins.shape[0]
@@ -582,6 +583,16 @@ class ConfidenceMap:
                       device=crm.device)
         crm._store = store
         return crm
+
+
+def check_walk_length(name: str, lengths_m: np.ndarray, voxel_size: float) -> None:
+    """Queries of a ConfidenceMap walk every voxel on their way (unknown space has a mean and a
+    variance too), so their work grows with the length: at most MAX_LINE_VOXELS voxel edges."""
+    longest = MAX_LINE_VOXELS * voxel_size
+    if len(lengths_m) and not lengths_m.max() <= longest:
+        i = int(np.argmax(lengths_m))
+        raise ValueError(f"{name}: {lengths_m[i]:.6g} m (entry {i}) is longer than a confidence-map query walks, "
+                         f"{MAX_LINE_VOXELS} voxels ({longest:g} m at voxel size {voxel_size:g} m): split it")
 
 
 def _ordered_bits(values: np.ndarray) -> np.ndarray:

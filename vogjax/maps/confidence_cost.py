@@ -21,7 +21,7 @@ import warp as wp
 from vogjax.geometry import rigid_poses
 from vogjax.kernels import confidence_queries, hashing
 from vogjax.maps.blockmap import ray_arguments
-from vogjax.maps.confidence import ConfidenceMap
+from vogjax.maps.confidence import ConfidenceMap, check_walk_length
 from vogjax.validation import float_array, within_key_range
 
 # Beams without a likely cause end this far past the range (like vogjax.sensors.world_rays).
@@ -73,6 +73,7 @@ def edge_risk(crm: ConfidenceMap, starts, ends) -> np.ndarray:
     within_key_range("ends", ends, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
     offsets = ends - starts
     lengths = np.linalg.norm(offsets, axis=1)
+    check_walk_length("ends", lengths, cfg.voxel_size)
     directions = np.where(lengths[:, None] > 0, offsets / np.maximum(lengths, 1e-300)[:, None], [1.0, 0.0, 0.0])
     # a point: its own voxel (the walk covers [0, length), so give it a sliver of length)
     lengths = np.where(lengths > 0, lengths, 1e-9 * cfg.voxel_size)
@@ -99,6 +100,7 @@ def most_likely_ranges(crm: ConfidenceMap, origins, directions, max_range) -> np
     origins, directions, ranges = ray_arguments(origins, directions, max_range)
     cfg, device, store = crm.config, crm.device, crm.store
     within_key_range("origins", origins, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
+    check_walk_length("max_range", ranges, cfg.voxel_size)
     within_key_range("max_range", origins + directions * ranges[:, None], cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
     out = wp.empty(origins.shape[0], dtype=wp.float64, device=device)
     with crm.reading():
@@ -127,6 +129,8 @@ def path_cost(crm: ConfidenceMap, waypoints, *, T_world_sensor=None, sensor=None
     _check_map(crm)
     waypoints = float_array("waypoints", waypoints, (-1, 3), np.float64)
     count = waypoints.shape[0]
+    if count == 0:  # costing nothing, it would beat every real path
+        raise ValueError("waypoints must hold at least one waypoint")
     if T_world_sensor is None:
         if sensor is not None:
             raise ValueError("sensor needs T_world_sensor (the sensor pose at each waypoint)")
@@ -155,18 +159,20 @@ def path_cost(crm: ConfidenceMap, waypoints, *, T_world_sensor=None, sensor=None
     return PathCost(float(step_cost.sum()), step_cost, mean, variance)
 
 
-def choose_path(crm: ConfidenceMap, paths, **prediction) -> tuple[int, np.ndarray]:
+def choose_path(crm: ConfidenceMap, paths, *, T_world_sensor=None, sensor=None) -> tuple[int, np.ndarray]:
     """Eq. 35: the index of the cheapest of `paths` (a sequence of (W_i,3) waypoint arrays) and
-    every path's total cost. `prediction`: T_world_sensor (a sequence of (W_i,4,4), one per
-    path) and sensor, as for `path_cost`."""
+    every path's total cost. T_world_sensor (a sequence of (W_i,4,4), one per path) and
+    sensor: the prediction of `path_cost`."""
     paths = list(paths)
     if not paths:
         raise ValueError("paths must hold at least one path")
-    poses = prediction.pop("T_world_sensor", None)
-    if poses is not None and len(poses) != len(paths):
-        raise ValueError("T_world_sensor must hold one pose array per path")
-    costs = np.array([path_cost(crm, path, T_world_sensor=None if poses is None else poses[i], **prediction).total
-                      for i, path in enumerate(paths)])
+    if T_world_sensor is not None:
+        if isinstance(T_world_sensor, np.ndarray) and T_world_sensor.ndim == 4:
+            T_world_sensor = list(T_world_sensor)
+        if not isinstance(T_world_sensor, (list, tuple)) or len(T_world_sensor) != len(paths):
+            raise ValueError("T_world_sensor must be a sequence of one pose array per path")
+    costs = np.array([path_cost(crm, path, T_world_sensor=None if T_world_sensor is None else T_world_sensor[i],
+                                sensor=sensor).total for i, path in enumerate(paths)])
     return int(np.argmin(costs)), costs
 
 

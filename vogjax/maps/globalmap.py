@@ -24,7 +24,7 @@ from vogjax.config import MapConfig, PipelineConfig
 from vogjax.config.schema import check_setting
 from vogjax.geometry import confidence_volume, pose_deltas, rigid_pose
 from vogjax.io import read_map_file, write_map_file
-from vogjax.kernels import accumulation
+from vogjax.kernels import accumulation, hashing
 from vogjax.maps.submaps import VogMap
 from vogjax.maps.views import submap_views
 from vogjax.validation import real_array
@@ -84,6 +84,10 @@ class GlobalMap(BlockMap):
         return tuple(sorted(self._applied))
 
     def applied_pose(self, i: int) -> np.ndarray:
+        """(4,4) the pose at which submap `i`'s contribution stands in the map."""
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+            raise ValueError(f"i must be a submap id (an integer), got {i!r}")
+        i = int(i)
         if i not in self._applied:
             raise ValueError(f"i: submap {i!r} has not been added to this global map")
         return self._applied[i].pose.copy()
@@ -96,6 +100,7 @@ class GlobalMap(BlockMap):
         Returns the number of voxel updates made."""
         self._check_vog(vog)
         volumes = self._volumes(vog, marginals)
+        self._check_key_range(vog, range(vog.num_submaps))
         with self._lock.writing():
             self._store = BlockStore(self.device, self._store.layer_specs)
             self._applied = {}
@@ -116,6 +121,7 @@ class GlobalMap(BlockMap):
         if already or len(set(ids)) != len(ids):
             raise ValueError(f"ids: submaps {already or ids} are already in the global map (or repeated); "
                              "moved submaps are re-applied by update_poses")
+        self._check_key_range(vog, ids)
         with self._lock.writing():
             touched = []
             pulls = self._apply(vog, ids, touched, volumes)
@@ -165,6 +171,7 @@ class GlobalMap(BlockMap):
         if stale:
             raise ValueError(f"vog: submaps {stale} changed since they were added; their old "
                              "contribution cannot be undone (add submaps once they are complete)")
+        self._check_key_range(vog, reapply)
         with self._lock.writing():
             touched = []
             # integer sums commute: every undo first, then every redo, gives the same bits
@@ -235,6 +242,25 @@ class GlobalMap(BlockMap):
         if vog.config != self.config:
             raise ValueError("vog has another MapConfig than this global map")
 
+    def _check_key_range(self, vog: VogMap, ids) -> None:
+        """Every block of submaps `ids`, at its current pose, must land on voxel keys the global
+        map can pack: beyond them the packed keys would wrap around and write elsewhere."""
+        size = self.config.voxel_size
+        limit_m = (hashing.VOXEL_KEY_LIMIT - _KEY_MARGIN_VOXELS) * size
+        ids = [int(i) for i in ids]
+        for i, submap, pose in zip(ids, vog.submaps(ids), vog.poses(ids)):
+            with submap.reading():
+                box = submap.store.block_box()
+            if box is None:
+                continue
+            lo_m = box[0] * (hashing.BLOCK_EDGE * size)
+            hi_m = (box[1] + 1) * (hashing.BLOCK_EDGE * size)
+            corners = np.where(_CORNER_HIGH, hi_m, lo_m) @ pose[:3, :3].T + pose[:3, 3]
+            reach = float(np.abs(corners).max())
+            if not reach < limit_m:
+                raise ValueError(f"poses: submap {i} at its pose reaches {reach:.6g} m from the origin; the "
+                                 f"global map's voxel keys reach {limit_m:.0f} m per axis at voxel size {size} m")
+
     # ---------------------------------------------------------------- contributions
     def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
         """Add submaps `ids` at their current poses and record them as applied."""
@@ -256,8 +282,7 @@ class GlobalMap(BlockMap):
             return 0
         cfg, device, span = self.config, self.device, accumulation.COLUMN_SPAN
         with contextlib.ExitStack() as stack:
-            # each lock once: a view may hold one submap twice, and a second read acquire could
-            # queue behind a waiting writer
+            # each lock once: a second read acquire of one submap could queue behind a waiting writer
             for submap in {id(submap): submap for submap, _ in items}.values():
                 stack.enter_context(submap.reading())
             counts = np.array([submap.store.num_blocks for submap, _ in items])
@@ -384,6 +409,8 @@ class GlobalMap(BlockMap):
 
 # corner m of a box takes hi on axis a when bit a of m is set
 _CORNER_HIGH = ((np.arange(8)[:, None] >> np.arange(3)) & 1).astype(bool)
+# A rotated submap block pulls world voxels up to a voxel or so beyond its corners: two blocks' room.
+_KEY_MARGIN_VOXELS = 2 * hashing.BLOCK_EDGE
 
 
 def _largest_displacement(box, T_old: np.ndarray, T_new: np.ndarray) -> float:

@@ -115,6 +115,8 @@ class VogMap:
         """A VogMap over the same submap objects (no copies): `ids` of them (all when None), at
         `poses` (their own when None). Handy for "the map without loop closures"."""
         ids = np.arange(self.num_submaps) if ids is None else self.check_ids("ids", ids)
+        if len(np.unique(ids)) != len(ids):  # a submap in a view twice would count twice in every sum
+            raise ValueError(f"ids must not repeat a submap, got {ids.tolist()}")
         poses = self._poses[ids] if poses is None else rigid_poses("poses", poses, count=len(ids))
         other = VogMap(self.config, self.device)
         other._submaps = [self._submaps[i] for i in ids]

@@ -14,7 +14,6 @@ points of the edge also counts once.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -22,7 +21,7 @@ from vogjax.geometry import rigid_poses, rotation_from_ypr
 from vogjax.planner.seen import group_counts
 from vogjax.planner.source import Source, opened
 from vogjax.sensors import RangeSensor, as_sensor
-from vogjax.validation import float_array
+from vogjax.validation import finite_real, float_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,7 +116,7 @@ def discounted(gain, distance_m, discount: float) -> np.ndarray:
 
 def _range(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
-            not (math.isfinite(value) and value > 0):
+            not (finite_real(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
 
