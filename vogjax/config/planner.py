@@ -89,7 +89,8 @@ class PlannerConfig(Config):
 @dataclasses.dataclass(frozen=True)
 class ExploreConfig(Config):
     """Everything `vogjax explore` reads from its settings file: [planner] sets `planner`; the
-    tables of `vogjax map` ([map], [nav_noise], [loop_closure], [pipeline]) set `pipeline`."""
+    pipeline's tables of `vogjax map` ([map], [nav_noise], [loop_closure] with its .icp and
+    .correlative, [timing], [pipeline]) set `pipeline`; [report] is not one of them."""
 
     pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
     planner: PlannerConfig = section(PlannerConfig())
