@@ -245,21 +245,27 @@ class GlobalMap(BlockMap):
     def _check_key_range(self, vog: VogMap, ids) -> None:
         """Every block of submaps `ids`, at its current pose, must land on voxel keys the global
         map can pack: beyond them the packed keys would wrap around and write elsewhere."""
-        size = self.config.voxel_size
-        limit_m = (hashing.VOXEL_KEY_LIMIT - _KEY_MARGIN_VOXELS) * size
         ids = [int(i) for i in ids]
-        for i, submap, pose in zip(ids, vog.submaps(ids), vog.poses(ids)):
+        boxes = []
+        for submap in vog.submaps(ids):
             with submap.reading():
-                box = submap.store.block_box()
-            if box is None:
-                continue
-            lo_m = box[0] * (hashing.BLOCK_EDGE * size)
-            hi_m = (box[1] + 1) * (hashing.BLOCK_EDGE * size)
-            corners = np.where(_CORNER_HIGH, hi_m, lo_m) @ pose[:3, :3].T + pose[:3, 3]
-            reach = float(np.abs(corners).max())
-            if not reach < limit_m:
-                raise ValueError(f"poses: submap {i} at its pose reaches {reach:.6g} m from the origin; the "
-                                 f"global map's voxel keys reach {limit_m:.0f} m per axis at voxel size {size} m")
+                boxes.append(submap.store.block_box())
+        kept = [k for k, box in enumerate(boxes) if box is not None]
+        if not kept:
+            return
+        size = self.config.voxel_size
+        block_m = hashing.BLOCK_EDGE * size
+        lo_m = np.array([boxes[k][0] for k in kept]) * block_m  # (n,3) the boxes' corners, metres
+        hi_m = (np.array([boxes[k][1] for k in kept]) + 1) * block_m
+        poses = vog.poses([ids[k] for k in kept])
+        corners = np.where(_CORNER_HIGH, hi_m[:, None], lo_m[:, None])  # (n,8,3)
+        world = np.einsum("nij,nkj->nki", poses[:, :3, :3], corners) + poses[:, None, :3, 3]
+        reach = np.abs(world).max(axis=(1, 2))
+        limit_m = (hashing.VOXEL_KEY_LIMIT - _KEY_MARGIN_VOXELS) * size
+        if not np.all(reach < limit_m):
+            k = int(np.argmax(~(reach < limit_m)))
+            raise ValueError(f"poses: submap {ids[kept[k]]} at its pose reaches {reach[k]:.6g} m from the origin; the "
+                             f"global map's voxel keys reach {limit_m:.0f} m per axis at voxel size {size} m")
 
     # ---------------------------------------------------------------- contributions
     def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
