@@ -12,12 +12,20 @@ from .scene import FREE, INSIDE, OCCUPIED, GroundTruth, Scene
 NAMES = tuple(BUILDERS)
 
 
-@functools.cache
 def load(name: str) -> Scene:
-    """One of NAMES: "propeller", "pilings", "tank", "boxes"."""
-    if name not in BUILDERS:
+    """One of NAMES: "propeller", "pilings", "tank", "boxes". Every caller gets the same Scene,
+    so its arrays are read-only (copy one to change it)."""
+    if not isinstance(name, str) or name not in BUILDERS:
         raise ValueError(f"name must be one of {', '.join(NAMES)}, got {name!r}")
-    return BUILDERS[name]()
+    return _load(name)
+
+
+@functools.cache
+def _load(name: str) -> Scene:
+    scene = BUILDERS[name]()
+    for array in (scene.bounds, scene.start_pose, scene.default_survey):
+        array.flags.writeable = False
+    return scene
 
 
 __all__ = ["FREE", "INSIDE", "NAMES", "OCCUPIED", "GroundTruth", "Scene", "analytic", "load"]

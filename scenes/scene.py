@@ -9,11 +9,20 @@ import numpy as np
 import trimesh
 import warp as wp
 
+from vogjax.config.schema import Rule
 from vogjax.kernels import ground_truth
 
 FREE = 1
 OCCUPIED = 2
 INSIDE = 3  # inside a solid: never observable, left out of evaluations
+
+# Ground truth voxels: evaluating a map against them holds their keys and centres (~100 bytes
+# a voxel, 3.4 GB at the limit). Every built-in scene stays under it down to 0.05 m voxels.
+MAX_GROUND_TRUTH_CELLS = 1 << 25
+# Voxel centres tested for insideness per Warp launch (their keys and centres: ~100 MB).
+_INSIDE_CHUNK = 1 << 21
+MAX_LAPS = 1000
+MAX_SURFACE_POINTS = 10_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +54,8 @@ class Scene:
     default_survey: np.ndarray
 
     def survey(self, laps: int = 2) -> np.ndarray:
-        """(W*laps, 4) the default survey flown `laps` times."""
+        """(W*laps, 4) the default survey flown `laps` times (1 to MAX_LAPS)."""
+        Rule("integer", 1, MAX_LAPS).check("laps", laps)
         return np.concatenate([self.default_survey] * laps)
 
     @functools.cached_property
@@ -58,25 +68,52 @@ class Scene:
                          np.maximum(self.mesh.bounds[1], self.bounds[1])])
 
     def occupancy(self, voxel_size: float) -> GroundTruth:
+        """Labels of the voxels of edge `voxel_size` (m) over the region and one voxel around it;
+        at most MAX_GROUND_TRUTH_CELLS of them (`check_occupancy`)."""
+        self.check_occupancy(voxel_size)
         region = self.region()
         first = np.floor(region[0] / voxel_size).astype(np.int64) - 1
         last = np.floor(region[1] / voxel_size).astype(np.int64) + 1
         shape = tuple(last - first + 1)
         labels = np.full(shape, FREE, np.int8)
 
-        # inside solids: generalised winding number of each voxel centre
-        grid = np.stack(np.meshgrid(*[np.arange(n) for n in shape], indexing="ij"), -1).reshape(-1, 3)
-        centres = (grid + first + 0.5) * voxel_size
+        # inside solids: generalised winding number of each voxel centre, over the voxels
+        # around each part (nothing beyond a closed part's box is inside it), slab by slab
         # Parts touch (boxes on a floor); a winding number per closed part stays exact there.
         for part in self.mesh.split(only_watertight=False):
-            labels.reshape(-1)[_inside(_warp_mesh(part), centres)] = INSIDE
+            lo = np.clip(np.floor(part.bounds[0] / voxel_size).astype(np.int64) - 1 - first, 0, shape)
+            hi = np.clip(np.floor(part.bounds[1] / voxel_size).astype(np.int64) + 2 - first, 0, shape)
+            box = labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+            if not box.size:
+                continue
+            mesh = _warp_mesh(part)
+            step = max(1, _INSIDE_CHUNK // (box.shape[1] * box.shape[2]))
+            for i in range(0, box.shape[0], step):
+                slab = box[i:i + step]
+                grid = np.stack(np.meshgrid(*[np.arange(n) for n in slab.shape], indexing="ij"), -1).reshape(-1, 3)
+                centres = (grid + (first + lo + [i, 0, 0]) + 0.5) * voxel_size
+                slab[_inside(mesh, centres).reshape(slab.shape)] = INSIDE
         # the surface: points on every triangle, a quarter voxel apart
         for points in triangle_points(self.mesh, voxel_size / 4):
             labels[tuple((np.floor(points / voxel_size).astype(np.int64) - first).T)] = OCCUPIED
         return GroundTruth(voxel_size, first, labels)
 
+    def check_occupancy(self, voxel_size: float) -> None:
+        """A ValueError unless `occupancy(voxel_size)` can be built: voxel_size positive and
+        finite, and at most MAX_GROUND_TRUTH_CELLS voxels (the error says how many)."""
+        Rule("number", 0, low_open=True).check("voxel_size", voxel_size)
+        region = self.region()
+        with np.errstate(over="ignore", invalid="ignore"):  # tiny voxels: inf or NaN, refused below
+            cells = float(np.prod(np.floor(region[1] / voxel_size) - np.floor(region[0] / voxel_size) + 3))
+        if not cells <= MAX_GROUND_TRUTH_CELLS:
+            raise ValueError(f"voxel_size {voxel_size:g} m gives {cells:.3g} ground-truth voxels over scene "
+                             f"{self.name!r}, more than the limit of {MAX_GROUND_TRUTH_CELLS} "
+                             f"(use a larger voxel_size)")
+
     def surface_points(self, count: int, seed: int = 0) -> np.ndarray:
-        """(count,3) points spread evenly over the surface (for reconstruction RMSE)."""
+        """(count,3) points spread evenly over the surface (for reconstruction RMSE); count: 1
+        to MAX_SURFACE_POINTS."""
+        Rule("integer", 1, MAX_SURFACE_POINTS).check("count", count)
         points, _ = trimesh.sample.sample_surface_even(self.mesh, count, seed=seed)
         return np.asarray(points)
 

@@ -28,12 +28,25 @@ def rigid_poses(name: str, value, count: int | None = None) -> np.ndarray:
         raise ValueError(f"{name} must have shape {wanted}, got {np.shape(value)}")
     if not np.all(np.isfinite(poses)):
         raise ValueError(f"{name} contains NaN or infinite values")
-    rotations = poses[:, :3, :3]
-    gram_error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
-    if gram_error > RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0):
+    if not _proper_rotations(poses[:, :3, :3]):
         raise ValueError(f"{name} is not rigid: its rotation part is not a proper rotation")
     if np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(initial=0.0) > 0:
         raise ValueError(f"{name} is not rigid: its last row must be 0 0 0 1")
+    return poses
+
+
+def _proper_rotations(rotations: np.ndarray) -> bool:
+    """Whether finite (n,3,3) matrices are orthonormal to RIGID_TOLERANCE with determinant +1."""
+    gram_error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
+    return not (gram_error > RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0))
+
+
+def _rigid_batch(name: str, value) -> np.ndarray:
+    """Rigid transforms (..., 4, 4) as float64, checked as `rigid_poses` checks."""
+    poses = real_array(name, value)
+    if poses.ndim < 2 or poses.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4), got {poses.shape}")
+    rigid_poses(name, poses.reshape(-1, 4, 4))
     return poses
 
 
@@ -122,7 +135,10 @@ def log_se3(poses: np.ndarray) -> np.ndarray:
 
 
 def pose_deltas(T_old: np.ndarray, T_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation angle (rad) and translation norm (m) of log(T_old^-1 T_new), per pose."""
+    """Rotation angle (rad) and translation norm (m) of log(T_old^-1 T_new), per pose, for rigid
+    poses (..., 4, 4) (checked as `rigid_poses` checks: the SE(3) log of anything else is
+    meaningless, and a scaled pose would read as no motion)."""
+    T_old, T_new = _rigid_batch("T_old", T_old), _rigid_batch("T_new", T_new)
     twist = log_se3(inverse(T_old) @ T_new)
     return np.linalg.norm(twist[..., :3], axis=-1), np.linalg.norm(twist[..., 3:], axis=-1)
 
@@ -137,9 +153,27 @@ def xyh_covariance(marginals: np.ndarray) -> np.ndarray:
 CHI2_3DOF_95 = 7.814727903251178
 
 
+# Relative to the largest entry of the batch (at least 1), as GlobalMap checks marginals (at
+# 1e-9): a principal block's eigenvalues lie within the full matrix's, so whatever it accepts
+# passes here, with room for round-off; singular (PSD) covariances give volume 0.
+_PSD_TOLERANCE = 1e-8
+
+
 def confidence_volume(marginals: np.ndarray) -> np.ndarray:
-    """Volume of the 95% confidence ellipsoid of x, y, yaw for each (6,6) marginal covariance."""
-    det = np.clip(np.linalg.det(xyh_covariance(marginals)), 0.0, None)
+    """Volume of the 95% confidence ellipsoid of x, y, yaw for each (6,6) marginal covariance
+    (..., 6, 6): finite, and positive semi-definite in x, y, yaw up to round-off."""
+    marginals = real_array("marginals", marginals)
+    if marginals.ndim < 2 or marginals.shape[-2:] != (6, 6):
+        raise ValueError(f"marginals must have shape (..., 6, 6), got {marginals.shape}")
+    if not np.all(np.isfinite(marginals)):
+        raise ValueError("marginals contains NaN or infinite values")
+    block = xyh_covariance(marginals)
+    scale = np.abs(marginals).max(initial=1.0)
+    if np.abs(block - np.swapaxes(block, -1, -2)).max(initial=0.0) > _PSD_TOLERANCE * scale:
+        raise ValueError("marginals must be symmetric in x, y, yaw")
+    if block.size and np.linalg.eigvalsh(block).min() < -_PSD_TOLERANCE * scale:
+        raise ValueError("marginals must be positive semi-definite in x, y, yaw (a covariance)")
+    det = np.clip(np.linalg.det(block), 0.0, None)
     return 4.0 / 3.0 * np.pi * CHI2_3DOF_95**1.5 * np.sqrt(det)
 
 
@@ -214,15 +248,29 @@ def yaw_of_quaternion(q, xp=np):
 
 
 def quaternions_from_rotations(rotations: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3)."""
-    r = np.asarray(rotations, dtype=np.float64)
+    """(..., 4) unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3), which must be
+    proper rotations to RIGID_TOLERANCE (SciPy would quietly take the nearest one)."""
+    r = real_array("rotations", rotations)
+    if r.ndim < 2 or r.shape[-2:] != (3, 3):
+        raise ValueError(f"rotations must have shape (..., 3, 3), got {r.shape}")
+    if not np.all(np.isfinite(r)):
+        raise ValueError("rotations contains NaN or infinite values")
+    if not _proper_rotations(r.reshape(-1, 3, 3)):
+        raise ValueError(f"rotations must be proper rotations (orthonormal to {RIGID_TOLERANCE:g}, determinant +1)")
     q = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat(scalar_first=True)
     return q.reshape(*r.shape[:-2], 4)
 
 
 def rotations_from_quaternions(quaternions: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices of quaternions (..., 4) (w, x, y, z), normalised first."""
-    q = np.asarray(quaternions, dtype=np.float64)
+    """(..., 3, 3) rotation matrices of quaternions (..., 4) (w, x, y, z), normalised first
+    (finite, of non-zero norm)."""
+    q = real_array("quaternions", quaternions)
+    if q.ndim < 1 or q.shape[-1] != 4:
+        raise ValueError(f"quaternions must have shape (..., 4), got {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise ValueError("quaternions contains NaN or infinite values")
+    if q.size and not np.all(np.linalg.norm(q, axis=-1) > 0):
+        raise ValueError("quaternions must have non-zero norm")
     return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*q.shape[:-1], 3, 3)
 
 

@@ -30,6 +30,7 @@ def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True)
             if len(ds) == 0:
                 raise ValueError(f"dataset {str(path)!r} holds no scans")
             ds.validate()
+            _check_ground_truth(ds, config)
     out = Path(out)
     for path in paths:
         check_writable(out / path.stem, folder=True)
@@ -51,10 +52,21 @@ def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
     return config, paths
 
 
+def _check_ground_truth(ds: Dataset, config: JobConfig) -> None:
+    """The ground truth of the run's scene (if it names a built-in one) at the map's voxel size
+    is refused now if it would be, not after the pipeline has run."""
+    name = ds.metadata.get("scene")
+    if name in scenes.NAMES:
+        scenes.load(name).check_occupancy(config.pipeline.map.voxel_size)
+
+
 def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:
     """Map one run into `out_dir` (replaced only when everything is written); its report."""
+    config, (path,) = check_job([path], config)
+    with Dataset(path) as ds:
+        _check_ground_truth(ds, config)
     check_writable(out_dir, folder=True)
-    return _map_into(Path(path), Path(out_dir), config or JobConfig(), progress)
+    return _map_into(path, Path(out_dir), config, progress)
 
 
 def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> dict:

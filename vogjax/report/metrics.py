@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from vogjax.config import IcpConfig
 from vogjax.maps import OCCUPIED
 from vogjax.slam import correlative_xyh, icp
+from vogjax.validation import real_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,11 +27,14 @@ class Roc:
 def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
     """ROC of `scores` (occupancy probability per voxel) against truth `occupied` (bool).
 
-    Ties share a threshold, so an uninformative map (all 0.5) gets AUC 0.5 exactly."""
-    scores = np.asarray(scores, dtype=np.float64)
-    occupied = np.asarray(occupied, dtype=bool)
+    Ties share a threshold, so an uninformative map (all 0.5) gets AUC 0.5 exactly. `occupied`
+    may also hold numbers that are exactly 0 or 1; NaN scores are refused (they sort anywhere)."""
+    scores = real_array("scores", scores)
+    occupied = _labels("occupied", occupied)
     if scores.shape != occupied.shape or scores.ndim != 1:
         raise ValueError("scores and occupied must be 1-D arrays of the same length")
+    if np.isnan(scores).any():
+        raise ValueError("scores contains NaN values")
     positives, negatives = occupied.sum(), (~occupied).sum()
     if positives == 0 or negatives == 0:
         raise ValueError("occupied must hold both occupied and free voxels")
@@ -42,6 +46,17 @@ def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
     tpr = np.r_[0.0, tp / positives]
     fpr = np.r_[0.0, fp / negatives]
     return Roc(fpr, tpr, np.r_[np.inf, s[last_of_tie]], float(np.trapezoid(tpr, fpr)))
+
+
+def _labels(name: str, value) -> np.ndarray:
+    """Truth labels as bool: booleans, or numbers exactly 0 or 1 (a cast would call 0.5 true)."""
+    array = np.asarray(value)
+    if array.dtype == np.bool_:
+        return array
+    array = real_array(name, array)
+    if not np.all((array == 0) | (array == 1)):
+        raise ValueError(f"{name} must hold booleans (or exactly 0 and 1)")
+    return array == 1
 
 
 def register_to_surface(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
@@ -65,7 +80,10 @@ def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConf
 
 def misclassified(states_a: np.ndarray, states_b: np.ndarray) -> dict:
     """How many voxels two maps classify differently, and how many of those are occupied in one."""
-    states_a, states_b = np.asarray(states_a), np.asarray(states_b)
+    states_a, states_b = real_array("states_a", states_a), real_array("states_b", states_b)
+    if states_a.ndim != 1 or states_a.shape != states_b.shape:
+        raise ValueError(f"states_a and states_b must be 1-D arrays of the same length, "
+                         f"got shapes {states_a.shape} and {states_b.shape}")
     differ = states_a != states_b
     return {"voxels": int(len(states_a)), "misclassified": int(differ.sum()),
             "occupied_disagreements": int((differ & ((states_a == OCCUPIED) | (states_b == OCCUPIED))).sum())}

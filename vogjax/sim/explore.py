@@ -118,6 +118,7 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
     if map_kind == "standard" and not pipeline_config.standard_map:
         raise ValueError("map_kind 'standard' needs pipeline_config.standard_map")
     sensor = ProfilingSonar(SonarConfig(range_noise_m=0.02)) if sensor is None else as_sensor(sensor)
+    vehicle.steps_per_scan(sensor.rate_hz, "sensor.rate_hz")  # scan times k / rate_hz as simulated
     noise = noise or pipeline_config.nav_noise
     metadata = {"scene": scene_name, "seed": seed, "mission": "explore", "map": map_kind, **sensor.metadata(),
                 "nav_noise": noise.to_dict(), "planner": planner_config.to_dict(),

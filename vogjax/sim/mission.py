@@ -11,15 +11,17 @@ from tqdm import tqdm
 import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise
+from vogjax.config.schema import Rule
 from vogjax.sensors import RangeSensor, as_sensor, ProfilingSonar
-from vogjax.geometry import wrap_angle, yaw_pitch_roll
+from vogjax.geometry import rigid_pose, wrap_angle, yaw_pitch_roll
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import DatasetWriter
 from vogjax.sim import navigation, ranging, vehicle
+from vogjax.validation import float_array
 
 CHUNK_SCANS = 500
-MAX_SCANS = 10_000_000  # 23 days of scans at 5 Hz
-MAX_LAPS = 1000
+MAX_SCANS = vehicle.MAX_SCANS  # 23 days of scans at 5 Hz
+MAX_LAPS = scenes.scene.MAX_LAPS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,13 +34,21 @@ class RunSummary:
 
 def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
                   config: ControllerConfig = ControllerConfig()) -> int:
-    """Scans long enough to fly the waypoints at the speed limits, with a margin."""
+    """Scans long enough to fly the waypoints at the speed limits, with a margin; at most
+    MAX_SCANS (a ValueError otherwise)."""
+    start_pose = rigid_pose("start_pose", start_pose)
+    waypoints = float_array("waypoints", waypoints, (-1, 4), np.float64)
+    Rule("number", 0, low_open=True).check("rate_hz", rate_hz)
     points = np.vstack([start_pose[:3, 3], waypoints[:, :3]])
     headings = np.concatenate([[yaw_pitch_roll(start_pose[:3, :3])[0]], waypoints[:, 3]])
     turns = np.abs(wrap_angle(np.diff(headings)))
     seconds = (np.linalg.norm(np.diff(points, axis=0), axis=1).sum() / config.max_speed_mps
                + turns.sum() / config.max_yaw_rate_rps)
-    return int(np.ceil(1.4 * seconds * rate_hz)) + 10
+    scans = np.ceil(1.4 * seconds * rate_hz) + 10
+    if not scans <= MAX_SCANS:
+        raise ValueError(f"flying these waypoints at {rate_hz:g} Hz takes {scans:.3g} scans, more than the limit "
+                         f"of {MAX_SCANS}")
+    return int(scans)
 
 
 def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, num_scans: int | None = None,
@@ -48,14 +58,19 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
 
     laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);
     num_scans: scans recorded (default: enough for the laps; the run ends 5 s after the last
-    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar;
-    overwrite: replace an existing `out` (else that is an error, raised before any work)."""
+    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar,
+    at a rate of 20/n Hz (a whole number of physics steps between scans, so the recorded scan
+    times k / rate_hz are the simulated ones: `vehicle.steps_per_scan`); overwrite: replace an
+    existing `out` (else that is an error, raised before any work)."""
     out = Path(out)
     if out.exists() and not overwrite:
         raise ValueError(f"out {str(out)!r} exists (pass overwrite=True, or --overwrite, to replace it)")
     check_writable(out)
     sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
+    vehicle.steps_per_scan(sensor.rate_hz, "sensor.rate_hz")
     noise = noise or NavNoise()
+    if not isinstance(noise, NavNoise):
+        raise ValueError(f"noise must be a NavNoise, got {type(noise).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if laps is not None and not (isinstance(laps, int) and 1 <= laps <= MAX_LAPS):
@@ -87,9 +102,10 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
                 "nav_noise": noise.to_dict(), "waypoints": waypoints.tolist(), "vogjax_version": vogjax.__version__}
     returned = 0
     with DatasetWriter(out, sensor.beams, metadata) as writer:
-        for first in tqdm(range(0, num_scans, CHUNK_SCANS), desc=f"simulating {scene_name}",
+        chunk = max(1, min(CHUNK_SCANS, ranging.MAX_CAST_BEAMS // sensor.beams))
+        for first in tqdm(range(0, num_scans, chunk), desc=f"simulating {scene_name}",
                           unit="chunk", disable=not progress):
-            last = min(first + CHUNK_SCANS, num_scans)
+            last = min(first + chunk, num_scans)
             scans = ranging.scan(scene.warp_mesh, truth[first:last] @ sensor.T_vehicle_sensor, sensor, rng)
             returned += int((~scans.no_return).sum())
             writer.append(time_s=times[first:last], pose_truth=truth[first:last], pose_nav=nav[first:last],

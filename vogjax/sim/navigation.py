@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.config import NavNoise
-from vogjax.geometry import inverse, rotation_from_ypr, yaw_pitch_roll
+from vogjax.config.schema import Rule
+from vogjax.geometry import inverse, rigid_poses, rotation_from_ypr, yaw_pitch_roll
+from vogjax.validation import real_array
 
 
 def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None,
@@ -15,10 +17,24 @@ def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise 
 
     Each step's true motion is perturbed in x, y (its own frame) and yaw with variances
     sigma^2 * dt and chained onto the previous navigation pose; z, pitch and roll are then
-    replaced by the truth's plus noise of variance sigma^2 * dt."""
+    replaced by the truth's plus noise of variance sigma^2 * dt. truth: rigid poses; times_s:
+    finite and non-decreasing (a step back in time would be a negative variance)."""
+    truth = rigid_poses("truth", truth)
+    times_s = real_array("times_s", times_s)
+    if times_s.shape != (len(truth),):
+        raise ValueError(f"times_s must have shape ({len(truth)},), one time per pose of truth, got {times_s.shape}")
+    if not np.all(np.isfinite(times_s)):
+        raise ValueError("times_s contains NaN or infinite values")
+    if np.any(np.diff(times_s) < 0):
+        raise ValueError("times_s must not decrease")
     noise = noise or NavNoise()
+    if not isinstance(noise, NavNoise):
+        raise ValueError(f"noise must be a NavNoise, got {type(noise).__name__}")
+    Rule("integer", 0).check("seed", seed)
     rng = np.random.default_rng(seed)
     nav = np.empty_like(truth)
+    if not len(truth):
+        return nav
     nav[0] = truth[0]
     for t in range(1, len(truth)):
         dt = float(times_s[t] - times_s[t - 1])

@@ -8,8 +8,12 @@ import numpy as np
 import warp as wp
 
 from vogjax import devices
+from vogjax.geometry import rigid_poses
 from vogjax.kernels import ranging
 from vogjax.sensors import as_sensor
+
+# Beams cast in one call: their ranges and directions take ~40 bytes each (670 MB).
+MAX_CAST_BEAMS = 1 << 24
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,10 +29,18 @@ class SimulatedScans:
 
 def scan(mesh: wp.Mesh, T_world_sensor: np.ndarray, sensor, rng: np.random.Generator | None = None) -> SimulatedScans:
     """Scans from sensor poses (S,4,4), one per pose, all in one launch. `sensor`: a
-    vogjax.sensors.RangeSensor (or a SonarConfig, for the papers' profiling sonar)."""
-    devices.init()
+    vogjax.sensors.RangeSensor (or a SonarConfig, for the papers' profiling sonar). The poses
+    must be rigid (a scaled rotation would scale every range) and finite."""
+    if not isinstance(mesh, wp.Mesh):
+        raise ValueError(f"mesh must be a warp.Mesh (a Scene's warp_mesh), got {type(mesh).__name__}")
+    poses = rigid_poses("T_world_sensor", T_world_sensor)
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
     sensor = as_sensor(sensor)
-    poses = np.asarray(T_world_sensor, dtype=np.float64).reshape(-1, 4, 4)
+    if len(poses) * sensor.beams > MAX_CAST_BEAMS:
+        raise ValueError(f"T_world_sensor holds {len(poses)} poses of {sensor.beams} beams each, more than "
+                         f"{MAX_CAST_BEAMS} beams in one call (scan fewer poses at a time)")
+    devices.init()
     count = len(poses)
     local = sensor.beam_directions()
     ranges = wp.empty((count, sensor.beams), dtype=float, device="cpu")

@@ -17,11 +17,21 @@ import numpy as np
 from mujoco import mjx
 
 from vogjax.config import ControllerConfig
-from vogjax.geometry import (quaternions_from_rotations, rotation_from_quaternion, rotations_from_quaternions,
-                             wrap_angle, yaw_of_quaternion)
+from vogjax.config.schema import Rule
+from vogjax.geometry import (quaternions_from_rotations, rigid_pose, rigid_poses, rotation_from_quaternion,
+                             rotations_from_quaternions, wrap_angle, yaw_of_quaternion)
 from vogjax.sim.vehicle_model import HAUV_XML
+from vogjax.validation import float_array
 
 DAMPING = 150.0  # the model's joint damping: thrust needed per m/s (and per rad/s)
+MAX_SCANS = 10_000_000  # 23 days of scans at 5 Hz (the poses alone: 1.3 GB)
+MAX_STEPS = 4 * MAX_SCANS  # physics steps of one flight: the same 23 days
+# MJX computes in float32: 1e5 m from the origin still resolves 8 mm, well inside a waypoint's
+# 0.15 m tolerance; much farther the controller's distances lose the vehicle.
+MAX_COORDINATE_M = 1e5
+# Scan intervals must be whole numbers of physics steps to this relative tolerance (20/3 Hz,
+# as a float, is 3 steps to 1e-16).
+STEP_TOLERANCE = 1e-6
 
 
 @functools.cache
@@ -85,22 +95,78 @@ def poses_from_qpos(qpos: np.ndarray) -> np.ndarray:
     return out
 
 
+def steps_per_scan(rate_hz: float, name: str = "scan_rate_hz") -> int:
+    """Physics steps between scans at `rate_hz`. Scans are taken only after whole steps, so a
+    rate whose interval is not a whole number of steps (to STEP_TOLERANCE) is refused rather
+    than rounded: the scan times a run records (scan k at k / rate_hz) are then the simulated
+    ones. With the 0.05 s step: 20/n Hz (20, 10, 6.67, 5, 4, ... Hz)."""
+    Rule("number", 0, low_open=True).check(name, rate_hz)
+    timestep = model()[0].opt.timestep
+    if rate_hz * timestep * MAX_STEPS < 1:
+        raise ValueError(f"{name} must be at least {1 / (MAX_STEPS * timestep):g} Hz, got {rate_hz!r}")
+    steps = 1.0 / (rate_hz * timestep)
+    whole = round(steps)
+    if whole < 1 or abs(steps - whole) > STEP_TOLERANCE * whole:
+        raise ValueError(f"{name} must be {1 / timestep:g}/n Hz for a whole number n of {timestep:g} s physics "
+                         f"steps between scans (20, 10, 6.667, 5, 4, ... Hz), got {rate_hz!r}")
+    return int(whole)
+
+
+def _flight_args(num_scans, scan_rate_hz, config) -> int:
+    """Steps per scan, after checking the arguments every flight shares."""
+    Rule("integer", 0, MAX_SCANS).check("num_scans", num_scans)
+    steps = steps_per_scan(scan_rate_hz)
+    if num_scans * steps > MAX_STEPS:
+        raise ValueError(f"num_scans {num_scans} at {scan_rate_hz:g} Hz is {num_scans * steps} physics steps, "
+                         f"more than the limit of {MAX_STEPS}")
+    if not isinstance(config, ControllerConfig):
+        raise ValueError(f"config must be a ControllerConfig, got {type(config).__name__}")
+    return steps
+
+
+def _waypoints(value, shape: tuple) -> np.ndarray:
+    waypoints = float_array("waypoints", value, shape, np.float64)
+    if waypoints.shape[-2] == 0:
+        raise ValueError("waypoints must hold at least one waypoint")
+    if np.abs(waypoints[..., :3]).max(initial=0.0) > MAX_COORDINATE_M:
+        raise ValueError(f"waypoints must lie within {MAX_COORDINATE_M:g} m of the origin on each axis")
+    return waypoints
+
+
+def _start_poses(name: str, value) -> np.ndarray:
+    poses = rigid_poses(name, value)
+    if not len(poses):
+        raise ValueError(f"{name} must hold at least one pose")
+    if np.abs(poses[:, :3, 3]).max(initial=0.0) > MAX_COORDINATE_M:
+        raise ValueError(f"{name} must lie within {MAX_COORDINATE_M:g} m of the origin on each axis")
+    return poses
+
+
 def simulate(start_pose, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
              config: ControllerConfig = ControllerConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """Fly from start_pose (4,4) through waypoints (W,4: x, y, z, yaw); the pose at each scan
-    (num_scans,4,4) and the index of the waypoint being flown to."""
-    host, mx = model()
-    steps = max(1, int(round(1.0 / (scan_rate_hz * host.opt.timestep))))
+    """Fly from start_pose (4,4) through waypoints (W,4: x, y, z, yaw; W >= 1); the pose at each
+    scan (num_scans,4,4) and the index of the waypoint being flown to. scan_rate_hz must give a
+    whole number of physics steps between scans (`steps_per_scan`), so scan k is at k / rate."""
+    start_pose = _start_poses("start_pose", rigid_pose("start_pose", start_pose))[0]  # (4,4) only
+    waypoints = _waypoints(waypoints, (-1, 4))
+    steps = _flight_args(num_scans, scan_rate_hz, config)
+    _, mx = model()
     qpos, index = _run(mx, jnp.asarray(_qpos(start_pose)),
-                       jnp.asarray(waypoints, dtype=jnp.float32), num_scans, steps, config)
+                       jnp.asarray(waypoints, dtype=jnp.float32), int(num_scans), steps, config)
     return poses_from_qpos(np.asarray(qpos)), np.asarray(index)
 
 
 def simulate_batch(start_poses, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
                    config: ControllerConfig = ControllerConfig()) -> tuple[np.ndarray, np.ndarray]:
     """`simulate` for V vehicles at once (vmap): start_poses (V,4,4), waypoints (V,W,4)."""
-    host, mx = model()
-    steps = max(1, int(round(1.0 / (scan_rate_hz * host.opt.timestep))))
+    start_poses = _start_poses("start_poses", start_poses)
+    waypoints = _waypoints(waypoints, (len(start_poses), -1, 4))
+    steps = _flight_args(num_scans, scan_rate_hz, config)
+    if len(start_poses) * num_scans > MAX_SCANS:
+        raise ValueError(f"start_poses times num_scans must be at most {MAX_SCANS} scans, "
+                         f"got {len(start_poses)} x {num_scans}")
+    num_scans = int(num_scans)
+    _, mx = model()
     qpos0 = jnp.asarray(_qpos(start_poses))
     run = jax.vmap(lambda q, w: _run(mx, q, w, num_scans, steps, config))
     qpos, index = run(qpos0, jnp.asarray(waypoints, dtype=jnp.float32))
@@ -151,8 +217,12 @@ def fly(qpos, qvel, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
     """Continue a flight from the state qpos (7,), qvel (6,) (a `resting_state`, or a Flight's
     last row) through waypoints (W,4: x, y, z, yaw) for num_scans scans. Compiled once per
     (num_scans, W): callers fly fixed-length pieces."""
-    host, mx = model()
-    steps = max(1, int(round(1.0 / (scan_rate_hz * host.opt.timestep))))
+    qpos = float_array("qpos", qpos, (7,), np.float64)
+    qvel = float_array("qvel", qvel, (6,), np.float64)
+    waypoints = _waypoints(waypoints, (-1, 4))
+    steps = _flight_args(num_scans, scan_rate_hz, config)
+    num_scans = int(num_scans)
+    _, mx = model()
     qpos, qvel, index = _run_from(mx, jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(waypoints, dtype=jnp.float32),
                                   num_scans, steps, config)
     qpos = np.asarray(qpos, dtype=np.float64)
