@@ -20,7 +20,7 @@ import vogjax as vj
 from vogjax import cli
 from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.io import atomic
-from vogjax.io.dataset import MAX_BEAMS, Dataset, DatasetWriter
+from vogjax.io.dataset import MAX_BEAMS, Dataset, DatasetWriter, ScanBatch
 from vogjax.io.mapfile import map_kind, read_map_file, write_map_file
 from vogjax.io.tum import load_tum, save_tum
 from vogjax.kernels import hashing
@@ -323,3 +323,142 @@ def test_an_empty_batch_takes_an_empty_list_of_scan_indices():
     vmap = vj.VoxelMap(CFG)
     vmap.integrate_scans(np.zeros((1, 3)), np.zeros((0, 3)), [])
     assert len(vmap.voxels()[0]) == 0
+
+
+# ------------------------------------------------------------------ the mapper takes checked batches
+
+def scan_batch(first: int, count: int, start_s: float = 0.0, truth: bool = True) -> ScanBatch:
+    fields = run_fields(np.random.default_rng(first), count=count, first_time=start_s)
+    if not truth:
+        fields["pose_truth"] = None
+    return ScanBatch(first, **fields)
+
+
+def mapper_state(mapper) -> tuple:
+    return (mapper.scans, len(mapper._scan_time), sum(len(p) for p in mapper._pending),
+            snapshot(mapper.standard_map))
+
+
+def test_the_mapper_checks_each_batch_before_changing_anything():
+    import dataclasses
+
+    mapper = vj.pipeline.Mapper(vj.PipelineConfig().replace(scans_per_submap=5, map=CFG))
+    mapper.add(scan_batch(0, 4))
+    before = mapper_state(mapper)
+    good = scan_batch(4, 4, start_s=10.0)
+    nan_pose = good.pose_nav.copy()
+    nan_pose[1, 0, 3] = np.nan
+    scaled = good.pose_nav.copy()
+    scaled[1, :3, :3] *= 3.0
+    bad = {
+        "pose_nav holds NaN": dataclasses.replace(good, pose_nav=nan_pose),
+        "not rigid": dataclasses.replace(good, pose_nav=scaled),
+        "strictly increasing": dataclasses.replace(good, time_s=good.time_s - 20.0),
+        "pose_truth is missing": dataclasses.replace(good, pose_truth=None),
+        "beams per scan": ScanBatch(4, **{k: v for k, v in run_fields(np.random.default_rng(1), 4, 10.0).items()
+                                          if k not in ("sonar_directions", "ranges", "no_return")},
+                                    sonar_directions=np.tile(np.float32([1, 0, 0]), (4, 2, 1)),
+                                    ranges=np.ones((4, 2), np.float32), no_return=np.zeros((4, 2), bool)),
+    }
+    for message, batch in bad.items():
+        refuses(lambda batch=batch: mapper.add(batch), message)
+        assert mapper_state(mapper) == before, message
+    refuses(lambda: mapper.add({"time_s": np.zeros(1)}), "batch must be a ScanBatch")
+    mapper.add(good)
+    assert mapper.scans == 8
+    result = mapper.result()
+    assert np.array_equal(result.scan_time_s, np.r_[scan_batch(0, 4).time_s, good.time_s])
+
+
+# ------------------------------------------------------------------ the planner
+
+def test_a_stale_overlay_reads_a_submap_added_since_from_base_only():
+    from vogjax import planner
+
+    cfg = vj.MapConfig(voxel_size=0.2)
+    vog, base = vj.VogMap(cfg), vj.GlobalMap(cfg)
+    y, z = np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1.5, 0.7, 23))
+    a, b = vog.add_submap(np.eye(4)), vog.add_submap(np.eye(4))
+    for _ in range(3):
+        vog.submap(a).integrate_scan(np.zeros(3), np.c_[np.full(y.size, 4.05), y.ravel(), z.ravel()])
+    vog.submap(b).integrate_scan(np.zeros(3), np.c_[np.full(y.size, 2.05), y.ravel(), z.ravel()])
+    base.add(vog, [a])
+    overlay = planner.Overlay(base, vog, [b])
+
+    def gain(m):
+        g = planner.view_gain(m, np.eye(4)[None], vj.SonarConfig(), max_range_m=5.0)
+        return g.unknown[0], g.free[0], g.occupied[0]
+
+    expected = gain(overlay)
+    base.add(vog, [b])
+    assert gain(base) == expected
+    assert gain(overlay) == expected  # b counted once, not on top of base's copy of it
+
+
+def test_the_planner_refuses_what_would_read_as_explored():
+    from vogjax import planner, sensors
+
+    m = vj.VoxelMap(vj.MapConfig(voxel_size=0.2))
+    cfg = planner.PlannerConfig(max_nodes=3, tolerance_nodes=6, gain_range_m=2.0, gain_step_m=0.5)
+    bounds = [[-3, -3, -3], [3, 3, 3]]
+    refuses(lambda: planner.NbvPlanner(cfg, bounds=bounds, region=[[3, 3, 3], [-3, -3, -3]]), "region")
+    refuses(lambda: planner.NbvPlanner(cfg.replace(gain_range_m=0.3), bounds=bounds), "gain_range_m")
+    refuses(lambda: planner.view_gain(m, np.eye(4)[None], vj.SonarConfig(), max_range_m=0.3), "max_range_m")
+    refuses(lambda: planner.NbvPlanner(cfg, bounds=bounds, sensor=sensors.PointCloudSensor()), "sensor")
+
+
+def test_a_refused_plan_leaves_the_planner_as_it_was():
+    from vogjax import planner
+
+    m = vj.VoxelMap(vj.MapConfig(voxel_size=0.2))
+    cfg = planner.PlannerConfig(max_nodes=3, tolerance_nodes=6, gain_range_m=2.0, gain_step_m=0.5)
+    bounds = [[-3, -3, -3], [3, 3, 3]]
+    fresh = planner.NbvPlanner(cfg, bounds=bounds).plan(m, np.eye(4))
+    nbv = planner.NbvPlanner(cfg, bounds=bounds)
+    far_map = vj.VoxelMap(vj.MapConfig(voxel_size=1e-4, max_range=0.4))  # 838 m of keys: the bounds fit, ...
+    nbv.bounds = np.array([[-1e3, -3, -3], [1e3, 3, 3]])  # ... these do not
+    refuses(lambda: nbv.plan(far_map, np.eye(4)), "bounds")
+    nbv.bounds = np.array(bounds, np.float64)
+    again = nbv.plan(m, np.eye(4))
+    assert np.array_equal(again.tree_states, fresh.tree_states)
+
+
+def test_gain_and_collision_work_is_bounded():
+    from vogjax import planner
+    from vogjax.planner.collision import MAX_SWEPT_VOXELS
+    from vogjax.planner.gain import MAX_EDGE_VIEWS
+
+    m = vj.VoxelMap(vj.MapConfig(voxel_size=0.2))
+    sonar = vj.SonarConfig(beams=4)
+    # 2 m at 1e-7 m took 75 s and 10 GB
+    refuses(lambda: planner.edge_gain(m, [[0, 0, 0, 0]], [[2, 0, 0, 0]], sonar, step_m=1e-7, max_range_m=1.0),
+            "step_m")
+    views = planner.edge_views(np.zeros((1, 4)), [[2.0 * MAX_EDGE_VIEWS * 1e-4, 0, 0, 0]], np.eye(4), 2e-4, 1.0)[1]
+    assert len(views) == MAX_EDGE_VIEWS  # at the limit: accepted
+    refuses(lambda: planner.edge_views(np.zeros((1, 4)), np.ones((1, 4)), np.eye(4), 0.0, 5.0), "step_m")
+    # 1e5 m of rays at 0.2 m voxels took minutes; a map's beams stop at MAX_RANGE_VOXELS
+    refuses(lambda: planner.view_gain(m, np.eye(4)[None], sonar, max_range_m=MAX_RANGE_VOXELS * 0.2 + 1),
+            "max_range_m")
+    assert planner.view_gain(m, np.eye(4)[None], sonar, max_range_m=5.0).unknown[0] > 0
+    side = int(np.cbrt(MAX_SWEPT_VOXELS)) * 0.2 * 2
+    refuses(lambda: planner.edges_clear(m, [[0, 0, 0]], [[side, side, side]], (1, 1, 1), (0, 0, 0)), "ends")
+
+
+def test_sonar_and_tree_sizes_are_bounded():
+    from vogjax import planner
+    from vogjax.config.planner import MAX_TREE_NODES
+
+    refuses(lambda: vj.SonarConfig(beams=10**12), "SonarConfig.beams")
+    refuses(lambda: vj.SonarConfig(beams=1 << 12, subrays=1 << 9), "SonarConfig.beams times SonarConfig.subrays")
+    refuses(lambda: planner.PlannerConfig(max_nodes=MAX_TREE_NODES + 1, tolerance_nodes=MAX_TREE_NODES + 1),
+            "PlannerConfig.max_nodes")
+
+
+def test_nearest_nodes_in_chunks_are_the_brute_force_ones():
+    from vogjax.planner.nbv import _nearest
+
+    rng = np.random.default_rng(3)
+    nodes = np.round(rng.uniform(-2, 2, (3000, 3)))  # many exact ties: the first must win
+    targets = np.round(rng.uniform(-2, 2, (1500, 3)))
+    brute = np.argmin(np.linalg.norm(nodes[None] - targets[:, None], axis=2), axis=1)
+    assert np.array_equal(_nearest(nodes, targets), brute)

@@ -14,6 +14,11 @@ from vogjax.config.schema import Config, integer, non_negative, number, positive
 from vogjax.config.sim import ControllerConfig
 
 
+# The most nodes a tree may grow to: each round finds its samples' nearest nodes among all of
+# them, and the work grows with the square of the tree (the papers use N_tol of 60 or so).
+MAX_TREE_NODES = 10_000
+
+
 @dataclasses.dataclass(frozen=True)
 class PlannerConfig(Config):
     """edge_length_m: longest RRT edge (the extension range), metres.
@@ -54,8 +59,8 @@ class PlannerConfig(Config):
     """
 
     edge_length_m: float = positive(2.0)
-    max_nodes: int = integer(15, low=1, high=100_000)
-    tolerance_nodes: int = integer(60, low=1, high=100_000)
+    max_nodes: int = integer(15, low=1, high=MAX_TREE_NODES)
+    tolerance_nodes: int = integer(60, low=1, high=MAX_TREE_NODES)
     attempts_per_node: int = integer(8, low=1, high=1000)
     discount: float = non_negative(0.5)
     turn_cost_m_per_rad: float = non_negative(ControllerConfig().max_speed_mps / ControllerConfig().max_yaw_rate_rps)

@@ -41,22 +41,28 @@ class Rule:
             words = f"a positive {noun}"
         elif self.low == 0 and self.high == 1 and self.low_open and self.high_open:
             words = "a number strictly between 0 and 1"
+        elif self.kind == "integer" and self.low == 1 and not self.low_open:
+            words = "a positive integer"
+            if self.high is not None:
+                words += f" <= {self._bound(self.high)}"
         elif self.low is not None and self.low > 0:
             words = f"a positive {noun}"
             if self.low is not None:
-                words += f" {'>' if self.low_open else '>='} {self.low:g}"
+                words += f" {'>' if self.low_open else '>='} {self._bound(self.low)}"
             if self.high is not None:
-                words += f" and {'<' if self.high_open else '<='} {self.high:g}"
+                words += f" and {'<' if self.high_open else '<='} {self._bound(self.high)}"
         else:
             words = f"an {noun}" if noun == "integer" else f"a finite {noun}"
             if self.low is not None:
-                words += f" {'>' if self.low_open else '>='} {self.low:g}"
+                words += f" {'>' if self.low_open else '>='} {self._bound(self.low)}"
             if self.high is not None:
-                words += f"{' and' if self.low is not None else ''} {'<' if self.high_open else '<='} {self.high:g}"
-        if self.kind == "integer" and self.low == 1 and not self.low_open and self.high is None:
-            words = "a positive integer"
+                words += (f"{' and' if self.low is not None else ''} {'<' if self.high_open else '<='} "
+                          f"{self._bound(self.high)}")
         choices = [repr(o) for o in self.options] + (["None"] if self.none_spelled else [])
         return " or ".join(choices + [words])
+
+    def _bound(self, value) -> str:
+        return str(int(value)) if self.kind == "integer" else f"{value:g}"
 
     def accepts(self, value) -> bool:
         if self.none_spelled and value is None:

@@ -8,6 +8,9 @@ import numpy as np
 
 from vogjax.config.schema import Config, integer, non_negative, number, positive
 
+# Beams per scan a run file holds (vogjax.io.dataset); a sonar's beams times its sub-rays too.
+MAX_BEAMS = 1 << 20
+
 
 @dataclasses.dataclass(frozen=True)
 class NavNoise(Config):
@@ -41,7 +44,7 @@ class SonarConfig(Config):
     kept; 1 sub-ray: a line sensor, as the papers simulate).
     """
 
-    beams: int = integer(96, low=1)
+    beams: int = integer(96, low=1, high=MAX_BEAMS)
     fov_deg: float = number(29.0, low=0, high=360, low_open=True)
     tilt_deg: float = number(-10.0, low=-180, high=180)
     rate_hz: float = positive(5.0)
@@ -49,8 +52,11 @@ class SonarConfig(Config):
     max_range_m: float = positive(11.0)
     range_noise_m: float = non_negative(0.0)
     aperture_deg: float = number(1.0, low=0, high=180)
-    subrays: int = integer(1, low=1)
+    subrays: int = integer(1, low=1, high=MAX_BEAMS)
 
     def check(self) -> None:
         if not self.min_range_m < self.max_range_m:
             raise ValueError("SonarConfig.min_range_m must lie in [0, max_range_m)")
+        if self.beams * self.subrays > MAX_BEAMS:  # every sub-ray is cast: simulation and view gain
+            raise ValueError(f"SonarConfig.beams times SonarConfig.subrays must be at most {MAX_BEAMS}, "
+                             f"got {self.beams} x {self.subrays}")

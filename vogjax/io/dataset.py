@@ -25,6 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import RIGID_TOLERANCE
 from vogjax.io.atomic import AtomicPath
 from vogjax.sensors.base import world_rays
@@ -32,7 +33,6 @@ from vogjax.sensors.base import world_rays
 FORMAT = "vogjax-run"
 FORMAT_VERSION = 2
 MAX_RANGE_M = 10_000.0  # no range sensor reaches farther; larger values are damage
-MAX_BEAMS = 1 << 20
 _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "time_s": (lambda b: (), np.float64),
     "pose_truth": (lambda b: (4, 4), np.float64),

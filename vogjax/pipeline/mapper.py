@@ -27,6 +27,7 @@ submap reaches the maps and the graph only once it is complete, as before.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import defaultdict
 
@@ -35,7 +36,7 @@ import numpy as np
 from vogjax import sensors
 from vogjax.config import CrmConfig, PipelineConfig
 from vogjax.geometry import inverse
-from vogjax.io.dataset import ScanBatch
+from vogjax.io.dataset import MAX_BEAMS, ScanBatch, check_scans
 from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
@@ -69,6 +70,7 @@ class Mapper:
         self.scans = 0
         self._pending: list[ScanBatch] = []  # the scans of the submap being filled
         self._scan_time, self._scan_nav, self._scan_truth = [], [], []
+        self._beams = 0  # per scan, set by the first batch
 
     @property
     def num_submaps(self) -> int:
@@ -76,7 +78,14 @@ class Mapper:
         return len(self.submaps)
 
     def add(self, batch: ScanBatch) -> None:
-        """Integrate a batch of consecutive scans; finish every submap it completes."""
+        """Integrate a batch of consecutive scans; finish every submap it completes.
+
+        The batch is checked as a run file's scans are (finite, rigid poses; times increasing
+        from the last scan added; the beam count and ground truth of the first batch) before
+        anything changes."""
+        self._check(batch)
+        if not len(batch):
+            return
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
@@ -100,6 +109,23 @@ class Mapper:
             if first < len(batch):  # the submap is full
                 self.finish_submap()
         self.scans += len(batch)
+
+    def _check(self, batch) -> None:
+        if not isinstance(batch, ScanBatch):
+            raise ValueError(f"batch must be a ScanBatch, got {type(batch).__name__}")
+        fields = {f.name: getattr(batch, f.name) for f in dataclasses.fields(batch) if f.name != "first"}
+        beams = int(np.shape(batch.ranges)[1]) if np.ndim(batch.ranges) == 2 else -1
+        if self._scan_time:  # what the first batch set
+            if beams != self._beams:
+                raise ValueError(f"batch: {beams} beams per scan, but the scans before had {self._beams}")
+            truth = self._scan_truth[0] is not None
+        else:
+            if not 1 <= beams <= MAX_BEAMS:
+                raise ValueError(f"batch: ranges must have shape (scans, beams) with 1 to {MAX_BEAMS} beams")
+            truth = batch.pose_truth is not None
+        after = float(self._scan_time[-1][-1]) if self._scan_time else -np.inf
+        check_scans(fields, beams, "batch", after_time_s=after, truth=truth)
+        self._beams = beams
 
     def finish_submap(self) -> None:
         """Close the submap being filled (if any): SLAM and the global map take it in."""

@@ -23,6 +23,9 @@ from vogjax.maps import parallel
 from vogjax.planner.source import Source, opened
 from vogjax.validation import float_array, within_key_range
 
+# Voxels one edge's swept box may cover, at most (a 1 m box along 2 m at 0.1 m: about 15,000).
+MAX_SWEPT_VOXELS = 1 << 26
+
 
 def edges_clear(map_, starts, ends, box_m, vehicle, clearance_m: float = 0.0) -> np.ndarray:
     """(E,) bool: is the box of extents box_m (3,) (world-aligned, centred on the path) free
@@ -53,6 +56,11 @@ def clear_edges(source: Source, starts: np.ndarray, ends: np.ndarray, box_m: np.
     # every voxel whose cube may touch the swept box (a voxel of margin: touching counts)
     first = np.floor(lo / s).astype(np.int64) - 1
     sizes = np.floor(hi / s).astype(np.int64) + 2 - first
+    swept = sizes.prod(axis=1)
+    if swept.max() > MAX_SWEPT_VOXELS:
+        i = int(np.argmax(swept))
+        raise ValueError(f"ends: edge {i} sweeps its box through {swept[i]} voxels; at most {MAX_SWEPT_VOXELS} "
+                         "an edge (split long edges)")
     offsets, candidates = source.candidates(lo, hi)
     unsafe = wp.zeros(count, dtype=wp.int32, device=device)
     inputs = [wp.array(starts, dtype=wp.vec3d, device=device), wp.array(ends, dtype=wp.vec3d, device=device),
@@ -60,7 +68,9 @@ def clear_edges(source: Source, starts: np.ndarray, ends: np.ndarray, box_m: np.
               wp.array(sizes.astype(np.int32), dtype=wp.vec3i, device=device), source.access, offsets, candidates,
               wp.vec3d(*vehicle), np.float64(clearance_m)]
     columns = int((sizes[:, 0] * sizes[:, 1]).max())
+    # launches of at most 2^31 threads (edges x the widest edge's columns)
+    parts = max(parallel.num_parts(device, count * columns // 64), -(-count * columns // (1 << 30)))
     parallel.split_launch(lambda part, lo_, hi_: wp.launch(
         kernels.count_unsafe_voxels, dim=(hi_ - lo_, columns), inputs=[lo_, *inputs], outputs=[unsafe],
-        device=device), count, parallel.num_parts(device, count * columns // 64))
+        device=device), count, min(parts, count))
     return unsafe.numpy() == 0

@@ -21,7 +21,11 @@ from vogjax.geometry import rigid_poses, rotation_from_ypr
 from vogjax.planner.seen import group_counts
 from vogjax.planner.source import Source, opened
 from vogjax.sensors import RangeSensor, as_sensor
-from vogjax.validation import finite_real, float_array
+from vogjax.kernels import hashing
+from vogjax.validation import finite_real, float_array, within_key_range
+
+# Views sampled along one edge, at most: beyond, a tiny step_m would cast rays for minutes.
+MAX_EDGE_VIEWS = 1 << 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,8 +60,8 @@ def view_gain(map_, T_world_sensor, sensor, max_range_m: float | None = None, re
     vogjax.planner.Overlay. One launch for all views on a GPU; split across cores on the CPU."""
     poses = rigid_poses("T_world_sensor", T_world_sensor)
     sensor = as_sensor(sensor)
-    max_range = _range("max_range_m", sensor.max_range_m if max_range_m is None else max_range_m)
-    region = _region(region)
+    max_range = gain_range("max_range_m", sensor, sensor.max_range_m if max_range_m is None else max_range_m)
+    region = check_region(region)
     with opened(map_) as source:
         counts, rays = group_counts(source, poses, np.arange(len(poses)), len(poses), sensor, max_range, region)
     return gain_of(counts, source.config.voxel_size, rays)
@@ -70,12 +74,19 @@ def edge_views(starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarra
 
     Position moves linearly and yaw along the shorter turn; an edge gets n views at fractions
     1/n..1 (its start belongs to the edge before), n such that consecutive views are at most
-    step_m apart and the fan turns at most step_m at range_m (thesis 4.5.4)."""
-    starts = np.asarray(starts, np.float64).reshape(-1, 4)
-    ends = np.asarray(ends, np.float64).reshape(-1, 4)
+    step_m apart and the fan turns at most step_m at range_m (thesis 4.5.4); at most
+    MAX_EDGE_VIEWS views an edge."""
+    starts = float_array("starts", starts, (-1, 4), np.float64)
+    ends = float_array("ends", ends, (starts.shape[0], 4), np.float64)
+    step_m, range_m = _range("step_m", step_m), _range("range_m", range_m)
     turn = (ends[:, 3] - starts[:, 3] + np.pi) % (2 * np.pi) - np.pi
     length = np.linalg.norm(ends[:, :3] - starts[:, :3], axis=1)
-    n = np.maximum(1, np.ceil(np.maximum(length, np.abs(turn) * range_m) / step_m - 1e-9)).astype(np.int64)
+    views = np.maximum(length, np.abs(turn) * range_m) / step_m
+    if len(views) and not views.max() <= MAX_EDGE_VIEWS:
+        i = int(np.argmax(views))
+        raise ValueError(f"step_m: edge {i} would take {views[i]:.3g} views {step_m:g} m apart; at most "
+                         f"{MAX_EDGE_VIEWS} an edge (a larger step_m or shorter edges)")
+    n = np.maximum(1, np.ceil(views - 1e-9)).astype(np.int64)
     edge = np.repeat(np.arange(len(starts)), n)
     fraction = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 1) / np.repeat(n, n)
     states = starts[edge] + fraction[:, None] * np.c_[ends[:, :3] - starts[:, :3], turn][edge]
@@ -94,9 +105,12 @@ def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | No
     starts = float_array("starts", starts, (-1, 4), np.float64)
     ends = float_array("ends", ends, (starts.shape[0], 4), np.float64)
     step_m = _range("step_m", step_m)
-    max_range = _range("max_range_m", sensor.max_range_m if max_range_m is None else max_range_m)
-    region = _region(region)
+    max_range = gain_range("max_range_m", sensor, sensor.max_range_m if max_range_m is None else max_range_m)
+    region = check_region(region)
     with opened(map_) as source:
+        for name, states in (("starts", starts), ("ends", ends)):
+            within_key_range(name, np.abs(states[:, :3]) + max_range, source.config.voxel_size,
+                             hashing.VOXEL_KEY_LIMIT)
         counts, rays = edge_counts(source, starts, ends, sensor, step_m, max_range, region)
     return gain_of(counts, source.config.voxel_size, rays)
 
@@ -121,7 +135,18 @@ def _range(name: str, value) -> float:
     return float(value)
 
 
-def _region(region) -> np.ndarray | None:
+def gain_range(name: str, sensor: RangeSensor, value) -> float:
+    """A gain ray's range: positive, finite and beyond the sensor's blind zone (min_range_m),
+    where it would see nothing and every view would read as explored."""
+    value = _range(name, value)
+    if not value > sensor.min_range_m:
+        raise ValueError(f"{name} must exceed the sensor's min_range_m ({sensor.min_range_m:g} m), got {value!r}: "
+                         "the rays would see nothing")
+    return value
+
+
+def check_region(region) -> np.ndarray | None:
+    """A (2,3) box (lo, hi), or None."""
     if region is None:
         return None
     region = float_array("region", region, (2, 3), np.float64)

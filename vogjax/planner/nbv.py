@@ -34,10 +34,11 @@ import numpy as np
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
 from vogjax.planner.collision import clear_edges
-from vogjax.planner.gain import edge_counts
+from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.source import check_map, opened
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
-from vogjax.validation import float_array
+from vogjax.kernels import hashing
+from vogjax.validation import float_array, within_key_range
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,7 +84,12 @@ class NbvPlanner:
         if np.any(self.sample_box[0] > self.sample_box[1]):
             raise ValueError("bounds must be larger than the collision box on every axis")
         self.sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
-        self.region = None if region is None else float_array("region", region, (2, 3), np.float64)
+        try:  # one without fixed beams (a recorded point cloud) is refused here, not mid-plan
+            self.sensor.beam_directions()
+        except ValueError as error:
+            raise ValueError(f"sensor: {error}") from None
+        gain_range("PlannerConfig.gain_range_m", self.sensor, config.gain_range_m)
+        self.region = check_region(region)
         if config.risk_weight > 0 and not callable(risk):
             raise ValueError("risk must be a callable when PlannerConfig.risk_weight > 0")
         self.risk = risk
@@ -101,6 +107,10 @@ class NbvPlanner:
         root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])
         start_s = time.perf_counter()
         with opened(map_) as source:
+            # checked before the first sample is drawn: a refused plan leaves the random state
+            reach = np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.box_m) + \
+                self.config.margin_m
+            within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
             tree = _Tree(root)
             rays = self._grow(source, tree, self.memory, root, chain=True)
             iterations = len(self.memory)
@@ -143,8 +153,7 @@ class NbvPlanner:
             parents = None
             starts = np.vstack([root, targets[:-1]])
         else:
-            distances = np.linalg.norm(tree.states[None, :, :3] - targets[:, None, :3], axis=2)
-            parents = np.argmin(distances, axis=1)
+            parents = _nearest(tree.states[:, :3], targets[:, :3])
             starts = tree.states[parents]
         step = targets[:, :3] - starts[:, :3]
         scale = np.minimum(1.0, cfg.edge_length_m / np.maximum(np.linalg.norm(step, axis=1), 1e-12))
@@ -174,6 +183,14 @@ class NbvPlanner:
             parent = (0 if edge == 0 else len(tree.states) - 1) if chain else int(parents[edge])
             tree.add(parent, ends[edge], visible[k], cfg.discount, cfg.turn_cost_m_per_rad)
         return rays
+
+
+def _nearest(nodes: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Index of the nearest of `nodes` (N,3) to each target (T,3) (the first on a tie), in
+    chunks of targets that keep the distance table near 16 MiB."""
+    chunk = max(1, (1 << 21) // max(len(nodes), 1))
+    return np.concatenate([np.argmin(np.linalg.norm(nodes[None] - targets[k:k + chunk, None], axis=2), axis=1)
+                           for k in range(0, len(targets), chunk)])
 
 
 class _Tree:

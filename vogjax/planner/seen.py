@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.kernels import hashing
 from vogjax.kernels import view_gain as kernels
 from vogjax.maps import parallel
@@ -38,6 +39,9 @@ def group_counts(source: Source, poses: np.ndarray, groups: np.ndarray, num_grou
     if np.any(np.diff(groups) < 0):
         raise ValueError("groups must be sorted")
     s = source.config.voxel_size
+    if max_range > MAX_RANGE_VOXELS * s:  # as for a map's beams: rays of bounded cost
+        raise ValueError(f"max_range_m: {max_range:g} m is more than {MAX_RANGE_VOXELS} voxels of "
+                         f"{s:g} m, the longest ray a view casts")
     origins = np.ascontiguousarray(poses[:, :3, 3])
     within_key_range("T_world_sensor", np.abs(origins) + max_range, s, hashing.VOXEL_KEY_LIMIT)
     # voxels each view's rays cross, at most (sizes the sets only: counts are exact either way);

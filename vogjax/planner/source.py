@@ -24,7 +24,8 @@ class Overlay:
     will hold once they are added. The mapper adds a submap only when it is complete, so a
     planner on the online global map reads it through an Overlay of the submap being filled, or
     it would not see the last up to 100 scans. Sums are exact: at voxel centres an Overlay
-    answers what `GlobalMap.add` of those submaps would."""
+    answers what `GlobalMap.add` of those submaps would. A submap added to base after the
+    Overlay was made is read from base alone from then on."""
 
     def __init__(self, base: GlobalMap, vog: VogMap, ids):
         if not isinstance(base, GlobalMap):
@@ -90,7 +91,10 @@ def opened(map_):
         elif isinstance(map_, Overlay):
             stack.enter_context(map_.base.reading())
             store, kind = map_.base.store, planner_maps.SUM_STORE
-            submaps, poses = _observed(stack, map_.vog, map_.ids)
+            # a submap added to base since the Overlay was made is there already: on top too,
+            # it would count twice
+            applied = set(map_.base.applied_ids)
+            submaps, poses = _observed(stack, map_.vog, [i for i in map_.ids if i not in applied])
         else:
             stack.enter_context(map_.reading())
             store, kind = map_.store, planner_maps.LOG_ODDS_STORE
