@@ -18,10 +18,10 @@ import dataclasses
 import numpy as np
 
 from vogjax.geometry import rigid_poses, rotation_from_ypr
+from vogjax.kernels import hashing
 from vogjax.planner.seen import group_counts
 from vogjax.planner.source import Source, opened
 from vogjax.sensors import RangeSensor, as_sensor
-from vogjax.kernels import hashing
 from vogjax.validation import finite_real, float_array, within_key_range
 
 # Views sampled along one edge, at most: beyond, a tiny step_m would cast rays for minutes.

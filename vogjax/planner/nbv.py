@@ -33,11 +33,11 @@ import numpy as np
 
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
+from vogjax.kernels import hashing
 from vogjax.planner.collision import clear_edges
 from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.source import check_map, opened
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
-from vogjax.kernels import hashing
 from vogjax.validation import float_array, within_key_range
 
 
@@ -187,8 +187,8 @@ class NbvPlanner:
 
 def _nearest(nodes: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """Index of the nearest of `nodes` (N,3) to each target (T,3) (the first on a tie), in
-    chunks of targets that keep the distance table near 16 MiB."""
-    chunk = max(1, (1 << 21) // max(len(nodes), 1))
+    chunks of targets that keep the distance table near 12 MiB (24 bytes a node and target)."""
+    chunk = max(1, (1 << 19) // max(len(nodes), 1))
     return np.concatenate([np.argmin(np.linalg.norm(nodes[None] - targets[k:k + chunk, None], axis=2), axis=1)
                            for k in range(0, len(targets), chunk)])
 
