@@ -383,3 +383,102 @@ def test_a_bag_whose_scans_all_miss_the_odometry_is_an_error(tmp_path, capsys):
     bag = write_bag(tmp_path / "late", "mcap", messages)
     message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5")
     assert "no scan on '/points' can be imported: 1 outside odometry" in message
+
+
+# ------------------------------------------------------------------ hostile bags (a review campaign's findings)
+def odometry_messages(m, count, skip=()):
+    stamps, positions, quats = odometry_samples(count)
+    return [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q))
+            for k, (s, p, q) in enumerate(zip(stamps, positions, quats)) if k not in skip], stamps
+
+
+def test_a_record_the_reader_cannot_read_names_the_bag(tmp_path, capsys):
+    bag, _, _ = cloud_bag(tmp_path / "run.bag", "ros1", scans=6)
+    data = bytearray(bag.read_bytes())
+    # damage inside the last message records (the index after them stays readable)
+    for at in range(len(data) // 2, len(data) * 3 // 4, 97):
+        data[at] ^= 0xFF
+    bag.write_bytes(bytes(data))
+    message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5",
+                      "--frame", "lidar")
+    assert str(bag) in message and "\n" not in message.strip()
+
+
+def test_a_cloud_larger_than_a_run_takes_is_refused_before_converting():
+    m = Messages(False)
+    Field = m.t["sensor_msgs/msg/PointField"]
+    huge = m.t["sensor_msgs/msg/PointCloud2"](
+        header=m.header(T0_NS, "lidar"), height=2048, width=1024, is_bigendian=False, point_step=12,
+        row_step=12 * 1024, fields=[Field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
+        data=np.zeros(12, np.uint8), is_dense=True)
+    with pytest.raises(ValueError, match="more than the 1048576 beams"):
+        cloud_points(huge, "/p")
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda f: f.__setitem__(2, ("z", 100)), "is malformed"),  # z beyond point_step
+    (lambda f: f.__setitem__(2, ("x", 8)), "has field x twice"),
+])
+def test_cloud_layouts_are_checked_before_numpy_sees_them(change, match):
+    m = Messages(False)
+    Field = m.t["sensor_msgs/msg/PointField"]
+    layout = [("x", 0), ("y", 4), ("z", 8)]
+    change(layout)
+    msg = m.t["sensor_msgs/msg/PointCloud2"](
+        header=m.header(T0_NS, "lidar"), height=1, width=2, is_bigendian=False, point_step=12, row_step=24,
+        fields=[Field(name=n, offset=o, datatype=7, count=1) for n, o in layout], data=np.zeros(24, np.uint8),
+        is_dense=True)
+    with pytest.raises(ValueError, match=match):
+        cloud_points(msg, "/p")
+
+
+def test_odometry_that_disagrees_with_itself_is_refused(tmp_path, capsys):
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 10)
+    messages.append(("/odom", "nav_msgs/msg/Odometry", stamps[4],
+                     m.odometry(stamps[4], [100.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])))
+    messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamps[5],
+                     m.cloud(stamps[5], "base_link", np.ones((5, 3)))))
+    bag = write_bag(tmp_path / "dup", "mcap", sorted(messages, key=lambda e: e[2]))
+    message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5")
+    assert f"two different poses stamped {stamps[4]} ns" in message
+
+
+def test_scans_in_an_odometry_gap_are_dropped_and_counted(tmp_path):
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 40, skip=range(5, 35))  # 1.5 s without odometry at 20 Hz
+    inside, gap = stamps[2] + 10_000_000, stamps[20]
+    for stamp in (inside, gap):
+        messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamp, m.cloud(stamp, "base_link", np.ones((5, 3)))))
+    bag = write_bag(tmp_path / "gap", "mcap", sorted(messages, key=lambda e: e[2]))
+    summary = import_bag(bag, tmp_path / "x.h5", "/points", "/odom", progress=False)
+    assert summary.scans == 1 and summary.dropped == {"in_odometry_gap": 1}
+
+
+def test_a_tf_link_off_the_path_may_be_junk_but_one_on_it_may_not(tmp_path, capsys):
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 10)
+    messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamps[3], m.cloud(stamps[3], "lidar", np.ones((5, 3)))))
+    junk = np.eye(4)
+    junk[:3, :3] = 0.0  # a zero quaternion
+    good = ("/tf_static", "tf2_msgs/msg/TFMessage", T0_NS, m.tf(T0_NS, "base_link", "lidar", mount()))
+    elsewhere = ("/tf", "tf2_msgs/msg/TFMessage", T0_NS, m.tf(T0_NS, "map", "camera", np.eye(4)))
+    elsewhere[3].transforms[0].transform.rotation.w = 0.0
+    bag = write_bag(tmp_path / "ok", "mcap", sorted(messages + [good, elsewhere], key=lambda e: e[2]))
+    assert import_bag(bag, tmp_path / "ok.h5", "/points", "/odom", frame="lidar", progress=False).scans == 1
+    bad = ("/tf_static", "tf2_msgs/msg/TFMessage", T0_NS, m.tf(T0_NS, "base_link", "lidar", mount()))
+    bad[3].transforms[0].transform.rotation.w = 0.1  # not a unit quaternion
+    bag = write_bag(tmp_path / "bad", "mcap", sorted(messages + [bad], key=lambda e: e[2]))
+    message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5",
+                      "--frame", "lidar")
+    assert "the TF link base_link -> lidar holds non-finite values or a quaternion that is not of unit length" in message
+
+
+def test_laser_returns_beyond_any_sensor_are_invalid_beams():
+    m = Messages(False)
+    msg = m.laser(T0_NS, "lidar", [1.0, 5e4, np.inf, np.nan], 0.0, 0.1, 0.1, 1e30)
+    from vogjax.io.rosbag import laser_beams
+
+    scan = laser_beams(msg, "/scan")
+    assert scan.invalid == 2  # 50 km and NaN
+    assert np.array_equal(scan.no_return, [False, True]) and scan.ranges[0] == 1.0

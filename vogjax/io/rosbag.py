@@ -34,6 +34,7 @@ range_max, or for a point cloud the farthest return unless `max_range_m` is give
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -41,6 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vogjax.config.point_cloud import PointCloudConfig
+from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import interpolate_poses, inverse, rigid_pose
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import MAX_RANGE_M, DatasetWriter
@@ -52,6 +54,11 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 TF_TOPICS = {"/tf_static": True, "tf_static": True, "/tf": False, "tf": False}  # topic -> static
 BATCH_SCANS = 256
+# Scans are interpolated between odometry poses at most this many median intervals apart (and
+# at least this many seconds); scans in longer gaps are dropped, counted as in_odometry_gap.
+ODOMETRY_GAP_FACTOR = 10.0
+MIN_ODOMETRY_GAP_S = 1.0
+BATCH_BEAMS = 1 << 22  # scans x beams per batch written: about 70 MB with padding
 _MIN_RANGE = 1e-6  # a point closer than this has no direction
 _MOUNT_TOLERANCE = 1e-6  # a /tf mount that moves more than this (m, rad) is not fixed
 _FLOAT_TYPES = {7: "f4", 8: "f8"}  # sensor_msgs/PointField FLOAT32, FLOAT64
@@ -105,9 +112,33 @@ def import_bag(bag, out, points_topic: str, odometry_topic: str, frame: str | No
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
             return _import(reader, bag, out, points_topic, odometry_topic, frame, max_range_m, progress)
-    except (AnyReaderError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as error:
-        # rosbags reads a folder without metadata.yaml as a ROS 2 bag and fails opening it
+    except (AnyReaderError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,
+            UnicodeError) as error:
+        # rosbags reads a folder without metadata.yaml as a ROS 2 bag and fails opening it; a
+        # damaged MCAP summary can hold undecodable text
         raise ValueError(f"bag {str(bag)!r} cannot be read as a ROS 1, ROS 2 or MCAP bag: {error}") from None
+    except _Damaged as damage:
+        raise ValueError(f"bag {str(bag)!r} is damaged: {damage}") from None
+
+
+class _Damaged(Exception):
+    """The bag reader failed on a record or a message (what it raises varies: its own errors,
+    assertions, decoding errors): the bag, not the caller, is at fault."""
+
+
+def _messages(reader, connections):
+    """(connection, message) of `connections` in the bag's order, read errors as _Damaged."""
+    records = reader.messages(connections=connections)
+    while True:
+        try:
+            connection, _, raw = next(records)
+            message = reader.deserialize(raw, connection.msgtype)
+        except StopIteration:
+            return
+        except Exception as error:  # anything the reader raises means an unreadable record
+            detail = str(error).strip().splitlines()
+            raise _Damaged(type(error).__name__ + (f": {detail[0]}" if detail else "")) from None
+        yield connection, message
 
 
 def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, max_range_m, progress):
@@ -127,6 +158,8 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
         invalid += scan.invalid
         if not odometry.covers(scan.stamp_ns):
             dropped["outside_odometry"] += 1
+        elif not odometry.bridges(scan.stamp_ns):
+            dropped["in_odometry_gap"] += 1
         elif len(scan.ranges) == 0:
             dropped["no_valid_beams"] += 1
         elif stamps and scan.stamp_ns * 1e-9 <= stamps[-1] * 1e-9:  # as the run stores times
@@ -142,6 +175,9 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
                 longest = max(longest, float(returned.max()))
     if scans_read == 0:
         raise ValueError(f"--points topic {points_topic!r} holds no messages")
+    declared = sum(int(getattr(c, "msgcount", 0) or 0) for c in scan_connections)
+    if scans_read < declared:  # the reader skipped records it could not read
+        raise _Damaged(f"topic {points_topic!r} declares {declared} messages, {scans_read} could be read")
     if not kept:
         raise ValueError(f"no scan on {points_topic!r} can be imported: {_reasons(dropped)}")
     sensor_frame = _check_frames(frames - {""}, None if frame is None else _frame(frame), vehicle_frame,
@@ -149,8 +185,12 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
     T_vehicle_sensor, mount = ((np.eye(4), "identity: points in the vehicle frame") if sensor_frame == vehicle_frame
                                else read_mount(reader, vehicle_frame, sensor_frame))
     # the sensor's reach: what the caller says, LaserScan's range_max, or the farthest return (cm up)
-    reach = float(max_range_m or (range_max if message == "LaserScan" else np.ceil(longest * 100 + 1) / 100))
+    reach = float(max_range_m or min(range_max if message == "LaserScan" else np.ceil(longest * 100 + 1) / 100,
+                                     MAX_RANGE_M))
     beams = int(max(counts))
+    if beams > MAX_BEAMS:
+        raise ValueError(f"--points topic {points_topic!r}: a scan holds {beams} valid beams, more than the "
+                         f"{MAX_BEAMS} a run file takes")
     duration_s = (stamps[-1] - stamps[0]) * 1e-9
     config = PointCloudConfig(message=message, beams=beams,
                               rate_hz=float((len(kept) - 1) / duration_s) if duration_s > 0 else 10.0,
@@ -171,6 +211,8 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
     # pass 2: the kept scans, padded, at their interpolated poses
     wanted = set(kept)
     rotation, origin = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
+    # every scan is padded to the largest: batches of at most BATCH_BEAMS beams bound the memory
+    batch_scans = max(1, min(BATCH_SCANS, BATCH_BEAMS // beams))
     written = 0
     with DatasetWriter(out, beams, metadata, truth=False) as writer, \
             tqdm(total=len(kept), unit="scan", desc="importing", disable=not progress) as bar:
@@ -180,7 +222,7 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
                 continue
             written += 1
             rows.append(_padded(scan, beams, rotation))
-            if len(rows) == BATCH_SCANS or written == len(kept):
+            if len(rows) == batch_scans or written == len(kept):
                 batch_ns = np.array([r[0] for r in rows], dtype=np.int64)
                 writer.append(time_s=batch_ns * 1e-9, pose_nav=odometry.at(batch_ns),
                               sonar_origin=np.tile(origin, (len(rows), 1)).astype(np.float32),
@@ -234,8 +276,7 @@ def _stamp_ns(header) -> int:
 
 def _scans(reader, connections, message: str, topic: str):
     parse = cloud_beams if message == "PointCloud2" else laser_beams
-    for connection, _, raw in reader.messages(connections=connections):
-        msg = reader.deserialize(raw, connection.msgtype)
+    for _, msg in _messages(reader, connections):
         yield parse(msg, topic)
 
 
@@ -252,6 +293,10 @@ def cloud_beams(msg, topic: str = "") -> Scan:
 def cloud_points(msg, topic: str = "") -> np.ndarray:
     """(N,3) float64 x, y, z of every point of a PointCloud2 (NaN ones included)."""
     where = f"--points topic {topic!r}: PointCloud2"
+    names = [f.name for f in msg.fields]
+    repeated = sorted(n for n in "xyz" if names.count(n) > 1)
+    if repeated:
+        raise ValueError(f"{where} has field {repeated[0]} twice")
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in "xyz" if n not in fields]
     if missing:
@@ -266,12 +311,14 @@ def cloud_points(msg, topic: str = "") -> np.ndarray:
         formats.append(order + _FLOAT_TYPES[field.datatype])
         offsets.append(int(field.offset))
     step, width, height, row_step = int(msg.point_step), int(msg.width), int(msg.height), int(msg.row_step)
-    dtype = np.dtype({"names": list("xyz"), "formats": formats, "offsets": offsets, "itemsize": max(step, 1)})
+    if width * height > MAX_BEAMS:  # a run holds no more beams per scan; refused before converting
+        raise ValueError(f"{where} holds {height} x {width} points, more than the {MAX_BEAMS} beams a scan may have")
     data = np.asarray(msg.data, dtype=np.uint8)
-    if step <= 0 or any(o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats)) or \
+    if step <= 0 or any(o < 0 or o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats)) or \
             row_step < width * step or len(data) < height * row_step:
         raise ValueError(f"{where} is malformed: {height} x {width} points of {step} bytes, rows of {row_step} "
-                         f"bytes, {len(data)} bytes of data")
+                         f"bytes, fields x, y, z at bytes {offsets}, {len(data)} bytes of data")
+    dtype = np.dtype({"names": list("xyz"), "formats": formats, "offsets": offsets, "itemsize": step})
     rows = data[:height * row_step].reshape(height, row_step)[:, :width * step]
     points = np.ascontiguousarray(rows).view(dtype).reshape(-1)
     return np.stack([points[n].astype(np.float64) for n in "xyz"], axis=1)
@@ -288,8 +335,9 @@ def laser_beams(msg, topic: str = "") -> Scan:
         raise ValueError(f"--points topic {topic!r}: LaserScan has range_min {low}, range_max {high}, "
                          f"angle_min {msg.angle_min}, angle_increment {msg.angle_increment}")
     with np.errstate(invalid="ignore"):
-        invalid = np.isnan(ranges) | (ranges < low)
-        no_return = ~invalid & (ranges > high)
+        no_return = ranges > high
+        # a return farther than any range sensor reaches is damage, as in a cloud
+        invalid = np.isnan(ranges) | (ranges < low) | (~no_return & (ranges > MAX_RANGE_M))
     keep = ~invalid
     return Scan(_stamp_ns(msg.header), _frame(msg.header.frame_id), directions[keep],
                 np.where(no_return, np.nan, ranges)[keep], no_return[keep], int(np.count_nonzero(invalid)), low, high)
@@ -308,6 +356,22 @@ class Odometry:
     def covers(self, stamp_ns: int) -> bool:
         return bool(self.stamps_ns[0] <= stamp_ns <= self.stamps_ns[-1])
 
+    @functools.cached_property
+    def max_gap_ns(self) -> float:
+        """The longest gap between two poses that a scan is interpolated across: ten times the
+        odometry's median interval, and at least MIN_ODOMETRY_GAP_S. Across a longer one (a
+        dropout, or a message stamped 0) the vehicle's path is unknown."""
+        intervals = np.diff(self.stamps_ns)
+        median = float(np.median(intervals)) if len(intervals) else 0.0
+        return max(ODOMETRY_GAP_FACTOR * median, MIN_ODOMETRY_GAP_S * 1e9)
+
+    def bridges(self, stamp_ns: int) -> bool:
+        """Whether a covered stamp lies on a pose or between two no more than max_gap_ns apart."""
+        i = int(np.searchsorted(self.stamps_ns, stamp_ns))
+        if i < len(self.stamps_ns) and self.stamps_ns[i] == stamp_ns:
+            return True
+        return bool(self.stamps_ns[i] - self.stamps_ns[i - 1] <= self.max_gap_ns)
+
     def at(self, stamps_ns: np.ndarray) -> np.ndarray:
         """(M,4,4) poses at stamps within the span: positions linear, rotations slerped."""
         # relative nanoseconds to seconds: stamps since 1970 would lose microseconds as floats
@@ -318,8 +382,7 @@ class Odometry:
 
 def read_odometry(reader, connections, topic: str) -> Odometry:
     stamps, poses, frames = [], [], set()
-    for connection, _, raw in reader.messages(connections=connections):
-        msg = reader.deserialize(raw, connection.msgtype)
+    for _, msg in _messages(reader, connections):
         stamps.append(_stamp_ns(msg.header))
         p, o = msg.pose.pose.position, msg.pose.pose.orientation
         poses.append([p.x, p.y, p.z, o.x, o.y, o.z, o.w])
@@ -335,7 +398,11 @@ def read_odometry(reader, connections, topic: str) -> Odometry:
     stamps = np.array(stamps, dtype=np.int64)
     order = np.argsort(stamps, kind="stable")
     stamps, values = stamps[order], values[order]
-    first = np.r_[True, np.diff(stamps) > 0]  # one pose per stamp: the first recorded
+    first = np.r_[True, np.diff(stamps) > 0]  # one pose per stamp: repeats must agree
+    repeat = np.flatnonzero(~first)
+    if len(repeat) and np.any(values[repeat] != values[repeat - 1]):
+        stamp = int(stamps[repeat[np.argmax(np.any(values[repeat] != values[repeat - 1], axis=1))]])
+        raise ValueError(f"--odometry topic {topic!r} holds two different poses stamped {stamp} ns")
     stamps, values = stamps[first], values[first]
     T = np.tile(np.eye(4), (len(stamps), 1, 1))
     T[:, :3, :3] = Rotation.from_quat(values[:, 3:]).as_matrix()
@@ -365,13 +432,16 @@ def read_mount(reader, vehicle: str, sensor: str) -> tuple[np.ndarray, str]:
         if connection.topic not in TF_TOPICS or connection.msgtype != TF_MESSAGE:
             continue
         static = TF_TOPICS[connection.topic]
-        for c, _, raw in reader.messages(connections=[connection]):
-            for transform in reader.deserialize(raw, c.msgtype).transforms:
+        for _, msg in _messages(reader, [connection]):
+            for transform in msg.transforms:
                 key = (_frame(transform.header.frame_id), _frame(transform.child_frame_id))
                 t, r = transform.transform.translation, transform.transform.rotation
-                T = np.eye(4)
-                T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
-                T[:3, 3] = [t.x, t.y, t.z]
+                T = np.full((4, 4), np.nan)  # a link that is no rigid transform: refused if on the path
+                values = np.array([t.x, t.y, t.z, r.x, r.y, r.z, r.w], dtype=np.float64)
+                if np.all(np.isfinite(values)) and abs(np.linalg.norm(values[3:]) - 1.0) <= 1e-3:
+                    T = np.eye(4)
+                    T[:3, :3] = Rotation.from_quat(values[3:]).as_matrix()
+                    T[:3, 3] = values[:3]
                 if key not in links or (static and not links[key][0]):
                     links[key] = (static, [])
                 if links[key][0] == static:
@@ -386,6 +456,12 @@ def read_mount(reader, vehicle: str, sensor: str) -> tuple[np.ndarray, str]:
     for parent, child, forward in path:
         static, samples = links[(parent, child)]
         sources.add("/tf_static" if static else "/tf")
+        if any(not np.all(np.isfinite(T)) for T in samples):
+            raise ValueError(f"--frame {sensor!r}: the TF link {parent} -> {child} holds non-finite values or a "
+                             "quaternion that is not of unit length")
+        if (child, parent) in links:
+            raise ValueError(f"--frame {sensor!r}: TF links {parent} -> {child} and {child} -> {parent} both exist; "
+                             "which one holds is ambiguous")
         first = samples[0]
         for T in samples[1:]:
             moved = inverse(first) @ T
