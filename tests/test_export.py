@@ -215,3 +215,20 @@ def test_a_confidence_rich_map_exports_its_mean_occupancy(tmp_path):
         if expected != vj.UNKNOWN:
             assert tree.isNodeOccupied(tree.search(centre)) == (expected == vj.OCCUPIED)
     assert covered_voxels(tree, 0.2) == np.count_nonzero(state != vj.UNKNOWN)
+
+
+def test_ply_keeps_far_voxel_centres_exact(tmp_path):
+    # as float32, centres 500 km out moved by up to 0.3 voxel; such files are written in float64
+    trimesh = pytest.importorskip("trimesh")
+    far = vj.VoxelMap(vj.MapConfig(voxel_size=0.1))
+    origin = np.array([5e5, 0.0, 0.0])
+    far.integrate_scan(origin, origin + [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    voxels = VoxelSet.from_map(far)
+    occupied = voxels.centres[voxels.state() == vj.OCCUPIED]
+    assert ply.save(far, tmp_path / "far.ply") == 3
+    assert b"property double x" in (tmp_path / "far.ply").read_bytes()[:400]
+    np.testing.assert_array_equal(np.asarray(trimesh.load(tmp_path / "far.ply").vertices), occupied)
+    near = vj.VoxelMap(vj.MapConfig(voxel_size=0.1))
+    near.integrate_scan(np.zeros(3), [[1.0, 0.0, 0.0]])
+    ply.save(near, tmp_path / "near.ply")
+    assert b"property float x" in (tmp_path / "near.ply").read_bytes()[:400]  # the common case stays compact

@@ -308,7 +308,8 @@ def test_laser_scans_keep_returns_and_no_returns_and_drop_invalid_beams(tmp_path
     assert len(rows) == 8 and metadata["sensor_config"]["max_range_m"] == pytest.approx(9.0)
     assert metadata["sensor_config"]["min_range_m"] == pytest.approx(0.1)
     assert metadata["import"]["dropped"] == {"stamp_not_increasing": 1}
-    assert metadata["import"]["invalid_beams"] == 9 * 4 and metadata["source"]["mount"].startswith("identity")
+    # the invalid beams of the 8 scans written (the dropped duplicate's are not counted)
+    assert metadata["import"]["invalid_beams"] == 8 * 4 and metadata["source"]["mount"].startswith("identity")
     angles = -1.2 + 0.06 * np.arange(40)
     for (stamp, ranges), (_, origin, ends, no_return, stored) in zip(scans, rows):
         keep = ~(np.isnan(ranges) | (ranges < 0.1))
@@ -482,3 +483,16 @@ def test_laser_returns_beyond_any_sensor_are_invalid_beams():
     scan = laser_beams(msg, "/scan")
     assert scan.invalid == 2  # 50 km and NaN
     assert np.array_equal(scan.no_return, [False, True]) and scan.ranges[0] == 1.0
+
+
+def test_invalid_beams_are_counted_for_the_scans_written_only(tmp_path):
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 10)
+    early = stamps[0] - 10**9  # outside the odometry: dropped, its NaN points not counted again
+    points = np.ones((5, 3))
+    points[:2] = np.nan
+    for stamp in (early, stamps[4]):
+        messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamp, m.cloud(stamp, "base_link", points)))
+    bag = write_bag(tmp_path / "count", "mcap", sorted(messages, key=lambda e: e[2]))
+    summary = import_bag(bag, tmp_path / "x.h5", "/points", "/odom", progress=False)
+    assert summary.scans == 1 and summary.dropped == {"outside_odometry": 1} and summary.invalid_beams == 2

@@ -3,10 +3,11 @@ Blender, Open3D, trimesh read them).
 
     vogjax.io.ply.save(global_map, "occupied.ply")    # or a VoxelSet
 
-One vertex per occupied voxel: its centre (float32 x, y, z, metres), an RGB colour from the
-viridis colour map over the occupied voxels' height range (low: purple, high: yellow) and its
-occupancy probability (float32 `probability`). Binary little-endian; comments record the voxel
-size and the height range of the colours.
+One vertex per occupied voxel: its centre (x, y, z, metres: float32, or float64 where float32
+would move a centre by more than COORDINATE_TOLERANCE voxels, far from the origin), an RGB
+colour from the viridis colour map over the occupied voxels' height range (low: purple, high:
+yellow) and its occupancy probability (float32 `probability`). Binary little-endian; comments
+record the voxel size and the height range of the colours.
 """
 
 from __future__ import annotations
@@ -18,8 +19,14 @@ import numpy as np
 from vogjax.io.atomic import AtomicPath
 from vogjax.io.voxels import VoxelSet
 
-VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                   ("probability", "<f4")])
+# Centres rounded to float32 may move by this many voxels at most; beyond (at 0.1 m voxels from
+# about 4 km out) they are written as float64.
+COORDINATE_TOLERANCE = 1e-3
+
+
+def vertex_dtype(coordinate: str) -> np.dtype:
+    return np.dtype([("x", coordinate), ("y", coordinate), ("z", coordinate), ("red", "u1"), ("green", "u1"),
+                     ("blue", "u1"), ("probability", "<f4")])
 
 
 def height_colours(z: np.ndarray, low: float | None = None, high: float | None = None) -> np.ndarray:
@@ -41,7 +48,9 @@ def save(source, path) -> int:
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
     occupied = voxels.state() == 2
     centres = voxels.centres[occupied]
-    vertices = np.zeros(len(centres), dtype=VERTEX)
+    rounded = np.abs(centres.astype(np.float32) - centres).max(initial=0.0)
+    vertex = vertex_dtype("<f4" if rounded <= COORDINATE_TOLERANCE * voxels.voxel_size else "<f8")
+    vertices = np.zeros(len(centres), dtype=vertex)
     for axis, name in enumerate("xyz"):
         vertices[name] = centres[:, axis]
     colours = height_colours(centres[:, 2])
@@ -49,7 +58,7 @@ def save(source, path) -> int:
         vertices[name] = colours[:, channel]
     vertices["probability"] = voxels.probability()[occupied]
     z_range = f"{centres[:, 2].min():.6g} {centres[:, 2].max():.6g}" if len(centres) else "none"
-    properties = "".join(f"property {_PLY_TYPES[VERTEX[n].str]} {n}\n" for n in VERTEX.names)
+    properties = "".join(f"property {_PLY_TYPES[vertex[n].str]} {n}\n" for n in vertex.names)
     header = (f"ply\nformat binary_little_endian 1.0\ncomment occupied voxels written by vogjax\n"
               f"comment voxel_size {voxels.voxel_size!r}\ncomment colour viridis over z {z_range}\n"
               f"element vertex {len(vertices)}\n{properties}end_header\n")
@@ -59,4 +68,4 @@ def save(source, path) -> int:
     return len(vertices)
 
 
-_PLY_TYPES = {"<f4": "float", "|u1": "uchar"}
+_PLY_TYPES = {"<f4": "float", "<f8": "double", "|u1": "uchar"}

@@ -155,7 +155,6 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
     for ordinal, scan in enumerate(_scans(reader, scan_connections, message, points_topic)):
         scans_read += 1
         frames.add(scan.frame)
-        invalid += scan.invalid
         if not odometry.covers(scan.stamp_ns):
             dropped["outside_odometry"] += 1
         elif not odometry.bridges(scan.stamp_ns):
@@ -166,6 +165,7 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
             dropped["stamp_not_increasing"] += 1
         else:
             kept.append(ordinal)
+            invalid += scan.invalid  # of the scans written: a dropped scan's beams are not counted twice
             stamps.append(scan.stamp_ns)
             counts.append(len(scan.ranges))
             if scan.range_max is not None:
