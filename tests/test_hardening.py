@@ -462,3 +462,42 @@ def test_nearest_nodes_in_chunks_are_the_brute_force_ones():
     targets = np.round(rng.uniform(-2, 2, (1500, 3)))
     brute = np.argmin(np.linalg.norm(nodes[None] - targets[:, None], axis=2), axis=1)
     assert np.array_equal(_nearest(nodes, targets), brute)
+
+
+def test_an_archive_that_lies_about_its_members_is_refused(tmp_path):
+    metadata, arrays = read_map_file(saved_map(tmp_path), "VoxelMap")
+
+    def saved_with(payload: bytes, name: str):
+        head = json.dumps({"kind": "VoxelMap", "metadata": metadata, "payload_bytes": len(payload),
+                           "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+        return with_header(tmp_path / name, head, payload)
+
+    # a member whose central-directory size (zip64) claims 8 TiB it does not hold
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (1 << 40,)})
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        archive.writestr("log_odds.npy", header.getvalue() + b"\0" * 64)
+    data = bytearray(buffer.getvalue())
+    directory = data.find(b"PK\x01\x02")
+    name_length, = struct.unpack_from("<H", data, directory + 28)
+    struct.pack_into("<I", data, directory + 24, 0xFFFFFFFF)  # uncompressed size: see the zip64 field
+    struct.pack_into("<H", data, directory + 30, 12)
+    at = directory + 46 + name_length
+    data[at:at] = struct.pack("<HHQ", 1, 8, (1 << 43) + 4096)
+    end = data.find(b"PK\x05\x06")
+    size, = struct.unpack_from("<I", data, end + 12)
+    struct.pack_into("<I", data, end + 12, size + 12)
+    assert zipfile.ZipFile(io.BytesIO(bytes(data))).infolist()[0].file_size == (1 << 43) + 4096
+    refuses(lambda: vj.VoxelMap.load(saved_with(bytes(data), "inflated.vog")), "the payload does not hold")
+    # a member flagged encrypted (zipfile raised RuntimeError)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        stored = io.BytesIO()
+        np.save(stored, arrays["log_odds"])
+        archive.writestr("log_odds.npy", stored.getvalue())
+    data = bytearray(buffer.getvalue())
+    for signature, flag_at in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        at = data.find(signature) + flag_at
+        struct.pack_into("<H", data, at, struct.unpack_from("<H", data, at)[0] | 0x1)
+    refuses(lambda: vj.VoxelMap.load(saved_with(bytes(data), "encrypted.vog")), "encrypted")

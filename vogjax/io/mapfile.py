@@ -113,7 +113,8 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
         _check_members(payload)
         with np.load(io.BytesIO(payload), allow_pickle=False) as archive:
             arrays = {name: archive[name] for name in archive.files}
-    except (ValueError, OSError, zipfile.BadZipFile) as error:
+    except (ValueError, OSError, EOFError, RuntimeError, NotImplementedError, zipfile.BadZipFile) as error:
+        # zipfile's own refusals (an encrypted member, an unsupported feature) included
         raise ValueError(f"path {str(path)!r} has an unreadable payload: {error}") from None
     return metadata, arrays
 
@@ -125,6 +126,11 @@ def _check_members(payload: bytes) -> None:
         for info in archive.infolist():
             if info.compress_type != zipfile.ZIP_STORED:  # np.savez stores; a compressed size proves nothing
                 raise ValueError(f"array {info.filename!r} is compressed")
+            if info.flag_bits & 0x1:
+                raise ValueError(f"array {info.filename!r} is encrypted")
+            # the sizes are the archive's own word: a stored member's bytes must be in the payload
+            if info.file_size != info.compress_size or info.header_offset + info.compress_size > len(payload):
+                raise ValueError(f"array {info.filename!r} claims {info.file_size} bytes the payload does not hold")
             with archive.open(info) as member:
                 version = np.lib.format.read_magic(member)
                 if version not in _NPY_HEADERS:
