@@ -501,3 +501,14 @@ def test_an_archive_that_lies_about_its_members_is_refused(tmp_path):
         at = data.find(signature) + flag_at
         struct.pack_into("<H", data, at, struct.unpack_from("<H", data, at)[0] | 0x1)
     refuses(lambda: vj.VoxelMap.load(saved_with(bytes(data), "encrypted.vog")), "encrypted")
+
+
+def test_report_numbers_that_are_not_defined_are_null():
+    from vogjax.report.document import finite_or_null
+
+    report = {"auc": {"online": np.float32("nan"), "standard": 0.9}, "errors": [1.0, float("inf")],
+              "counts": np.array([1, 2]), "name": "run"}
+    cleaned = finite_or_null(report)
+    assert cleaned == {"auc": {"online": None, "standard": 0.9}, "errors": [1.0, None], "counts": [1, 2],
+                       "name": "run"}
+    json.dumps(cleaned, allow_nan=False)  # strict JSON

@@ -60,6 +60,21 @@ def versions() -> dict:
             "platform": platform.platform()}
 
 
+def finite_or_null(value):
+    """`value` (nested dicts, lists, numbers) with every NaN or infinite number as None: JSON
+    has no NaN (Python writes a bare NaN that strict readers, jq among them, refuse), and null
+    says "not defined here" (an AUC without positives, an error without closures)."""
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return finite_or_null(value.tolist())
+    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
+        return None
+    return value
+
+
 def json_default(value):
     """For json.dumps: NumPy scalars and arrays as plain numbers and lists."""
     if isinstance(value, np.generic):

@@ -105,5 +105,6 @@ def _evaluate_and_write(result, path: Path, pipeline_s: float, warm_up_s: float,
     if curves is not None:
         plots.timing(curves, folder / "timing.png", title=f"{path.stem}, {result.global_map.device}")
     # 3. the report last: its presence says the rest is there
-    (folder / "report.json").write_text(json.dumps(report, indent=2, default=document.json_default))
+    (folder / "report.json").write_text(json.dumps(document.finite_or_null(report), indent=2,
+                                                   default=document.json_default, allow_nan=False))
     return report
