@@ -194,7 +194,7 @@ def _summary(report: dict) -> str:
         lines.append("- AUC: " + ", ".join(f"{k} {v:.3f}" for k, v in auc.items()))
     else:
         lines.append("- AUC: no ground truth")
-    errors = report.get("trajectory_rmse_m") or {}
+    errors = {k: v for k, v in (report.get("trajectory_rmse_m") or {}).items() if v is not None}
     if errors:
         lines.append("- base-pose RMSE: " + ", ".join(f"{k} {v:.2f} m" for k, v in errors.items()))
     return "\n".join(lines)
