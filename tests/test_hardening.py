@@ -512,3 +512,16 @@ def test_report_numbers_that_are_not_defined_are_null():
     assert cleaned == {"auc": {"online": None, "standard": 0.9}, "errors": [1.0, None], "counts": [1, 2],
                        "name": "run"}
     json.dumps(cleaned, allow_nan=False)  # strict JSON
+
+
+def test_ctrl_c_is_one_line_and_status_130(tmp_path, monkeypatch, capsys):
+    from vogjax.commands import export
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(export, "run", interrupted)
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["export", "--out", str(tmp_path / "out.bt"), str(tmp_path / "m.vog")])
+    assert stop.value.code == 130
+    assert capsys.readouterr().err.strip() == "vogjax export: interrupted"

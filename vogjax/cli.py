@@ -23,6 +23,9 @@ def main(argv=None) -> int:
     except ValueError as error:
         print(f"vogjax {args.command}: error: {str(error).replace(chr(10), ' ')}", file=sys.stderr)
         raise SystemExit(2) from None
+    except KeyboardInterrupt:  # Ctrl-C: outputs are published whole or not at all, so nothing to clean up
+        print(f"vogjax {args.command}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
     except OSError as error:  # what the early checks cannot foresee: a full disk, a read-only mount
         where = f"{error.filename!r}: " if error.filename else ""
         print(f"vogjax {args.command}: error: {where}{error.strerror or error}", file=sys.stderr)
