@@ -16,7 +16,7 @@ def load(name: str) -> Scene:
     """One of NAMES: "propeller", "pilings", "tank", "boxes". Every caller gets the same Scene,
     so its arrays are read-only (copy one to change it)."""
     if not isinstance(name, str) or name not in BUILDERS:
-        raise ValueError(f"name must be one of {', '.join(NAMES)}, got {name!r}")
+        raise ValueError(f"scene name must be one of {', '.join(NAMES)}, got {name!r}")
     return _load(name)
 
 
