@@ -162,6 +162,7 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
                 on_iteration(loop.mapper, plan, rows[-1])
             bar.update(loop.mapper.num_submaps - bar.n)
         loop.mapper.finish_submap()
+        bar.update(loop.mapper.num_submaps - bar.n)  # the turn in place and the last submap count too
     _write_csv(csv_path_of(out), rows)
     return ExploreSummary(Path(out), csv_path_of(out), loop.scans, loop.mapper.num_submaps, len(rows),
                           loop.scans / sensor.rate_hz, loop.path_m, loop.explored_m3(), stopped)
