@@ -34,14 +34,18 @@ def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
         return np.ascontiguousarray(array, dtype=dtype)
 
 
+def positive_number(name: str, value) -> float:
+    """A positive finite real number (a bool is not one), as a float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
+            not (finite_real(value) and value > 0):
+        raise ValueError(f"{name} must be positive and finite (a real number), got {value!r}")
+    return float(value)
+
+
 def positive_range(name: str, value, count: int) -> np.ndarray:
     """A positive finite range, scalar or one per ray, as a float64 array of length `count`."""
     if np.isscalar(value):
-        if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
-            raise ValueError(f"{name} must be a number or an array of numbers, got {value!r}")
-        if not (finite_real(value) and value > 0):
-            raise ValueError(f"{name} must be positive and finite, got {value!r}")
-        return np.full(count, float(value), dtype=np.float64)
+        return np.full(count, positive_number(name, value), dtype=np.float64)
     array = float_array(name, value, (count,), np.float64)
     if np.any(array <= 0):
         raise ValueError(f"{name} must be positive")

@@ -13,8 +13,8 @@ import dataclasses
 import numpy as np
 
 from vogjax.config import MapConfig, logodds
-from vogjax.config.schema import finite_real
 from vogjax.io import mapfile
+from vogjax.validation import positive_number
 
 # how far a centre may sit off its voxel's centre, in voxels (float rounding, not a wrong size)
 _CENTRE_TOLERANCE = 0.01
@@ -50,15 +50,12 @@ class VoxelSet:
                              f"{values.shape}")
         if not (np.all(np.isfinite(centres)) and np.all(np.isfinite(values))):
             raise ValueError("centres and log_odds must be finite (unobserved voxels do not belong in a VoxelSet)")
-        size = self.voxel_size
-        if isinstance(size, bool) or not isinstance(size, (int, float, np.integer, np.floating)) or \
-                not (finite_real(size) and size > 0):
-            raise ValueError(f"voxel_size must be a positive number, got {size!r}")
+        size = positive_number("voxel_size", self.voxel_size)
         if not (np.isfinite(self.log_free) and np.isfinite(self.log_occupied) and self.log_free <= self.log_occupied):
             raise ValueError("log_free must not exceed log_occupied")
         object.__setattr__(self, "centres", np.ascontiguousarray(centres, dtype=np.float64))
         object.__setattr__(self, "log_odds", np.ascontiguousarray(values, dtype=np.float32))
-        object.__setattr__(self, "voxel_size", float(size))
+        object.__setattr__(self, "voxel_size", size)
         object.__setattr__(self, "log_occupied", np.float32(self.log_occupied))
         object.__setattr__(self, "log_free", np.float32(self.log_free))
         if self.states is None:

@@ -22,7 +22,7 @@ from vogjax.kernels import hashing
 from vogjax.planner.seen import group_counts
 from vogjax.planner.source import Source, opened
 from vogjax.sensors import RangeSensor, as_sensor
-from vogjax.validation import finite_real, float_array, within_key_range
+from vogjax.validation import float_array, positive_number, within_key_range
 
 # Views sampled along one edge, at most: beyond, a tiny step_m would cast rays for minutes.
 MAX_EDGE_VIEWS = 1 << 16
@@ -78,7 +78,7 @@ def edge_views(starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarra
     MAX_EDGE_VIEWS views an edge."""
     starts = float_array("starts", starts, (-1, 4), np.float64)
     ends = float_array("ends", ends, (starts.shape[0], 4), np.float64)
-    step_m, range_m = _range("step_m", step_m), _range("range_m", range_m)
+    step_m, range_m = positive_number("step_m", step_m), positive_number("range_m", range_m)
     turn = (ends[:, 3] - starts[:, 3] + np.pi) % (2 * np.pi) - np.pi
     length = np.linalg.norm(ends[:, :3] - starts[:, :3], axis=1)
     views = np.maximum(length, np.abs(turn) * range_m) / step_m
@@ -104,7 +104,7 @@ def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | No
     sensor = as_sensor(sensor)
     starts = float_array("starts", starts, (-1, 4), np.float64)
     ends = float_array("ends", ends, (starts.shape[0], 4), np.float64)
-    step_m = _range("step_m", step_m)
+    step_m = positive_number("step_m", step_m)
     max_range = gain_range("max_range_m", sensor, sensor.max_range_m if max_range_m is None else max_range_m)
     region = check_region(region)
     with opened(map_) as source:
@@ -128,17 +128,10 @@ def discounted(gain, distance_m, discount: float) -> np.ndarray:
     return np.asarray(gain, np.float64) * np.exp(-discount * np.asarray(distance_m, np.float64))
 
 
-def _range(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
-            not (finite_real(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return float(value)
-
-
 def gain_range(name: str, sensor: RangeSensor, value) -> float:
     """A gain ray's range: positive, finite and beyond the sensor's blind zone (min_range_m),
     where it would see nothing and every view would read as explored."""
-    value = _range(name, value)
+    value = positive_number(name, value)
     if not value > sensor.min_range_m:
         raise ValueError(f"{name} must exceed the sensor's min_range_m ({sensor.min_range_m:g} m), got {value!r}: "
                          "the rays would see nothing")
