@@ -43,7 +43,8 @@ def classify_blocks(log_odds: wp.array(dtype=wp.float32), log_occupied: wp.float
 def packed_state(states: wp.array(dtype=wp.uint32), base: int, i: int) -> int:
     """State of voxel i (index_in_block) of the block whose words start at states[base]:
     0 unknown, 1 free, 2 occupied (classify_blocks)."""
-    return int((states[base + (i >> 4)] >> wp.uint32((i & 15) << 1)) & wp.uint32(3))
+    # the index masked to 31 bits (it is never negative): Warp's test for negative indices goes
+    return int((states[(base + (i >> 4)) & 0x7FFFFFFF] >> wp.uint32((i & 15) << 1)) & wp.uint32(3))
 
 
 @wp.func
@@ -95,80 +96,105 @@ def check_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.
 SKIP_VOXELS = wp.constant(64)
 
 
+@wp.struct
+class RayCastStart:
+    """Where a ray cast's walk begins, past any long unknown stretch before the map's box, with
+    the constants it steps by (ray_cast_start)."""
+
+    voxel: wp.vec3i
+    t_max: wp.vec3d
+    t_delta: wp.vec3d
+    step: wp.vec3i
+    t_entry: wp.float64  # distance at which the walk enters `voxel`
+    t_end: wp.float64  # the range, or where the ray leaves the key range if that is nearer
+    t_after: wp.float64  # the ray is past the map's box (widened by a voxel) after this
+    max_steps: int
+    skipped: int  # unknown voxels before `voxel` counted without walking them
+
+
+@wp.func
+def ray_cast_start(origin: wp.vec3d, direction: wp.vec3d, max_range: wp.float64, resolution: wp.float64,
+                   inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i) -> RayCastStart:
+    """The start of a ray cast along unit `direction` over a map whose blocks lie in
+    [grid_lo, grid_hi] (block coordinates; hi < lo: no blocks). Every voxel outside that box is
+    unknown, so a stretch of more than SKIP_VOXELS voxels before it is skipped and counted."""
+    w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
+    lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))
+    hi = wp.vec3d(wp.float64(grid_hi[0] * 8 + 9), wp.float64(grid_hi[1] * 8 + 9), wp.float64(grid_hi[2] * 8 + 9))
+    span = ray_box_span(origin, direction, lo * resolution, hi * resolution)
+    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
+        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
+    s = RayCastStart()
+    s.voxel = w.voxel
+    s.t_max = w.t_max
+    s.t_delta = w.t_delta
+    s.step = w.step
+    s.t_entry = wp.float64(0.0)
+    s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
+    s.t_after = span[1]
+    s.max_steps = w.max_steps
+    s.skipped = 0
+    if span[0] > wp.float64(0.0) and span[0] < s.t_end:  # a long unknown stretch before the map: skip it
+        target = ray_voxel_at(origin, direction, w.voxel, w.step, inv_resolution, span[0])
+        skipped = l1_distance(w.voxel, target)
+        if skipped > SKIP_VOXELS:
+            s.skipped = skipped
+            s.t_entry = ray_entry(origin, direction, w.voxel, target, w.step, resolution)
+            s.voxel = target
+            s.t_max = ray_walk_resume(origin, direction, target, w.step, resolution)
+    return s
+
+
 @wp.kernel
 def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
               max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
               inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
               table_slots: wp.array(dtype=wp.int32), grid_lo: wp.vec3i, grid_hi: wp.vec3i,
               grid_dims: wp.vec3i, grid: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
-              look_up_every_step: int, hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+              hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
               num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
     """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range
     (max_ranges: one per ray, or one for all), and the FREE and UNKNOWN voxels passed before it.
 
     Voxel states come from classify_blocks. The map's blocks lie in [grid_lo, grid_hi] (block
-    coordinates); with grid_dims > 0 a dense grid gives each block's slot in one load, and with
-    look_up_every_step that load is made at every step instead of on entering a block (on a
-    CPU, a branch mispredicted at every block crossing costs more than the load). Outside
-    that box every voxel is unknown: a ray
-    skips a long stretch before it (`ray_voxel_at`) and counts the rest after it
-    (`ray_voxels_until`) without walking, so its cost is bounded by the map, not the range.
-    Voxels outside the key range are not counted.
+    coordinates); a block is looked up on entering it, in the dense grid when grid_dims > 0
+    (one load), else in the hash table. Outside that box every voxel is unknown: a ray skips a
+    long stretch before it (`ray_cast_start`) and counts the rest after it (`ray_voxels_until`)
+    without walking, so its cost is bounded by the map, not the range. Voxels outside the key
+    range are not counted. The GPU's kernel; on a CPU, cast_rays_on_grid answers the same.
     """
     tid = wp.tid()
     origin, direction = origins[tid], unit_direction(directions[tid])
     max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
-    # the map's box widened by a voxel: the ray is before it until span[0], past it after span[1]
-    lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))
-    hi = wp.vec3d(wp.float64(grid_hi[0] * 8 + 9), wp.float64(grid_hi[1] * 8 + 9), wp.float64(grid_hi[2] * 8 + 9))
-    span = ray_box_span(origin, direction, lo * resolution, hi * resolution)
-    t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
-    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
-        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
-    unknown = int(0)
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+    # walk_step's choice, on scalars (a struct copied every step costs several times the step)
+    voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
+    x, y, z = voxel[0], voxel[1], voxel[2]
+    tx, ty, tz = t_max[0], t_max[1], t_max[2]
+    dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
+    sx, sy, sz = step[0], step[1], step[2]
+    t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
+    max_steps = int(s.max_steps)
+    unknown = int(s.skipped)
+    steps = int(s.skipped)
     free = int(0)
     found = bool(False)
     t_hit = max_range
-    # ray_walk_begin's walk and walk_step's choice, on scalars; the block's states are looked up
-    # at every step (look_up_every_step) or when the walk is in another block than before
-    x, y, z = w.voxel[0], w.voxel[1], w.voxel[2]
-    tx, ty, tz = w.t_max[0], w.t_max[1], w.t_max[2]
-    dx, dy, dz = w.t_delta[0], w.t_delta[1], w.t_delta[2]
-    sx, sy, sz = w.step[0], w.step[1], w.step[2]
-    t_entry = wp.float64(0.0)
-    steps = int(0)
-    if span[0] > wp.float64(0.0) and span[0] < t_end:  # a long unknown stretch before the map: skip it
-        v = wp.vec3i(x, y, z)
-        target = ray_voxel_at(origin, direction, v, w.step, inv_resolution, span[0])
-        skipped = l1_distance(v, target)
-        if skipped > SKIP_VOXELS:
-            unknown += skipped
-            steps += skipped
-            t_entry = ray_entry(origin, direction, v, target, w.step, resolution)
-            x, y, z = target[0], target[1], target[2]
-            t = ray_walk_resume(origin, direction, target, w.step, resolution)
-            tx, ty, tz = t[0], t[1], t[2]
-    t_after = span[1]
     base = int(-1)  # states index of the current block; -1: no block there
     block = wp.vec3i(x >> 3, y >> 3, z >> 3)
     looked_up = bool(False)
     dense = grid_dims[0] > 0
-    every_step = dense and look_up_every_step != 0
-    while t_entry < t_end and steps <= w.max_steps:
+    while t_entry < t_end and steps <= max_steps:
         if t_entry > t_after:  # past the map: count the rest of a long stretch
             t_after = FAR
-            n = ray_voxels_until(origin, direction, wp.vec3i(x, y, z), w.step, resolution, inv_resolution, t_end)
+            n = ray_voxels_until(origin, direction, wp.vec3i(x, y, z), step, resolution, inv_resolution, t_end)
             if n > SKIP_VOXELS:
                 unknown += n
                 break
-        slot = int(-1)
-        if every_step:
-            slot = grid_slot(wp.vec3i(x >> 3, y >> 3, z >> 3), grid_lo, grid_dims, grid)
-            base = wp.where(slot < 0, -1, slot * 32)
-        elif not looked_up or (x >> 3) != block[0] or (y >> 3) != block[1] or (z >> 3) != block[2]:
+        if not looked_up or (x >> 3) != block[0] or (y >> 3) != block[1] or (z >> 3) != block[2]:
             block = wp.vec3i(x >> 3, y >> 3, z >> 3)
             looked_up = True
+            slot = int(-1)
             if dense:
                 slot = grid_slot(block, grid_lo, grid_dims, grid)
             else:
@@ -200,6 +226,97 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
     hit[tid] = found
     distance[tid] = wp.float32(t_hit)
     num_unknown[tid] = unknown
+    num_free[tid] = free
+
+
+@wp.kernel
+def fill_ray_bases(grid: wp.array(dtype=wp.int32), grid_dims: wp.vec3i, padded_dims: wp.vec3i,
+                   empty_base: int, bases: wp.array(dtype=wp.int32)):
+    """bases[cell] for cast_rays_on_grid: the first states word of the block in each cell of the
+    block grid (fill_block_grid) padded by one cell on every side; `empty_base` (a block of
+    unknown voxels) in the padding and where no block is."""
+    tid = wp.tid()
+    z = tid % padded_dims[2] - 1
+    y = (tid / padded_dims[2]) % padded_dims[1] - 1
+    x = tid / (padded_dims[2] * padded_dims[1]) - 1
+    base = empty_base
+    if x >= 0 and y >= 0 and z >= 0 and x < grid_dims[0] and y < grid_dims[1] and z < grid_dims[2]:
+        slot = grid[(x * grid_dims[1] + y) * grid_dims[2] + z]
+        if slot >= 0:
+            base = slot * 32
+    bases[tid] = base
+
+
+@wp.kernel
+def cast_rays_on_grid(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                      max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
+                      inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i,
+                      padded_dims: wp.vec3i, bases: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
+                      hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+                      num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    """cast_rays, bit for bit, for a CPU: every step reads its block's first states word from
+    the padded grid of fill_ray_bases, then its voxel's state, with no test in between.
+
+    A CPU mispredicts a test at each block crossing (every eight steps or so, at random) and
+    pays more for it than for the load; a coordinate outside the grid is clamped onto its
+    padding and a missing block reads as the block of unknown voxels, so neither needs a
+    branch. The walk counts voxels from the padded grid's corner (a multiple of 8: a voxel's
+    bits within its block stay), so a block's cell is a shift and an unsigned clamp (a voxel
+    below the corner wraps past the top). The unknown voxels are the steps less the free ones.
+    """
+    tid = wp.tid()
+    origin, direction = origins[tid], unit_direction(directions[tid])
+    max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+    voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
+    ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
+    x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz
+    tx, ty, tz = t_max[0], t_max[1], t_max[2]
+    dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
+    sx, sy, sz = step[0], step[1], step[2]
+    t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
+    max_steps = int(s.max_steps)
+    steps = int(s.skipped)
+    rest = int(0)  # unknown voxels past the map, counted without walking them
+    free = int(0)
+    found = bool(False)
+    t_hit = max_range
+    top_x, top_y, top_z = wp.uint32(padded_dims[0] - 1), wp.uint32(padded_dims[1] - 1), wp.uint32(padded_dims[2] - 1)
+    dim_y, dim_z = padded_dims[1], padded_dims[2]
+    while t_entry < t_end and steps <= max_steps:
+        if t_entry > t_after:  # past the map: count the rest of a long stretch
+            t_after = FAR
+            here = wp.vec3i(x + ox, y + oy, z + oz)
+            n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
+            if n > SKIP_VOXELS:
+                rest = n
+                break
+        cx = int(wp.min(wp.uint32(x >> 3), top_x))
+        cy = int(wp.min(wp.uint32(y >> 3), top_y))
+        cz = int(wp.min(wp.uint32(z >> 3), top_z))
+        base = bases[((cx * dim_y + cy) * dim_z + cz) & 0x7FFFFFFF]  # as in packed_state
+        state = packed_state(states, base, ((x & 7) << 6) | ((y & 7) << 3) | (z & 7))
+        if state == 2:
+            found = True
+            t_hit = t_entry
+            break
+        free += wp.where(state == 1, 1, 0)
+        if tx < ty and tx < tz:
+            t_entry = tx
+            x += sx
+            tx += dx
+        elif ty < tz:
+            t_entry = ty
+            y += sy
+            ty += dy
+        else:
+            t_entry = tz
+            z += sz
+            tz += dz
+        steps += 1
+    hit[tid] = found
+    distance[tid] = wp.float32(t_hit)
+    num_unknown[tid] = steps - free + rest
     num_free[tid] = free
 
 

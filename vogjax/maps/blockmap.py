@@ -11,7 +11,7 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.maps import parallel
-from vogjax.maps.blocks import BlockStore, voxel_keys
+from vogjax.maps.blocks import GRID_CELLS, BlockGrid, BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
 from vogjax.maps.locking import ReadWriteLock
@@ -23,6 +23,26 @@ OCCUPIED = 2
 # Voxels one line of line_query may cross (its output holds a row this long per line): 6.5 km
 # along an axis at 0.1 m voxels. Longer lines are refused rather than allocated.
 MAX_LINE_VOXELS = 1 << 16
+
+
+@dataclasses.dataclass(frozen=True)
+class RayTables:
+    """What ray casts read, for one version of a map's blocks and log-odds.
+
+    states: uint32 (32 (block_capacity + 1),) the voxel states two bits each
+        (queries.classify_blocks), then one block of unknown voxels
+    bases: int32 (prod(padded_dims),) on a CPU, each cell's first states word in the block grid
+        padded by one cell each way (queries.fill_ray_bases); None on a GPU, or without a grid
+    """
+
+    store: BlockStore
+    grid: BlockGrid
+    states: wp.array
+    bases: wp.array | None
+    padded_dims: tuple
+
+    def memory_bytes(self) -> int:
+        return self.states.capacity + (self.bases.capacity if self.bases is not None else 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,13 +73,14 @@ class BlockMap:
         self._store = BlockStore(self.device, {"log_odds": (wp.float32, math.nan), **layers})
         self._lock = ReadWriteLock()
         self._values_revision = 0  # counts writes of log-odds, for the ray-cast state cache
-        self._states = None  # (key, uint32 array): voxel states packed for ray casts
-        self._states_lock = threading.Lock()
-        # Ray casts read the block grid at every step on a CPU (a branch at each block crossing
-        # mispredicts there and costs more than the load), on entering a block on a GPU (where
-        # the load would be a second dependent read per step). Both give the same bits; tests
-        # run both on the CPU.
-        self._look_up_every_step = not self.device.is_cuda
+        self._ray_tables_cache = None  # (key, RayTables), rebuilt after writes
+        self._ray_tables_lock = threading.Lock()
+        # Ray casts on a CPU read a padded block grid at every step, without a branch
+        # (queries.cast_rays_on_grid: a branch at each block crossing mispredicts there and costs
+        # more than the load); on a GPU, where that load would be a second dependent read per
+        # step, they look a block up on entering it (queries.cast_rays). Both give the same
+        # bits; tests run both on the CPU.
+        self._cast_on_grid = not self.device.is_cuda
 
     @property
     def store(self) -> BlockStore:
@@ -74,20 +95,34 @@ class BlockMap:
         """Call (under the write lock) after writing log-odds: the ray-cast states go stale."""
         self._values_revision += 1
 
-    def _ray_states(self) -> wp.array:
-        """The voxel states packed two bits each (queries.classify_blocks), rebuilt after the
-        log-odds changed; call under the read lock (concurrent readers share one build)."""
+    def _ray_tables(self) -> RayTables:
+        """What ray casts read, rebuilt after the log-odds or the blocks changed; call under the
+        read lock (concurrent readers share one build)."""
         store = self._store
-        key = (self._values_revision, store.version, store.block_capacity)
-        with self._states_lock:
-            if self._states is None or self._states[0] != key or self._states[1][0] is not store:
-                states = wp.zeros(store.block_capacity * 32, dtype=wp.uint32, device=self.device)
-                if store.num_blocks:
-                    wp.launch(queries.classify_blocks, dim=store.num_blocks * 32,
-                              inputs=[store.layers["log_odds"], self.config.log_occupied, self.config.log_free],
-                              outputs=[states], device=self.device)
-                self._states = (key, (store, states))
-            return self._states[1][1]
+        key = (self._values_revision, store.version, store.block_capacity, self._cast_on_grid)
+        with self._ray_tables_lock:
+            cached = self._ray_tables_cache
+            if cached is None or cached[0] != key or cached[1].store is not store:
+                self._ray_tables_cache = cached = (key, self._build_ray_tables())
+            return cached[1]
+
+    def _build_ray_tables(self) -> RayTables:
+        store, device = self._store, self.device
+        empty_base = store.block_capacity * 32  # one block of unknown voxels after the others
+        states = wp.zeros(empty_base + 32, dtype=wp.uint32, device=device)
+        if store.num_blocks:
+            wp.launch(queries.classify_blocks, dim=store.num_blocks * 32,
+                      inputs=[store.layers["log_odds"], self.config.log_occupied, self.config.log_free],
+                      outputs=[states], device=device)
+        grid = store.grid()
+        padded = tuple(d + 2 for d in grid.dims)
+        bases = None
+        if self._cast_on_grid and grid.dims[0] > 0 and math.prod(padded) <= 2 * GRID_CELLS:
+            bases = wp.empty(math.prod(padded), dtype=wp.int32, device=device)
+            wp.launch(queries.fill_ray_bases, dim=bases.shape[0],
+                      inputs=[grid.cells, wp.vec3i(*grid.dims), wp.vec3i(*padded), empty_base],
+                      outputs=[bases], device=device)
+        return RayTables(store, grid, states, bases, padded)
 
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
         check_extent(self.config, origins=origins, points=points)
@@ -200,18 +235,22 @@ class BlockMap:
         }
 
         def launch(part: int, lo: int, hi: int) -> None:
-            wp.launch(queries.cast_rays, dim=hi - lo,
-                      inputs=[origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
-                              np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size),
-                              store.table_keys, store.table_slots, *grid_inputs, states,
-                              int(self._look_up_every_step)],
-                      outputs=[a[lo:hi] for a in out.values()], device=device)
+            rays = [origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
+                    np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
+            if tables.bases is not None:
+                wp.launch(queries.cast_rays_on_grid, dim=hi - lo,
+                          inputs=[*rays, box_lo, box_hi, wp.vec3i(*tables.padded_dims), tables.bases,
+                                  tables.states],
+                          outputs=[a[lo:hi] for a in out.values()], device=device)
+            else:
+                wp.launch(queries.cast_rays, dim=hi - lo,
+                          inputs=[*rays, tables.store.table_keys, tables.store.table_slots, box_lo, box_hi,
+                                  wp.vec3i(*tables.grid.dims), tables.grid.cells, tables.states],
+                          outputs=[a[lo:hi] for a in out.values()], device=device)
 
         with self._lock.reading():
-            store = self._store
-            grid = store.grid()
-            grid_inputs = [wp.vec3i(*grid.lo), wp.vec3i(*grid.hi), wp.vec3i(*grid.dims), grid.cells]
-            states = self._ray_states()
+            tables = self._ray_tables()
+            box_lo, box_hi = wp.vec3i(*tables.grid.lo), wp.vec3i(*tables.grid.hi)
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return out
 
@@ -251,8 +290,8 @@ class BlockMap:
     def memory_bytes(self) -> int:
         """Bytes of device memory the map holds (table, block pool, per-block scratch, the
         ray-cast caches)."""
-        states = self._states
-        return self._store.memory_bytes() + (states[1][1].capacity if states else 0)
+        cached = self._ray_tables_cache
+        return self._store.memory_bytes() + (cached[1].memory_bytes() if cached else 0)
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(voxel_size={self.config.voxel_size}, blocks={self.num_blocks}, "
