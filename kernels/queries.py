@@ -5,7 +5,8 @@ Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer 
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, VOXEL_KEY_LIMIT_C, find_voxel_slot, grid_slot, index_in_block, observed
+from .hashing import (BLOCK_VOXELS, EMPTY_KEY, VOXEL_KEY_LIMIT_C, find_voxel_slot, grid_slot, index_in_block, observed,
+                      unpack_block)
 from .integration import walk_of_beam
 from .traversal import (FAR, VoxelWalk, l1_distance, ray_box_span, ray_entry, ray_key_range, ray_voxel_at,
                         ray_voxels_until, ray_walk_begin, ray_walk_resume, segment_continues, unit_direction, voxel_key,
@@ -21,6 +22,16 @@ def value_in_slot(slot: int, voxel: wp.vec3i, log_odds: wp.array(dtype=wp.float3
     return log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
 
+@wp.func
+def voxel_state(value: wp.float32, log_occupied: wp.float32, log_free: wp.float32) -> wp.uint32:
+    """0 unknown, 1 free, 2 occupied."""
+    if value >= log_occupied:  # NaN (never observed) fails both comparisons: unknown
+        return wp.uint32(2)
+    if value <= log_free:
+        return wp.uint32(1)
+    return wp.uint32(0)
+
+
 @wp.kernel
 def classify_blocks(log_odds: wp.array(dtype=wp.float32), log_occupied: wp.float32, log_free: wp.float32,
                     states: wp.array(dtype=wp.uint32)):
@@ -29,13 +40,7 @@ def classify_blocks(log_odds: wp.array(dtype=wp.float32), log_occupied: wp.float
     tid = wp.tid()
     word = wp.uint32(0)
     for v in range(16):
-        value = log_odds[tid * 16 + v]
-        state = wp.uint32(0)
-        if value >= log_occupied:  # NaN (never observed) fails both comparisons: unknown
-            state = wp.uint32(2)
-        elif value <= log_free:
-            state = wp.uint32(1)
-        word = word | (state << wp.uint32(2 * v))
+        word = word | (voxel_state(log_odds[tid * 16 + v], log_occupied, log_free) << wp.uint32(2 * v))
     states[tid] = word
 
 
@@ -43,7 +48,7 @@ def classify_blocks(log_odds: wp.array(dtype=wp.float32), log_occupied: wp.float
 def packed_state(states: wp.array(dtype=wp.uint32), base: int, i: int) -> int:
     """State of voxel i (index_in_block) of the block whose words start at states[base]:
     0 unknown, 1 free, 2 occupied (classify_blocks)."""
-    # the index masked to 31 bits (it is never negative): Warp's test for negative indices goes
+    # the index masked to 31 bits (it is never negative): Warp then drops its negative-index test
     return int((states[(base + (i >> 4)) & 0x7FFFFFFF] >> wp.uint32((i & 15) << 1)) & wp.uint32(3))
 
 
@@ -294,7 +299,7 @@ def cast_rays_on_grid(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
         cx = int(wp.min(wp.uint32(x >> 3), top_x))
         cy = int(wp.min(wp.uint32(y >> 3), top_y))
         cz = int(wp.min(wp.uint32(z >> 3), top_z))
-        base = bases[((cx * dim_y + cy) * dim_z + cz) & 0x7FFFFFFF]  # as in packed_state
+        base = bases[((cx * dim_y + cy) * dim_z + cz) & 0x7FFFFFFF]  # masked as in packed_state
         state = packed_state(states, base, ((x & 7) << 6) | ((y & 7) << 3) | (z & 7))
         if state == 2:
             found = True
@@ -312,6 +317,108 @@ def cast_rays_on_grid(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
         else:
             t_entry = tz
             z += sz
+            tz += dz
+        steps += 1
+    hit[tid] = found
+    distance[tid] = wp.float32(t_hit)
+    num_unknown[tid] = steps - free + rest
+    num_free[tid] = free
+
+
+@wp.kernel
+def fill_dense_states(log_odds: wp.array(dtype=wp.float32), slot_keys: wp.array(dtype=wp.int64),
+                      log_occupied: wp.float32, log_free: wp.float32, corner: wp.vec3i, dims: wp.vec3i,
+                      columns: wp.array(dtype=wp.uint16)):
+    """The states (two bits a voxel, 0 unknown, 1 free, 2 occupied) of every voxel of a box, for
+    cast_rays_dense: columns[((x dims[1] + y) dims[2] + z) / 8] holds voxels z .. z + 7 of
+    column (x, y), counted from the box's `corner` voxel (a multiple of 8), as `columns` was
+    zeroed: unknown. One thread per block slot and column of eight voxels."""
+    tid = wp.tid()
+    slot = tid / 64
+    key = slot_keys[slot]
+    if key == EMPTY_KEY:
+        return
+    b = unpack_block(key)
+    cx = (tid / 8) % 8
+    cy = tid % 8
+    bits = wp.uint32(0)
+    for z in range(8):
+        value = log_odds[slot * BLOCK_VOXELS + (cx << 6) + (cy << 3) + z]
+        bits = bits | (voxel_state(value, log_occupied, log_free) << wp.uint32(2 * z))
+    x = b[0] * 8 + cx - corner[0]
+    y = b[1] * 8 + cy - corner[1]
+    columns[((x * dims[1] + y) * dims[2] + b[2] * 8 - corner[2]) / 8] = wp.uint16(bits)
+
+
+@wp.kernel
+def cast_rays_dense(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                    max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
+                    inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i,
+                    dims: wp.vec3i, columns: wp.array(dtype=wp.uint16),
+                    hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+                    num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    """cast_rays, bit for bit, for a CPU and a map whose box is small: the states of every voxel
+    of the map's box padded by a block each way (fill_dense_states, `dims` voxels from the
+    corner (grid_lo - 1) 8) are read at every step, the index moved with the walk.
+
+    There is no block to look up: a step adds its axis's stride to the voxel's index, and a
+    voxel is read when it lies inside the box (three unsigned comparisons, true for nearly every
+    step, so well predicted); outside, it is unknown. The unknown voxels are the steps less the
+    free ones.
+    """
+    tid = wp.tid()
+    origin, direction = origins[tid], unit_direction(directions[tid])
+    max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+    voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
+    ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
+    x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner
+    tx, ty, tz = t_max[0], t_max[1], t_max[2]
+    dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
+    sx, sy, sz = step[0], step[1], step[2]
+    size_x, size_y, size_z = wp.uint32(dims[0]), wp.uint32(dims[1]), wp.uint32(dims[2])
+    # in 64 bits: outside the box (where it is not read) the index may leave int32's range
+    stride_x, stride_y, stride_z = wp.int64(sx * dims[1] * dims[2]), wp.int64(sy * dims[2]), wp.int64(sz)
+    index = (wp.int64(x) * wp.int64(dims[1]) + wp.int64(y)) * wp.int64(dims[2]) + wp.int64(z)
+    t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
+    max_steps = int(s.max_steps)
+    steps = int(s.skipped)
+    rest = int(0)  # unknown voxels past the map, counted without walking them
+    free = int(0)
+    found = bool(False)
+    t_hit = max_range
+    while t_entry < t_end and steps <= max_steps:
+        if t_entry > t_after:  # past the map: count the rest of a long stretch
+            t_after = FAR
+            here = wp.vec3i(x + ox, y + oy, z + oz)
+            n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
+            if n > SKIP_VOXELS:
+                rest = n
+                break
+        state = int(0)
+        if (int(wp.uint32(x) < size_x) & int(wp.uint32(y) < size_y) & int(wp.uint32(z) < size_z)) != 0:
+            i = int(index)  # inside the box: below dims' product
+            bits = wp.uint32(columns[(i >> 3) & 0x7FFFFFFF])  # masked as in packed_state
+            state = int((bits >> wp.uint32((i & 7) << 1)) & wp.uint32(3))
+        if state == 2:
+            found = True
+            t_hit = t_entry
+            break
+        free += wp.where(state == 1, 1, 0)
+        if tx < ty and tx < tz:
+            t_entry = tx
+            x += sx
+            index += stride_x
+            tx += dx
+        elif ty < tz:
+            t_entry = ty
+            y += sy
+            index += stride_y
+            ty += dy
+        else:
+            t_entry = tz
+            z += sz
+            index += stride_z
             tz += dz
         steps += 1
     hit[tid] = found

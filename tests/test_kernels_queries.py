@@ -1,28 +1,39 @@
-"""Ray casts three ways: through the padded block grid at every step (cast_rays_on_grid, a CPU's
-way), through the block grid on entering a block (cast_rays, a GPU's way) and through the hash
-table. All agree with the step-by-step reference and with each other bit for bit, and the tables
-follow the blocks as the map grows."""
+"""Ray casts four ways: a CPU's, reading every voxel's state from a dense box
+(cast_rays_dense) or from a padded block grid (cast_rays_on_grid) at every step; a GPU's,
+looking a block up in the grid on entering it (cast_rays); and through the hash table. All agree
+with the step-by-step reference and with each other bit for bit, and the tables follow the blocks
+as the map grows."""
 
 import numpy as np
 import pytest
 
 import vogjax as vj
-from vogjax.maps import blocks
+from vogjax.maps import blockmap, blocks
 
 from . import reference as ref
 
+WAYS = {  # (on a CPU, dense box budget, dense grid budget): the kind of tables they give
+    "dense": ((True, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "columns"),
+    "grid": ((True, 0, blocks.GRID_CELLS), "bases"),
+    "gpu": ((False, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "states"),
+    "hash": ((False, blockmap.DENSE_STATE_BYTES, 0), "states"),
+}
 
-def casts_three_ways(vmap, monkeypatch, origins, directions, ranges):
-    """The map's ray casts through the padded grid, the plain grid and the hash table."""
+
+def casts_four_ways(vmap, monkeypatch, origins, directions, ranges):
+    """The map's ray casts each way (WAYS), tables built afresh for each."""
     results = []
-    for on_grid, grid_cells in ((True, blocks.GRID_CELLS), (False, blocks.GRID_CELLS), (False, 0)):
+    for (cpu, dense_bytes, grid_cells), kind in WAYS.values():
         with monkeypatch.context() as m:
-            m.setattr(vmap, "_cast_on_grid", on_grid)
+            m.setattr(vmap, "_cpu_casts", cpu)
+            m.setattr(blockmap, "DENSE_STATE_BYTES", dense_bytes)
             m.setattr(blocks, "GRID_CELLS", grid_cells)  # 0: no dense grid, blocks found by hashing
-            vmap.store._grid, vmap._ray_tables_cache = None, None  # tables built afresh each way
+            vmap.store._grid, vmap._ray_tables_cache = None, None
             results.append(vmap.raycast(origins, directions, ranges))
             tables = vmap._ray_tables()
-            assert (tables.bases is not None) == on_grid and (tables.grid.dims[0] > 0) == (grid_cells > 0)
+            assert [k for k in ("columns", "bases") if getattr(tables, k) is not None] == \
+                ([kind] if kind != "states" else [])
+            assert (tables.grid.dims[0] > 0) == (grid_cells > 0)
             vmap.store._grid, vmap._ray_tables_cache = None, None
     return results
 
@@ -40,7 +51,7 @@ def test_grid_and_hash_paths_match_the_reference_as_the_map_grows(monkeypatch):
         for k in range(3):
             ref.insert_scan(cells, o[k], p[s == k], cfg)
         expected = [ref.raycast(cells, a, b, r, cfg) for a, b, r in zip(origins, directions, ranges)]
-        for result in casts_three_ways(vmap, monkeypatch, origins, directions, ranges):
+        for result in casts_four_ways(vmap, monkeypatch, origins, directions, ranges):
             np.testing.assert_array_equal(result.hit, [e[0] for e in expected])
             np.testing.assert_allclose(result.distance, [e[1] for e in expected], rtol=1e-6, atol=1e-6)
             np.testing.assert_array_equal(result.num_unknown, [e[2] for e in expected])
@@ -82,7 +93,7 @@ def test_the_cpu_and_gpu_kernels_agree_bit_for_bit_on_hostile_rays(monkeypatch, 
     centres, log_odds = vmap.voxels()
     origins, directions, ranges = hostile_rays(rng, lo * 8 * cfg.voxel_size, (hi + 1) * 8 * cfg.voxel_size,
                                                centres[log_odds >= cfg.log_occupied], cfg.voxel_size, 600)
-    results = casts_three_ways(vmap, monkeypatch, origins, directions, ranges)
+    results = casts_four_ways(vmap, monkeypatch, origins, directions, ranges)
     for other in results[1:]:
         for field in ("hit", "distance", "num_unknown", "num_free"):
             assert np.array_equal(getattr(results[0], field), getattr(other, field)), field

@@ -11,7 +11,7 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.maps import parallel
-from vogjax.maps.blocks import GRID_CELLS, BlockGrid, BlockStore, voxel_keys
+from vogjax.maps.blocks import BLOCK_VOXELS, GRID_CELLS, BlockGrid, BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
 from vogjax.maps.locking import ReadWriteLock
@@ -25,24 +25,32 @@ OCCUPIED = 2
 MAX_LINE_VOXELS = 1 << 16
 
 
+# On a CPU, ray casts read every voxel's state from a dense box over the map's blocks when its
+# two bits a voxel take at most this many bytes (524,288 blocks: a box of 52 x 52 x 26 m at 0.1 m)
+DENSE_STATE_BYTES = 64 << 20
+
+
 @dataclasses.dataclass(frozen=True)
 class RayTables:
-    """What ray casts read, for one version of a map's blocks and log-odds.
+    """What ray casts read, for one version of a map's blocks and log-odds; one of three kinds.
 
-    states: uint32 (32 (block_capacity + 1),) the voxel states two bits each
-        (queries.classify_blocks), then one block of unknown voxels
-    bases: int32 (prod(padded_dims),) on a CPU, each cell's first states word in the block grid
-        padded by one cell each way (queries.fill_ray_bases); None on a GPU, or without a grid
+    columns: uint16 (prod(8 padded_dims) / 8,) on a CPU when small enough: every voxel's state
+        in the box of the block grid padded by one block each way (queries.fill_dense_states)
+    bases: int32 (prod(padded_dims),) on a CPU otherwise: each cell's first states word in that
+        padded grid (queries.fill_ray_bases)
+    states: uint32 (32 (block_capacity + 1),) on a GPU, and with `bases`: the voxel states two
+        bits each (queries.classify_blocks), then one block of unknown voxels
     """
 
     store: BlockStore
     grid: BlockGrid
-    states: wp.array
-    bases: wp.array | None
     padded_dims: tuple
+    columns: wp.array | None = None
+    bases: wp.array | None = None
+    states: wp.array | None = None
 
     def memory_bytes(self) -> int:
-        return self.states.capacity + (self.bases.capacity if self.bases is not None else 0)
+        return sum(a.capacity for a in (self.columns, self.bases, self.states) if a is not None)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,12 +83,12 @@ class BlockMap:
         self._values_revision = 0  # counts writes of log-odds, for the ray-cast state cache
         self._ray_tables_cache = None  # (key, RayTables), rebuilt after writes
         self._ray_tables_lock = threading.Lock()
-        # Ray casts on a CPU read a padded block grid at every step, without a branch
-        # (queries.cast_rays_on_grid: a branch at each block crossing mispredicts there and costs
-        # more than the load); on a GPU, where that load would be a second dependent read per
-        # step, they look a block up on entering it (queries.cast_rays). Both give the same
-        # bits; tests run both on the CPU.
-        self._cast_on_grid = not self.device.is_cuda
+        # Ray casts on a CPU read a voxel's state at every step without a test for a block change
+        # (queries.cast_rays_dense, cast_rays_on_grid: a branch at each block crossing
+        # mispredicts there and costs more than a load); on a GPU, where that would be a second
+        # dependent read per step, they look a block up on entering it (queries.cast_rays). All
+        # give the same bits; tests run each on the CPU.
+        self._cpu_casts = not self.device.is_cuda
 
     @property
     def store(self) -> BlockStore:
@@ -99,7 +107,7 @@ class BlockMap:
         """What ray casts read, rebuilt after the log-odds or the blocks changed; call under the
         read lock (concurrent readers share one build)."""
         store = self._store
-        key = (self._values_revision, store.version, store.block_capacity, self._cast_on_grid)
+        key = (self._values_revision, store.version, store.block_capacity, self._cpu_casts)
         with self._ray_tables_lock:
             cached = self._ray_tables_cache
             if cached is None or cached[0] != key or cached[1].store is not store:
@@ -107,22 +115,31 @@ class BlockMap:
             return cached[1]
 
     def _build_ray_tables(self) -> RayTables:
-        store, device = self._store, self.device
+        store, device, cfg = self._store, self.device, self.config
+        grid = store.grid()
+        padded = tuple(d + 2 for d in grid.dims)
+        on_cpu = self._cpu_casts and grid.dims[0] > 0
+        if on_cpu and math.prod(padded) * BLOCK_VOXELS // 4 <= DENSE_STATE_BYTES:
+            dims = tuple(8 * d for d in padded)
+            columns = wp.zeros(math.prod(dims) // 8, dtype=wp.uint16, device=device)
+            wp.launch(queries.fill_dense_states, dim=store.num_blocks * 64,
+                      inputs=[store.layers["log_odds"], store.slot_keys, cfg.log_occupied, cfg.log_free,
+                              wp.vec3i(*((g - 1) * 8 for g in grid.lo)), wp.vec3i(*dims)],
+                      outputs=[columns], device=device)
+            return RayTables(store, grid, padded, columns=columns)
         empty_base = store.block_capacity * 32  # one block of unknown voxels after the others
         states = wp.zeros(empty_base + 32, dtype=wp.uint32, device=device)
         if store.num_blocks:
             wp.launch(queries.classify_blocks, dim=store.num_blocks * 32,
-                      inputs=[store.layers["log_odds"], self.config.log_occupied, self.config.log_free],
+                      inputs=[store.layers["log_odds"], cfg.log_occupied, cfg.log_free],
                       outputs=[states], device=device)
-        grid = store.grid()
-        padded = tuple(d + 2 for d in grid.dims)
-        bases = None
-        if self._cast_on_grid and grid.dims[0] > 0 and math.prod(padded) <= 2 * GRID_CELLS:
+        if on_cpu and math.prod(padded) <= 2 * GRID_CELLS:
             bases = wp.empty(math.prod(padded), dtype=wp.int32, device=device)
             wp.launch(queries.fill_ray_bases, dim=bases.shape[0],
                       inputs=[grid.cells, wp.vec3i(*grid.dims), wp.vec3i(*padded), empty_base],
                       outputs=[bases], device=device)
-        return RayTables(store, grid, states, bases, padded)
+            return RayTables(store, grid, padded, bases=bases, states=states)
+        return RayTables(store, grid, padded, states=states)
 
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
         check_extent(self.config, origins=origins, points=points)
@@ -237,16 +254,20 @@ class BlockMap:
         def launch(part: int, lo: int, hi: int) -> None:
             rays = [origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
                     np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
-            if tables.bases is not None:
+            outputs = [a[lo:hi] for a in out.values()]
+            if tables.columns is not None:
+                dims = wp.vec3i(*(8 * d for d in tables.padded_dims))
+                wp.launch(queries.cast_rays_dense, dim=hi - lo,
+                          inputs=[*rays, box_lo, box_hi, dims, tables.columns], outputs=outputs, device=device)
+            elif tables.bases is not None:
                 wp.launch(queries.cast_rays_on_grid, dim=hi - lo,
                           inputs=[*rays, box_lo, box_hi, wp.vec3i(*tables.padded_dims), tables.bases,
-                                  tables.states],
-                          outputs=[a[lo:hi] for a in out.values()], device=device)
+                                  tables.states], outputs=outputs, device=device)
             else:
                 wp.launch(queries.cast_rays, dim=hi - lo,
                           inputs=[*rays, tables.store.table_keys, tables.store.table_slots, box_lo, box_hi,
                                   wp.vec3i(*tables.grid.dims), tables.grid.cells, tables.states],
-                          outputs=[a[lo:hi] for a in out.values()], device=device)
+                          outputs=outputs, device=device)
 
         with self._lock.reading():
             tables = self._ray_tables()
