@@ -98,3 +98,19 @@ def test_the_cpu_and_gpu_kernels_agree_bit_for_bit_on_hostile_rays(monkeypatch, 
         for field in ("hit", "distance", "num_unknown", "num_free"):
             assert np.array_equal(getattr(results[0], field), getattr(other, field)), field
     assert results[0].hit.sum() > 200 and (~results[0].hit).sum() > 200  # both outcomes exercised
+
+
+def test_a_map_of_scattered_blocks_casts_through_the_grid_and_a_compact_one_through_the_box():
+    rng = np.random.default_rng(5)
+    cfg = vj.MapConfig(voxel_size=0.1)
+    compact, scattered = vj.VoxelMap(cfg), vj.VoxelMap(cfg)
+    o, p, s = ref.random_scans(rng, 4, 200, spread=2.0)
+    compact.integrate_scans(o, p, s)
+    scattered.integrate_scans(np.concatenate([o, o + 30.0]), np.concatenate([p, p + 30.0]),
+                              np.concatenate([s, s + 4]))  # two clusters 30 m apart: a box of mostly nothing
+    for vmap, kind in ((compact, "columns"), (scattered, "bases")):
+        vmap.raycast(o, p[:4] - o, 5.0)
+        tables = vmap._ray_tables()
+        padded_blocks = np.prod(tables.padded_dims)
+        assert getattr(tables, kind) is not None, (kind, padded_blocks, vmap.num_blocks)
+        assert (padded_blocks <= max(4 * vmap.num_blocks, 4096)) == (kind == "columns")

@@ -26,7 +26,8 @@ MAX_LINE_VOXELS = 1 << 16
 
 
 # On a CPU, ray casts read every voxel's state from a dense box over the map's blocks when its
-# two bits a voxel take at most this many bytes (524,288 blocks: a box of 52 x 52 x 26 m at 0.1 m)
+# two bits a voxel take at most this many bytes (524,288 blocks: a box of 52 x 52 x 26 m at 0.1
+# m) and the box holds at most 4 times as many blocks as the map (or 4096)
 DENSE_STATE_BYTES = 64 << 20
 
 
@@ -119,20 +120,33 @@ class BlockMap:
         grid = store.grid()
         padded = tuple(d + 2 for d in grid.dims)
         on_cpu = self._cpu_casts and grid.dims[0] > 0
-        if on_cpu and math.prod(padded) * BLOCK_VOXELS // 4 <= DENSE_STATE_BYTES:
+        log_odds, blocks = store.layers["log_odds"], store.num_blocks
+        parts = parallel.num_parts(device, blocks * 32)
+        # the box's zeros cost little beside reading the blocks' log-odds while it is at most a
+        # few times their number; beyond that, a map of scattered blocks builds the grid's tables
+        dense_blocks = min(DENSE_STATE_BYTES // (BLOCK_VOXELS // 4), max(4 * blocks, 1 << 12))
+        if on_cpu and math.prod(padded) <= dense_blocks:
             dims = tuple(8 * d for d in padded)
             columns = wp.zeros(math.prod(dims) // 8, dtype=wp.uint16, device=device)
-            wp.launch(queries.fill_dense_states, dim=store.num_blocks * 64,
-                      inputs=[store.layers["log_odds"], store.slot_keys, cfg.log_occupied, cfg.log_free,
-                              wp.vec3i(*((g - 1) * 8 for g in grid.lo)), wp.vec3i(*dims)],
-                      outputs=[columns], device=device)
+            corner = wp.vec3i(*((g - 1) * 8 for g in grid.lo))
+
+            def fill(part: int, lo: int, hi: int) -> None:
+                wp.launch(queries.fill_dense_states, dim=(hi - lo) * 64,
+                          inputs=[log_odds[lo * BLOCK_VOXELS:hi * BLOCK_VOXELS], store.slot_keys[lo:hi],
+                                  cfg.log_occupied, cfg.log_free, corner, wp.vec3i(*dims)],
+                          outputs=[columns], device=device)
+
+            parallel.split_launch(fill, blocks, parts)
             return RayTables(store, grid, padded, columns=columns)
         empty_base = store.block_capacity * 32  # one block of unknown voxels after the others
         states = wp.zeros(empty_base + 32, dtype=wp.uint32, device=device)
-        if store.num_blocks:
-            wp.launch(queries.classify_blocks, dim=store.num_blocks * 32,
-                      inputs=[store.layers["log_odds"], cfg.log_occupied, cfg.log_free],
-                      outputs=[states], device=device)
+
+        def classify(part: int, lo: int, hi: int) -> None:
+            wp.launch(queries.classify_blocks, dim=hi - lo,
+                      inputs=[log_odds[lo * 16:hi * 16], cfg.log_occupied, cfg.log_free],
+                      outputs=[states[lo:hi]], device=device)
+
+        parallel.split_launch(classify, blocks * 32, parts)
         if on_cpu and math.prod(padded) <= 2 * GRID_CELLS:
             bases = wp.empty(math.prod(padded), dtype=wp.int32, device=device)
             wp.launch(queries.fill_ray_bases, dim=bases.shape[0],
