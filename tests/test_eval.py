@@ -49,3 +49,12 @@ def test_misclassified_counts():
     a = np.array([vj.FREE, vj.OCCUPIED, vj.UNKNOWN, vj.FREE])
     b = np.array([vj.FREE, vj.FREE, vj.UNKNOWN, vj.UNKNOWN])
     assert vj_eval.misclassified(a, b) == {"voxels": 4, "misclassified": 2, "occupied_disagreements": 1}
+
+
+def test_rmse_of_a_map_with_too_few_occupied_voxels_to_register_is_not_measurable():
+    # a run whose map saw next to nothing as occupied (a 20,000-scan survey's standard map held
+    # 2 occupied voxels) is reported as null; its evaluation used to end in ICP's refusal
+    surface = np.random.default_rng(2).uniform(0, 4, (500, 3))
+    for count in (0, 1, 2):
+        assert vj_eval.reconstruction_rmse(surface[:count] + 0.01, surface) is None
+    assert 0.0 <= vj_eval.reconstruction_rmse(surface[:50] + 0.01, surface) < 0.02  # 0.017 before registration

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from vogjax.config import IcpConfig
 from vogjax.maps import OCCUPIED
 from vogjax.slam import correlative_xyh, icp
+from vogjax.slam.icp import MIN_POINTS
 from vogjax.validation import real_array
 
 
@@ -70,9 +71,12 @@ def register_to_surface(points: np.ndarray, surface: np.ndarray, config: IcpConf
 
 
 def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
-                        search_radius_m: float = 3.0) -> float:
+                        search_radius_m: float = 3.0) -> float | None:
     """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
-    registering them to it (`register_to_surface`)."""
+    registering them to it (`register_to_surface`); None (not measurable) when there are fewer
+    points than registration needs (MIN_POINTS, ICP's): a map with next to nothing occupied."""
+    if len(points) < MIN_POINTS:
+        return None
     T = register_to_surface(points, surface, config, search_radius_m)
     distance, _ = cKDTree(surface).query(points @ T[:3, :3].T + T[:3, 3], workers=-1)
     return float(np.sqrt(np.mean(distance**2)))

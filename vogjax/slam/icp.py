@@ -26,6 +26,7 @@ from vogjax.kernels import registration
 from vogjax.validation import real_array
 
 MAX_COORDINATE_M = 1e7  # clouds farther out lose their metres in float64 squares
+MIN_POINTS = 3  # fewer cannot fix a pose
 
 
 @dataclasses.dataclass(frozen=True)
@@ -311,8 +312,8 @@ def _cloud(name: str, value) -> np.ndarray:
     cloud = real_array(name, value)
     if cloud.ndim != 2 or cloud.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {cloud.shape}")
-    if len(cloud) < 3:
-        raise ValueError(f"{name} needs at least 3 points, got {len(cloud)}")
+    if len(cloud) < MIN_POINTS:
+        raise ValueError(f"{name} needs at least {MIN_POINTS} points, got {len(cloud)}")
     if not np.all(np.isfinite(cloud)):
         raise ValueError(f"{name} contains NaN or infinite values")
     if np.abs(cloud).max() > MAX_COORDINATE_M:
