@@ -253,79 +253,6 @@ def fill_ray_bases(grid: wp.array(dtype=wp.int32), grid_dims: wp.vec3i, padded_d
 
 
 @wp.kernel
-def cast_rays_on_grid(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                      max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
-                      inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i,
-                      padded_dims: wp.vec3i, bases: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
-                      hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
-                      num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
-    """cast_rays, bit for bit, for a CPU: every step reads its block's first states word from
-    the padded grid of fill_ray_bases, then its voxel's state, with no test in between.
-
-    A CPU mispredicts a test at each block crossing (every eight steps or so, at random) and
-    pays more for it than for the load; a coordinate outside the grid is clamped onto its
-    padding and a missing block reads as the block of unknown voxels, so neither needs a
-    branch. The walk counts voxels from the padded grid's corner (a multiple of 8: a voxel's
-    bits within its block stay), so a block's cell is a shift and an unsigned clamp (a voxel
-    below the corner wraps past the top). The unknown voxels are the steps less the free ones.
-    """
-    tid = wp.tid()
-    origin, direction = origins[tid], unit_direction(directions[tid])
-    max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
-    voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
-    ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
-    x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz
-    tx, ty, tz = t_max[0], t_max[1], t_max[2]
-    dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
-    sx, sy, sz = step[0], step[1], step[2]
-    t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
-    max_steps = int(s.max_steps)
-    steps = int(s.skipped)
-    rest = int(0)  # unknown voxels past the map, counted without walking them
-    free = int(0)
-    found = bool(False)
-    t_hit = max_range
-    top_x, top_y, top_z = wp.uint32(padded_dims[0] - 1), wp.uint32(padded_dims[1] - 1), wp.uint32(padded_dims[2] - 1)
-    dim_y, dim_z = padded_dims[1], padded_dims[2]
-    while t_entry < t_end and steps <= max_steps:
-        if t_entry > t_after:  # past the map: count the rest of a long stretch
-            t_after = FAR
-            here = wp.vec3i(x + ox, y + oy, z + oz)
-            n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
-            if n > SKIP_VOXELS:
-                rest = n
-                break
-        cx = int(wp.min(wp.uint32(x >> 3), top_x))
-        cy = int(wp.min(wp.uint32(y >> 3), top_y))
-        cz = int(wp.min(wp.uint32(z >> 3), top_z))
-        base = bases[((cx * dim_y + cy) * dim_z + cz) & 0x7FFFFFFF]  # masked as in packed_state
-        state = packed_state(states, base, ((x & 7) << 6) | ((y & 7) << 3) | (z & 7))
-        if state == 2:
-            found = True
-            t_hit = t_entry
-            break
-        free += wp.where(state == 1, 1, 0)
-        if tx < ty and tx < tz:
-            t_entry = tx
-            x += sx
-            tx += dx
-        elif ty < tz:
-            t_entry = ty
-            y += sy
-            ty += dy
-        else:
-            t_entry = tz
-            z += sz
-            tz += dz
-        steps += 1
-    hit[tid] = found
-    distance[tid] = wp.float32(t_hit)
-    num_unknown[tid] = steps - free + rest
-    num_free[tid] = free
-
-
-@wp.kernel
 def fill_dense_states(log_odds: wp.array(dtype=wp.float32), slot_keys: wp.array(dtype=wp.int64),
                       log_occupied: wp.float32, log_free: wp.float32, corner: wp.vec3i, dims: wp.vec3i,
                       columns: wp.array(dtype=wp.uint16)):
@@ -350,81 +277,110 @@ def fill_dense_states(log_odds: wp.array(dtype=wp.float32), slot_keys: wp.array(
     columns[((x * dims[1] + y) * dims[2] + b[2] * 8 - corner[2]) / 8] = wp.uint16(bits)
 
 
-@wp.kernel
-def cast_rays_dense(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                    max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
-                    inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i,
-                    dims: wp.vec3i, columns: wp.array(dtype=wp.uint16),
-                    hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
-                    num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
-    """cast_rays, bit for bit, for a CPU and a map whose box is small: the states of every voxel
-    of the map's box padded by a block each way (fill_dense_states, `dims` voxels from the
-    corner (grid_lo - 1) 8) are read at every step, the index moved with the walk.
+def _cast_rays_for_cpu(dense: bool):
+    """cast_rays, bit for bit, for a CPU: a voxel's state is read at every step with no test in
+    between (a CPU mispredicts a test at each block crossing, every eight steps or so at random,
+    and pays more for it than for a load). The walk counts voxels from the corner of the map's
+    box padded by a block each way ((grid_lo - 1) 8, a multiple of 8: a voxel's bits within its
+    block stay), and the unknown voxels are the steps less the free ones.
 
-    There is no block to look up: a step adds its axis's stride to the voxel's index, and a
-    voxel is read when it lies inside the box (three unsigned comparisons, true for nearly every
-    step, so well predicted); outside, it is unknown. The unknown voxels are the steps less the
-    free ones.
+    dense: the state of every voxel of that box (fill_dense_states), the voxel's index moved
+    with the walk, one stride a step; a voxel outside the box (three unsigned comparisons, true
+    for nearly every step, so well predicted) is unknown. Otherwise, the padded block grid of
+    fill_ray_bases and the blocks' states: a block's cell is a shift and an unsigned clamp onto
+    the padding (a voxel below the corner wraps past the top), which names a block of unknown
+    voxels, so there is no bounds test and no test for a missing block.
+
+    The variant's code alone is generated (wp.static); the other's arrays may be empty.
     """
-    tid = wp.tid()
-    origin, direction = origins[tid], unit_direction(directions[tid])
-    max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
-    voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
-    ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
-    x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner
-    tx, ty, tz = t_max[0], t_max[1], t_max[2]
-    dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
-    sx, sy, sz = step[0], step[1], step[2]
-    size_x, size_y, size_z = wp.uint32(dims[0]), wp.uint32(dims[1]), wp.uint32(dims[2])
-    # in 64 bits: outside the box (where it is not read) the index may leave int32's range
-    stride_x, stride_y, stride_z = wp.int64(sx * dims[1] * dims[2]), wp.int64(sy * dims[2]), wp.int64(sz)
-    index = (wp.int64(x) * wp.int64(dims[1]) + wp.int64(y)) * wp.int64(dims[2]) + wp.int64(z)
-    t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
-    max_steps = int(s.max_steps)
-    steps = int(s.skipped)
-    rest = int(0)  # unknown voxels past the map, counted without walking them
-    free = int(0)
-    found = bool(False)
-    t_hit = max_range
-    while t_entry < t_end and steps <= max_steps:
-        if t_entry > t_after:  # past the map: count the rest of a long stretch
-            t_after = FAR
-            here = wp.vec3i(x + ox, y + oy, z + oz)
-            n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
-            if n > SKIP_VOXELS:
-                rest = n
+
+    @wp.kernel(name="cast_rays_dense" if dense else "cast_rays_on_grid")
+    def cast(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+             max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64, inv_resolution: wp.float64,
+             grid_lo: wp.vec3i, grid_hi: wp.vec3i, padded_dims: wp.vec3i, columns: wp.array(dtype=wp.uint16),
+             bases: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
+             hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
+             num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+        tid = wp.tid()
+        origin, direction = origins[tid], unit_direction(directions[tid])
+        max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
+        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+        voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
+        ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
+        x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner
+        tx, ty, tz = t_max[0], t_max[1], t_max[2]
+        dx, dy, dz = t_delta[0], t_delta[1], t_delta[2]
+        sx, sy, sz = step[0], step[1], step[2]
+        if wp.static(dense):  # voxels per axis; the index in 64 bits: outside the box, where it
+            # is not read, it may leave int32's range
+            size_x, size_y, size_z = wp.uint32(padded_dims[0] * 8), wp.uint32(padded_dims[1] * 8), wp.uint32(padded_dims[2] * 8)
+            dim_y, dim_z = padded_dims[1] * 8, padded_dims[2] * 8
+            stride_x, stride_y, stride_z = wp.int64(sx * dim_y * dim_z), wp.int64(sy * dim_z), wp.int64(sz)
+            index = (wp.int64(x) * wp.int64(dim_y) + wp.int64(y)) * wp.int64(dim_z) + wp.int64(z)
+        else:  # the padded grid's last cell per axis
+            top_x, top_y, top_z = wp.uint32(padded_dims[0] - 1), wp.uint32(padded_dims[1] - 1), wp.uint32(padded_dims[2] - 1)
+            dim_y, dim_z = padded_dims[1], padded_dims[2]
+        t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
+        max_steps = int(s.max_steps)
+        steps = int(s.skipped)
+        rest = int(0)  # unknown voxels past the map, counted without walking them
+        free = int(0)
+        found = bool(False)
+        t_hit = max_range
+        while t_entry < t_end and steps <= max_steps:
+            if t_entry > t_after:  # past the map: count the rest of a long stretch
+                t_after = FAR
+                here = wp.vec3i(x + ox, y + oy, z + oz)
+                n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
+                if n > SKIP_VOXELS:
+                    rest = n
+                    break
+            state = int(0)
+            if wp.static(dense):
+                if (int(wp.uint32(x) < size_x) & int(wp.uint32(y) < size_y) & int(wp.uint32(z) < size_z)) != 0:
+                    i = int(index)  # inside the box: below its voxel count
+                    bits = wp.uint32(columns[(i >> 3) & 0x7FFFFFFF])  # masked as in packed_state
+                    state = int((bits >> wp.uint32((i & 7) << 1)) & wp.uint32(3))
+            else:
+                cx = int(wp.min(wp.uint32(x >> 3), top_x))
+                cy = int(wp.min(wp.uint32(y >> 3), top_y))
+                cz = int(wp.min(wp.uint32(z >> 3), top_z))
+                base = bases[((cx * dim_y + cy) * dim_z + cz) & 0x7FFFFFFF]  # masked as in packed_state
+                state = packed_state(states, base, ((x & 7) << 6) | ((y & 7) << 3) | (z & 7))
+            if state == 2:
+                found = True
+                t_hit = t_entry
                 break
-        state = int(0)
-        if (int(wp.uint32(x) < size_x) & int(wp.uint32(y) < size_y) & int(wp.uint32(z) < size_z)) != 0:
-            i = int(index)  # inside the box: below dims' product
-            bits = wp.uint32(columns[(i >> 3) & 0x7FFFFFFF])  # masked as in packed_state
-            state = int((bits >> wp.uint32((i & 7) << 1)) & wp.uint32(3))
-        if state == 2:
-            found = True
-            t_hit = t_entry
-            break
-        free += wp.where(state == 1, 1, 0)
-        if tx < ty and tx < tz:
-            t_entry = tx
-            x += sx
-            index += stride_x
-            tx += dx
-        elif ty < tz:
-            t_entry = ty
-            y += sy
-            index += stride_y
-            ty += dy
-        else:
-            t_entry = tz
-            z += sz
-            index += stride_z
-            tz += dz
-        steps += 1
-    hit[tid] = found
-    distance[tid] = wp.float32(t_hit)
-    num_unknown[tid] = steps - free + rest
-    num_free[tid] = free
+            free += wp.where(state == 1, 1, 0)
+            if tx < ty and tx < tz:
+                t_entry = tx
+                x += sx
+                tx += dx
+                if wp.static(dense):
+                    index += stride_x
+            elif ty < tz:
+                t_entry = ty
+                y += sy
+                ty += dy
+                if wp.static(dense):
+                    index += stride_y
+            else:
+                t_entry = tz
+                z += sz
+                tz += dz
+                if wp.static(dense):
+                    index += stride_z
+            steps += 1
+        hit[tid] = found
+        distance[tid] = wp.float32(t_hit)
+        num_unknown[tid] = steps - free + rest
+        num_free[tid] = free
+
+    return cast
+
+
+cast_rays_dense = _cast_rays_for_cpu(dense=True)
+cast_rays_on_grid = _cast_rays_for_cpu(dense=False)
 
 
 @wp.func

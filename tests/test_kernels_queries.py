@@ -13,10 +13,10 @@ from vogjax.maps import blockmap, blocks
 from . import reference as ref
 
 WAYS = {  # (on a CPU, dense box budget, dense grid budget): the kind of tables they give
-    "dense": ((True, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "columns"),
-    "grid": ((True, 0, blocks.GRID_CELLS), "bases"),
-    "gpu": ((False, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "states"),
-    "hash": ((False, blockmap.DENSE_STATE_BYTES, 0), "states"),
+    "dense": ((True, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "dense"),
+    "grid": ((True, 0, blocks.GRID_CELLS), "grid"),
+    "gpu": ((False, blockmap.DENSE_STATE_BYTES, blocks.GRID_CELLS), "device"),
+    "hash": ((False, blockmap.DENSE_STATE_BYTES, 0), "device"),
 }
 
 
@@ -31,8 +31,9 @@ def casts_four_ways(vmap, monkeypatch, origins, directions, ranges):
             vmap.store._grid, vmap._ray_tables_cache = None, None
             results.append(vmap.raycast(origins, directions, ranges))
             tables = vmap._ray_tables()
-            assert [k for k in ("columns", "bases") if getattr(tables, k) is not None] == \
-                ([kind] if kind != "states" else [])
+            assert tables.kind == kind
+            assert [k for k in ("columns", "bases") if getattr(tables, k).shape[0] > 0] == \
+                {"dense": ["columns"], "grid": ["bases"], "device": []}[kind]
             assert (tables.grid.dims[0] > 0) == (grid_cells > 0)
             vmap.store._grid, vmap._ray_tables_cache = None, None
     return results
@@ -108,9 +109,9 @@ def test_a_map_of_scattered_blocks_casts_through_the_grid_and_a_compact_one_thro
     compact.integrate_scans(o, p, s)
     scattered.integrate_scans(np.concatenate([o, o + 30.0]), np.concatenate([p, p + 30.0]),
                               np.concatenate([s, s + 4]))  # two clusters 30 m apart: a box of mostly nothing
-    for vmap, kind in ((compact, "columns"), (scattered, "bases")):
+    for vmap, kind in ((compact, "dense"), (scattered, "grid")):
         vmap.raycast(o, p[:4] - o, 5.0)
         tables = vmap._ray_tables()
         padded_blocks = np.prod(tables.padded_dims)
-        assert getattr(tables, kind) is not None, (kind, padded_blocks, vmap.num_blocks)
-        assert (padded_blocks <= max(4 * vmap.num_blocks, 4096)) == (kind == "columns")
+        assert tables.kind == kind, (kind, padded_blocks, vmap.num_blocks)
+        assert (padded_blocks <= max(4 * vmap.num_blocks, 4096)) == (kind == "dense")

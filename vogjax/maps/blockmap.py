@@ -33,25 +33,27 @@ DENSE_STATE_BYTES = 64 << 20
 
 @dataclasses.dataclass(frozen=True)
 class RayTables:
-    """What ray casts read, for one version of a map's blocks and log-odds; one of three kinds.
+    """What ray casts read, for one version of a map's blocks and log-odds, by `kind`; the arrays
+    another kind reads are empty.
 
-    columns: uint16 (prod(8 padded_dims) / 8,) on a CPU when small enough: every voxel's state
-        in the box of the block grid padded by one block each way (queries.fill_dense_states)
-    bases: int32 (prod(padded_dims),) on a CPU otherwise: each cell's first states word in that
-        padded grid (queries.fill_ray_bases)
-    states: uint32 (32 (block_capacity + 1),) on a GPU, and with `bases`: the voxel states two
-        bits each (queries.classify_blocks), then one block of unknown voxels
+    "dense" (a CPU, a compact box): columns, uint16 (prod(8 padded_dims) / 8,), every voxel's
+        state in the box of the block grid padded by one block each way (queries.fill_dense_states)
+    "grid" (a CPU otherwise): bases, int32 (prod(padded_dims),), each cell's first states word
+        in that padded grid (queries.fill_ray_bases), and states
+    "device" (a GPU, or no block grid): states, uint32 (32 (block_capacity + 1),), the voxel
+        states two bits each (queries.classify_blocks), then one block of unknown voxels
     """
 
+    kind: str
     store: BlockStore
     grid: BlockGrid
     padded_dims: tuple
-    columns: wp.array | None = None
-    bases: wp.array | None = None
-    states: wp.array | None = None
+    columns: wp.array
+    bases: wp.array
+    states: wp.array
 
     def memory_bytes(self) -> int:
-        return sum(a.capacity for a in (self.columns, self.bases, self.states) if a is not None)
+        return self.columns.capacity + self.bases.capacity + self.states.capacity
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,6 +123,10 @@ class BlockMap:
         padded = tuple(d + 2 for d in grid.dims)
         on_cpu = self._cpu_casts and grid.dims[0] > 0
         log_odds, blocks = store.layers["log_odds"], store.num_blocks
+
+        def empty(*dtypes) -> list:
+            return [wp.empty(0, dtype=dtype, device=device) for dtype in dtypes]
+
         parts = parallel.num_parts(device, blocks * 32)
         # the box's zeros cost little beside reading the blocks' log-odds while it is at most a
         # few times their number; beyond that, a map of scattered blocks builds the grid's tables
@@ -137,7 +143,7 @@ class BlockMap:
                           outputs=[columns], device=device)
 
             parallel.split_launch(fill, blocks, parts)
-            return RayTables(store, grid, padded, columns=columns)
+            return RayTables("dense", store, grid, padded, columns, *empty(wp.int32, wp.uint32))
         empty_base = store.block_capacity * 32  # one block of unknown voxels after the others
         states = wp.zeros(empty_base + 32, dtype=wp.uint32, device=device)
 
@@ -152,8 +158,8 @@ class BlockMap:
             wp.launch(queries.fill_ray_bases, dim=bases.shape[0],
                       inputs=[grid.cells, wp.vec3i(*grid.dims), wp.vec3i(*padded), empty_base],
                       outputs=[bases], device=device)
-            return RayTables(store, grid, padded, bases=bases, states=states)
-        return RayTables(store, grid, padded, states=states)
+            return RayTables("grid", store, grid, padded, *empty(wp.uint16), bases, states)
+        return RayTables("device", store, grid, padded, *empty(wp.uint16, wp.int32), states)
 
     def _check_extent(self, origins: np.ndarray, points: np.ndarray) -> None:
         check_extent(self.config, origins=origins, points=points)
@@ -269,14 +275,11 @@ class BlockMap:
             rays = [origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
                     np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
             outputs = [a[lo:hi] for a in out.values()]
-            if tables.columns is not None:
-                dims = wp.vec3i(*(8 * d for d in tables.padded_dims))
-                wp.launch(queries.cast_rays_dense, dim=hi - lo,
-                          inputs=[*rays, box_lo, box_hi, dims, tables.columns], outputs=outputs, device=device)
-            elif tables.bases is not None:
-                wp.launch(queries.cast_rays_on_grid, dim=hi - lo,
-                          inputs=[*rays, box_lo, box_hi, wp.vec3i(*tables.padded_dims), tables.bases,
-                                  tables.states], outputs=outputs, device=device)
+            if tables.kind != "device":
+                kernel = queries.cast_rays_dense if tables.kind == "dense" else queries.cast_rays_on_grid
+                wp.launch(kernel, dim=hi - lo,
+                          inputs=[*rays, box_lo, box_hi, wp.vec3i(*tables.padded_dims), tables.columns,
+                                  tables.bases, tables.states], outputs=outputs, device=device)
             else:
                 wp.launch(queries.cast_rays, dim=hi - lo,
                           inputs=[*rays, tables.store.table_keys, tables.store.table_slots, box_lo, box_hi,
