@@ -251,6 +251,8 @@ def cause_factor(likelihood: wp.float64, tail: wp.float64, before: wp.float64, r
     f1 = keep * (before + reach * likelihood) + floor_term
     if f0 >= f1:
         if f0 > wp.float64(0.0) and f0 < wp.float64(1.0e300):
+            if f1 == wp.float64(0.0):  # most steps: the beam passes long before its reading
+                return wp.vec2f(wp.float32(1.0), wp.float32(0.0))
             return wp.vec2f(wp.float32(1.0), wp.float32(f1 / f0))
         return wp.vec2f(wp.float32(1.0), wp.float32(1.0))  # the map deems the reading impossible
     if f1 < wp.float64(1.0e300):
@@ -321,9 +323,17 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     Bins = wp.types.vector(length=K, dtype=wp.float32)
     last = float(K - 1)
 
-    LEVELS = Bins(*[float(np.float32(k) / np.float32(last)) for k in range(K)])
+    levels = np.arange(K, dtype=np.float32) / np.float32(last)
+    LEVELS = Bins(*levels.tolist())
     ONES = Bins(*([1.0] * K))
     QUADS, REST = K // 4, K % 4
+    # Most cone steps are free passes, f(m) = 1 - m: a voxel counts them and takes their product
+    # (1 - m_k)^n, rounded once from float64, FREE_CHUNK at a time and at the end of the scan.
+    # A chunk scales no bin but the last below (1/(K-1))^FREE_CHUNK >= 1e-15, so a top bin at
+    # the rescale threshold stays a normal float32.
+    passed = 1.0 - levels.astype(np.float64)
+    FREE_CHUNK = max(1, min(64, int(15.0 / math.log10(last)))) if K > 2 else 64
+    free_powers = (passed[None, :] ** np.arange(FREE_CHUNK + 1)[:, None]).astype(np.float32)
 
     @wp.func
     def bin_sum(b: Bins) -> wp.float32:
@@ -339,9 +349,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return (p[0] + p[1]) + (p[2] + p[3])
 
     @wp.func
-    def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
-        """Multiply a voxel's bins by f(m_k) = r0 + m_k (r1 - r0), kept away from underflow."""
-        b = wp.cw_mul(bins[voxel], ONES * r[0] + LEVELS * (r[1] - r[0]))
+    def scale_bins(bins: wp.array(dtype=Bins), voxel: int, factor: Bins):
+        """Multiply a voxel's bins by `factor` (one value per level), kept away from underflow."""
+        b = wp.cw_mul(bins[voxel], factor)
         # the 16-way max only when neither end bin clears the threshold (the same test, and
         # the same bits, at half the cost of the update: rescaling is rare)
         if b[0] < RESCALE_BELOW and b[K - 1] < RESCALE_BELOW:
@@ -349,6 +359,16 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             if top < RESCALE_BELOW and top > wp.float32(0.0):
                 b = b * (wp.float32(1.0) / top)
         bins[voxel] = b
+
+    @wp.func
+    def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
+        """Multiply a voxel's bins by f(m_k) = r0 + m_k (r1 - r0)."""
+        scale_bins(bins, voxel, ONES * r[0] + LEVELS * (r[1] - r[0]))
+
+    @wp.func
+    def passes_freely(r: wp.vec2f) -> bool:
+        """The factor of a beam that passes the voxel long before its reading: f(m) = 1 - m."""
+        return r[0] == wp.float32(1.0) and r[1] == wp.float32(0.0)
 
     @wp.func
     def moments(b: Bins) -> wp.vec2f:
@@ -378,11 +398,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
                            spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
                            step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
-                           touched: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),
-                           mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
-                           pending: wp.array(dtype=wp.uint8)):
+                           touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins),
+                           bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
+                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
-        compute_beam_factors and apply_scan_groups, in the same order per voxel."""
+        compute_beam_factors and apply_scan_groups, in the same order per voxel. pending[v] is 0
+        for a voxel the scan has not reached, else 1 + the free passes not yet applied."""
         _tid = wp.tid()
         keep = wp.float64(1.0) - spurious
         beam = int(0)
@@ -400,18 +421,37 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 for i in range(lo, hi):
                     m64 = wp.float64(step_mean[i - lo])
                     likelihood = step_likelihood[i]
-                    r = cause_factor(likelihood, step_tail[i - lo], before, reach, keep, floor_term)
+                    tail = step_tail[i - lo]
+                    free_pass = bool(False)
+                    r = wp.vec2f(wp.float32(1.0), wp.float32(1.0))
+                    if likelihood == wp.float64(0.0) and before == wp.float64(0.0) and floor_term == wp.float64(0.0):
+                        f0 = keep * (reach * tail)
+                        free_pass = f0 > wp.float64(0.0) and f0 < wp.float64(1.0e300)
+                    else:
+                        r = cause_factor(likelihood, tail, before, reach, keep, floor_term)
+                        free_pass = passes_freely(r)
                     before = before + likelihood * m64 * reach
                     reach = reach * (wp.float64(1.0) - m64)
                     v = step_voxel[i]
-                    if pending[v] == wp.uint8(0):
-                        pending[v] = wp.uint8(1)
+                    p = int(pending[v])
+                    if p == 0:
                         touched[count] = v
                         count += 1
-                    apply_factor(bins, v, r)
+                        p = 1
+                    if free_pass:
+                        p += 1
+                        if p == FREE_CHUNK + 1:
+                            scale_bins(bins, v, free_powers[FREE_CHUNK])
+                            p = 1
+                    else:
+                        apply_factor(bins, v, r)
+                    pending[v] = wp.uint8(p)
                 beam += 1
             for t in range(count):
                 v = touched[t]
+                free = int(pending[v]) - 1
+                if free > 0:
+                    scale_bins(bins, v, free_powers[free])
                 normalise(bins, v, floor, mean, variance)
                 pending[v] = wp.uint8(0)
 
@@ -419,7 +459,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),
                           keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
                           step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
-                          floor: wp.float32, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
+                          floor: wp.float32, free_powers: wp.array(dtype=Bins), bins: wp.array(dtype=Bins),
+                          mean: wp.array(dtype=wp.float32),
                           variance: wp.array(dtype=wp.float32)):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
         first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
@@ -430,11 +471,21 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             return
         j = group_entry[first_group[scan] + tid]
         v = keys[j]
+        free = int(0)
         while j < count:
             if keys[j] != v or step_scan[order[j]] != scan:
                 break
-            apply_factor(bins, v, step_factor[order[j]])
+            r = step_factor[order[j]]
+            if passes_freely(r):
+                free += 1
+                if free == FREE_CHUNK:
+                    scale_bins(bins, v, free_powers[FREE_CHUNK])
+                    free = 0
+            else:
+                apply_factor(bins, v, r)
             j += 1
+        if free > 0:
+            scale_bins(bins, v, free_powers[free])
         normalise(bins, v, floor, mean, variance)
 
     @wp.kernel(module=module)
@@ -462,6 +513,6 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         else:
             values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
-    return types.SimpleNamespace(Bins=Bins, integrate_in_order=integrate_in_order,
+    return types.SimpleNamespace(Bins=Bins, free_powers=free_powers, integrate_in_order=integrate_in_order,
                                  apply_scan_groups=apply_scan_groups, compute_moments=compute_moments,
                                  lookup_bins=lookup_bins)

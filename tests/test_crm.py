@@ -44,6 +44,22 @@ def test_matches_brute_force_reference(changes):
     np.testing.assert_allclose(variance, moments[:, 1], atol=2e-6)
 
 
+def test_many_free_passes_in_one_scan_match_the_reference():
+    """Voxels near the sensor are passed by most of a scan's 60 beams: their free passes are
+    counted and applied a chunk at a time (several chunks per voxel per scan)."""
+    rng = np.random.default_rng(4)
+    origins, points, scan_index = random_scans(rng, 3, 60, spread=0.05)
+    for num_bins in (8, 64):
+        cfg = SMALL.replace(num_bins=num_bins)
+        crm, ref = ConfidenceMap(cfg, "cpu"), ReferenceCrm(cfg)
+        for s in range(3):
+            crm.integrate_scan(origins[s], points[scan_index == s])
+            ref.integrate_scan(origins[s].astype(np.float32), points[scan_index == s])
+        centres = crm.voxels()[0]
+        expected = np.array([ref.cells[k] for k in keys_of(centres, cfg)])
+        np.testing.assert_allclose(crm.distribution(centres), expected, atol=2e-6)
+
+
 @pytest.mark.parametrize("num_bins", [3, 13])
 def test_bin_counts_off_the_sums_four_lanes_match_the_reference(num_bins):
     """bin_sum adds bins in four lanes: counts that leave one to three bins over (13), or that

@@ -135,6 +135,7 @@ class ConfidenceMap:
         self.device = devices.resolve(device)
         self._kernels = confidence.for_bins(self.config.num_bins)
         self._prior = self._kernels.Bins(*self.config.prior.tolist())
+        self._free_powers = wp.array(self._kernels.free_powers, dtype=self._kernels.Bins, device=self.device)
         self._store = BlockStore(self.device, self._layer_specs())
         self._lock = ReadWriteLock()
         # The parallel path replays each voxel's factors after a sort; on the CPU one thread
@@ -354,7 +355,7 @@ class ConfidenceMap:
                       step_likelihood, *model, np.float32(cfg.bin_floor),
                       wp.empty(longest, dtype=wp.float32, device=device),
                       wp.empty(longest, dtype=wp.float64, device=device),
-                      wp.empty(total, dtype=wp.int32, device=device)]
+                      wp.empty(total, dtype=wp.int32, device=device), self._free_powers]
             if before_launch is not None:
                 before_launch()
             wp.launch(self._kernels.integrate_in_order, dim=1, inputs=inputs,
@@ -396,7 +397,8 @@ class ConfidenceMap:
             outputs=[*scratch, factors], device=device, record_cmd=True)
         groups_of_scan = wp.launch(
             self._kernels.apply_scan_groups, dim=1,
-            inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor)],
+            inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor),
+                    self._free_powers],
             outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device, record_cmd=True)
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends.tolist()):
