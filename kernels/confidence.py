@@ -218,15 +218,13 @@ def mean_or_prior(mean: wp.array(dtype=wp.float32), voxel: int, prior_mean: wp.f
 
 
 @wp.func
-def beam_tails(lo: int, hi: int, hit: bool, step_voxel: wp.array(dtype=wp.int32),
+def beam_tails(lo: int, hi: int, tail: wp.float64, step_voxel: wp.array(dtype=wp.int32),
                step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
                prior_mean: wp.float32, base: int, step_mean: wp.array(dtype=wp.float32),
-               step_tail: wp.array(dtype=wp.float64)):
-    """Backward over one beam's cone, steps [lo, hi): each voxel's mean before the scan and S_i,
-    the likelihood of the reading caused beyond it, at scratch index i - base."""
-    tail = wp.float64(0.0)
-    if not hit:
-        tail = wp.float64(1.0)  # the cause at infinity
+               step_tail: wp.array(dtype=wp.float64)) -> wp.float64:
+    """Backward over steps [lo, hi) of a beam's cone, `tail` the likelihood of the reading caused
+    beyond step hi - 1: each voxel's mean before the scan and S_i, the likelihood of the reading
+    caused beyond it, at scratch index i - base. Returns S_{lo - 1}."""
     for back in range(hi - lo):
         i = hi - 1 - back
         m = mean_or_prior(mean, step_voxel[i], prior_mean)
@@ -234,6 +232,16 @@ def beam_tails(lo: int, hi: int, hit: bool, step_voxel: wp.array(dtype=wp.int32)
         step_tail[i - base] = tail
         m64 = wp.float64(m)
         tail = step_likelihood[i] * m64 + (wp.float64(1.0) - m64) * tail
+    return tail
+
+
+@wp.func
+def tail_beyond_cone(hit: bool) -> wp.float64:
+    """S past a cone's last voxel: a return cannot come from beyond it; "no return" comes from
+    the cause at infinity."""
+    if hit:
+        return wp.float64(0.0)
+    return wp.float64(1.0)
 
 
 @wp.func
@@ -273,7 +281,7 @@ def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int
     lo = beam_first_step[beam]
     hi = beam_first_step[beam + 1]
     hit = returned[beam] != 0
-    beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, 0, step_mean, step_tail)
+    beam_tails(lo, hi, tail_beyond_cone(hit), step_voxel, step_likelihood, mean, prior_mean, 0, step_mean, step_tail)
     keep = wp.float64(1.0) - spurious
     floor_term = spurious_term(hit, spurious, spurious_likelihood)
     before = wp.float64(0.0)  # P_i: the reading caused before voxel i
@@ -327,12 +335,14 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     LEVELS = Bins(*levels.tolist())
     ONES = Bins(*([1.0] * K))
     QUADS, REST = K // 4, K % 4
-    # Most cone steps are free passes, f(m) = 1 - m: a voxel counts them and takes their product
-    # (1 - m_k)^n, rounded once from float64, FREE_CHUNK at a time and at the end of the scan.
+    # Most cone steps are free passes, f(m) = 1 - m: a voxel counts a scan's (in its pending
+    # byte, up to MOST_FREE_PASSES at a time) and takes their product (1 - m_k)^n after the
+    # scan's other factors, FREE_CHUNK passes at a time, each chunk rounded once from float64.
     # A chunk scales no bin but the last below (1/(K-1))^FREE_CHUNK >= 1e-15, so a top bin at
     # the rescale threshold stays a normal float32.
     passed = 1.0 - levels.astype(np.float64)
     FREE_CHUNK = max(1, min(64, int(15.0 / math.log10(last)))) if K > 2 else 64
+    MOST_FREE_PASSES = 254  # pending counts 1 + the passes
     free_powers = (passed[None, :] ** np.arange(FREE_CHUNK + 1)[:, None]).astype(np.float32)
 
     @wp.func
@@ -369,6 +379,16 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     def passes_freely(r: wp.vec2f) -> bool:
         """The factor of a beam that passes the voxel long before its reading: f(m) = 1 - m."""
         return r[0] == wp.float32(1.0) and r[1] == wp.float32(0.0)
+
+    @wp.func
+    def apply_free_passes(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), n: int):
+        """Multiply a voxel's bins by (1 - m_k)^n, FREE_CHUNK passes at a time."""
+        left = n
+        while left >= FREE_CHUNK:
+            scale_bins(bins, voxel, free_powers[FREE_CHUNK])
+            left -= FREE_CHUNK
+        if left > 0:
+            scale_bins(bins, voxel, free_powers[left])
 
     @wp.func
     def moments(b: Bins) -> wp.vec2f:
@@ -413,12 +433,44 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 lo = beam_first_step[beam]
                 hi = beam_first_step[beam + 1]
                 hit = returned[beam] != 0
-                # one beam's scratch at a time, so it stays in the cache
-                beam_tails(lo, hi, hit, step_voxel, step_likelihood, mean, prior_mean, lo, step_mean, step_tail)
                 floor_term = spurious_term(hit, spurious, spurious_likelihood)
-                before = wp.float64(0.0)
-                reach = wp.float64(1.0)
-                for i in range(lo, hi):
+                # The cone's steps before its first nonzero likelihood (the reading's noise has
+                # not reached them) are free passes, f(m) = 1 - m, when f0 = keep T_i S_i lies in
+                # (0, 1e300) at each of them. With s = keep S just before the band and T the
+                # reach past all of them, each f0 lies between T s and s (the product of their
+                # 1 - m less one factor, times s), so T >= 1e-200 and 1e-80 <= s <= 1e299 (no
+                # product near underflow, none near the top) make them all free at once: no
+                # backward pass and no factor over them.
+                band = lo
+                while band < hi and step_likelihood[band] == wp.float64(0.0):
+                    band += 1
+                # one beam's scratch at a time, so it stays in the cache
+                tail = beam_tails(band, hi, tail_beyond_cone(hit), step_voxel, step_likelihood, mean, prior_mean,
+                                  lo, step_mean, step_tail)
+                reach = wp.float64(1.0)  # T_i
+                for i in range(lo, band):
+                    m64 = wp.float64(mean_or_prior(mean, step_voxel[i], prior_mean))
+                    reach = reach * (wp.float64(1.0) - m64)
+                first = band  # the first step whose factor is computed
+                s = keep * tail
+                if (floor_term == wp.float64(0.0) and reach >= wp.float64(1.0e-200) and s >= wp.float64(1.0e-80)
+                        and s <= wp.float64(1.0e299)):
+                    for i in range(lo, band):
+                        v = step_voxel[i]
+                        p = int(pending[v])
+                        touched[count] = v  # kept only if the voxel is new to the scan (no branch)
+                        count += wp.where(p == 0, 1, 0)
+                        p = wp.max(p, 1) + 1
+                        if p > MOST_FREE_PASSES:
+                            apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
+                            p = 1
+                        pending[v] = wp.uint8(p)
+                else:  # near underflow, or spurious readings: every step's factor as it comes
+                    beam_tails(lo, band, tail, step_voxel, step_likelihood, mean, prior_mean, lo, step_mean, step_tail)
+                    reach = wp.float64(1.0)
+                    first = lo
+                before = wp.float64(0.0)  # P_i
+                for i in range(first, hi):
                     m64 = wp.float64(step_mean[i - lo])
                     likelihood = step_likelihood[i]
                     tail = step_tail[i - lo]
@@ -440,8 +492,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                         p = 1
                     if free_pass:
                         p += 1
-                        if p == FREE_CHUNK + 1:
-                            scale_bins(bins, v, free_powers[FREE_CHUNK])
+                        if p > MOST_FREE_PASSES:
+                            apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                             p = 1
                     else:
                         apply_factor(bins, v, r)
@@ -449,9 +501,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 beam += 1
             for t in range(count):
                 v = touched[t]
-                free = int(pending[v]) - 1
-                if free > 0:
-                    scale_bins(bins, v, free_powers[free])
+                apply_free_passes(bins, v, free_powers, int(pending[v]) - 1)
                 normalise(bins, v, floor, mean, variance)
                 pending[v] = wp.uint8(0)
 
@@ -478,14 +528,13 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             r = step_factor[order[j]]
             if passes_freely(r):
                 free += 1
-                if free == FREE_CHUNK:
-                    scale_bins(bins, v, free_powers[FREE_CHUNK])
+                if free == MOST_FREE_PASSES:
+                    apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                     free = 0
             else:
                 apply_factor(bins, v, r)
             j += 1
-        if free > 0:
-            scale_bins(bins, v, free_powers[free])
+        apply_free_passes(bins, v, free_powers, free)
         normalise(bins, v, floor, mean, variance)
 
     @wp.kernel(module=module)
