@@ -342,6 +342,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     # the rescale threshold stays a normal float32.
     passed = 1.0 - levels.astype(np.float64)
     FREE_CHUNK = max(1, min(64, int(15.0 / math.log10(last)))) if K > 2 else 64
+    PREFETCH_VOXELS = 16
     MOST_FREE_PASSES = 254  # pending counts 1 + the passes
     free_powers = (passed[None, :] ** np.arange(FREE_CHUNK + 1)[:, None]).astype(np.float32)
 
@@ -499,11 +500,18 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                         apply_factor(bins, v, r)
                     pending[v] = wp.uint8(p)
                 beam += 1
+            early = wp.float32(0.0)
             for t in range(count):
+                # the bins of a voxel PREFETCH_VOXELS ahead, read now: most are not in the cache
+                # (free passes only counted them), and their misses then overlap this one's work
+                if t + PREFETCH_VOXELS < count:
+                    early = early + bins[touched[t + PREFETCH_VOXELS]][0]
                 v = touched[t]
                 apply_free_passes(bins, v, free_powers, int(pending[v]) - 1)
                 normalise(bins, v, floor, mean, variance)
                 pending[v] = wp.uint8(0)
+            if early < wp.float32(0.0):  # never: bins are not negative (keeps the reads)
+                step_mean[0] = early
 
     @wp.kernel(module=module)
     def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),

@@ -606,11 +606,16 @@ def _ordered_bits(values: np.ndarray) -> np.ndarray:
 
 
 def _scan_order(points: np.ndarray, scan_index: np.ndarray) -> np.ndarray:
-    """np.lexsort((z, y, x, scan)) of finite float32 points (N,3), on two packed keys: the same
-    permutation (both sorts are stable), in half the time."""
+    """np.lexsort((z, y, x, scan)) of finite float32 points (N,3), on packed keys: the same
+    permutation (every sort here is stable). Beams of a scan seldom share an x, so one sort on
+    (scan, x) mostly settles it (a quarter of lexsort's time); (y, z) is sorted only on a tie."""
     high = (scan_index.astype(np.uint64) << np.uint64(32)) | _ordered_bits(points[:, 0])
-    low = (_ordered_bits(points[:, 1]) << np.uint64(32)) | _ordered_bits(points[:, 2])
-    return np.lexsort((low, high))
+    order = np.argsort(high, kind="stable")
+    ordered = high[order]
+    if np.any(ordered[1:] == ordered[:-1]):
+        low = (_ordered_bits(points[:, 1]) << np.uint64(32)) | _ordered_bits(points[:, 2])
+        return np.lexsort((low, high))
+    return order
 
 
 def classify(mean: np.ndarray, config: CrmConfig) -> np.ndarray:
