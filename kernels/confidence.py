@@ -46,7 +46,7 @@ import numpy as np
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, pack_block
-from .traversal import ray_walk_begin, voxel_key, walk_step
+from .traversal import FAR, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -122,39 +122,73 @@ def first_boundary(t_max: wp.vec3d, length: wp.float64) -> wp.float64:
     return wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
 
 
+@wp.func
+def planes_after(t: wp.float64, delta: wp.float64, planes: int, length: wp.float64):
+    """The distance `planes` voxel planes further along an axis, summed one plane at a time as
+    walk_step sums it (so it has the voxel walk's bits), and how many of the distances passed
+    on the way (t included, the result not) lie before `length`."""
+    before = int(0)
+    for _ in range(planes):
+        before += wp.where(t < length, 1, 0)
+        t = t + delta
+    return t, before
+
+
 @wp.kernel
 def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
                      inv_resolution: wp.float64, block_keys: wp.array2d(dtype=wp.int64),
-                     block_counts: wp.array(dtype=wp.int32), step_counts: wp.array(dtype=wp.int32)):
-    """Per beam: the blocks its cone's voxels lie in (consecutive repeats dropped) and how many
-    voxels the cone has."""
+                     block_counts: wp.array(dtype=wp.int32), step_bounds: wp.array(dtype=wp.int32)):
+    """Per beam: the blocks its cone's voxels lie in, in walk order, and a bound on how many
+    voxels the cone has (exact unless two axes cross voxel planes at the same distance).
+
+    Walks block by block. Along each axis the distance to every voxel plane is summed one plane
+    at a time from the voxel walk's start, exactly as walk_step sums it, so every block plane
+    lies where the voxel walk meets it: a block is listed iff the voxel walk (fill_cone_steps)
+    spends a positive distance in it before the cone's end. The voxel walk takes one step per
+    voxel plane before the end, plus one: that count is the bound."""
     tid = wp.tid()
     length = lengths[tid]
     w = ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, length)
     capacity = block_keys.shape[1]
+    planes = int(1)  # voxel planes before the end, plus one
+    block_plane = wp.vec3d(FAR, FAR, FAR)  # per axis: where the walk next enters another block
+    for axis in range(3):
+        if w.step[axis] != 0:
+            inside = w.voxel[axis] & 7  # voxel planes before the block's own: 7 - inside going up
+            if w.step[axis] > 0:
+                inside = 7 - inside
+            t, before = planes_after(w.t_max[axis], w.t_delta[axis], inside, length)
+            block_plane[axis] = t
+            planes += before
+    block = block_of(w.voxel)
     n_blocks = int(0)
-    n_steps = int(0)
-    last_key = EMPTY_KEY
-    voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
-    steps = int(0)
-    moved = bool(True)  # the walk entered another block since the last voxel counted
-    while t_in < length and steps <= w.max_steps:
-        if first_boundary(t_max, length) > t_in:
-            if moved:  # the key can only differ from the last one listed after a block change
-                key = pack_block(block_of(voxel))
-                if key != last_key:
-                    if n_blocks < capacity:
-                        block_keys[tid, n_blocks] = key
-                    n_blocks += 1
-                    last_key = key
-                moved = False
-            n_steps += 1
-        voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
-        moved = moved or new_block
-        steps += 1
+    t_in = wp.float64(0.0)
+    moves = int(0)
+    while t_in < length and moves <= w.max_steps:
+        if first_boundary(block_plane, length) > t_in:
+            if n_blocks < capacity:
+                block_keys[tid, n_blocks] = pack_block(block)
+            n_blocks += 1
+        # the axis whose block plane comes first; on a tie the block between lasts no distance
+        # and is not listed, so the order does not matter
+        axis = int(2)
+        if block_plane[0] < block_plane[1] and block_plane[0] < block_plane[2]:
+            axis = 0
+        elif block_plane[1] < block_plane[2]:
+            axis = 1
+        t_in = block_plane[axis]
+        block[axis] = block[axis] + w.step[axis]
+        t, before = planes_after(t_in, w.t_delta[axis], 8, length)
+        block_plane[axis] = t
+        planes += before
+        moves += 1
     block_counts[tid] = n_blocks  # above the capacity: the host lists again with more room
-    step_counts[tid] = n_steps
+    # every block plane now lies at or past the end, so every plane before it was counted
+    # (but if the walk gave up, which it never does: then the voxel walk's most)
+    if t_in < length:
+        planes = w.max_steps + 1
+    step_bounds[tid] = planes
 
 
 @wp.kernel
@@ -164,9 +198,10 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
                     resolution: wp.float64, inv_resolution: wp.float64, sigma: wp.float64,
                     max_range: wp.float64, at_centre: int, table_keys: wp.array(dtype=wp.int64),
                     table_slots: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                    step_likelihood: wp.array(dtype=wp.float64)):
-    """Per beam, walking exactly as `list_cone_blocks`: each cone voxel's index in the voxel
-    pool and its likelihood L_c, at the beam's steps [first_step[tid], first_step[tid + 1]).
+                    step_likelihood: wp.array(dtype=wp.float64), filled: wp.array(dtype=wp.int32)):
+    """Per beam, its cone's blocks listed by `list_cone_blocks`: each cone voxel's index in the
+    voxel pool and its likelihood L_c, at the beam's steps [first_step[tid], first_step[tid + 1])
+    (room for list_cone_blocks' bound); `filled` counts those written.
     at_centre: a cause's range is the distance to its voxel's centre (the paper's Eq. 18), not
     spread over its chord."""
     tid = wp.tid()
@@ -179,6 +214,7 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
     end = first_step[tid + 1]
     voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     slot = int(-1)
+    missing = int(0)
     new_block = bool(True)
     steps = int(0)
     u_in = z / sigma  # chord ends as (z - t) / sigma; each boundary's tail is computed once
@@ -187,8 +223,12 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         t_out = first_boundary(t_max, length)
+        if t_out > t_in and n >= end:
+            missing = 1  # more voxels than the listing's bound: never; the host raises
         if t_out > t_in and n < end:
-            step_voxel[n] = slot * BLOCK_VOXELS + index_in_block(voxel)
+            if slot < 0:  # a block the listing missed: never (list_cone_blocks); the host raises
+                missing = 1
+            step_voxel[n] = wp.max(slot, 0) * BLOCK_VOXELS + index_in_block(voxel)
             if at_centre != 0:
                 t_cause = centre_distance(voxel, origin, resolution)
                 if hit:
@@ -206,6 +246,23 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
             n += 1
         voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
+    filled[tid] = n - first_step[tid]
+    if missing != 0:
+        filled[tid] = -1
+
+
+@wp.kernel
+def compact_cone_steps(first_step: wp.array(dtype=wp.int32), filled: wp.array(dtype=wp.int32),
+                       new_first_step: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
+                       step_likelihood: wp.array(dtype=wp.float64), out_voxel: wp.array(dtype=wp.int32),
+                       out_likelihood: wp.array(dtype=wp.float64)):
+    """Per beam: its filled steps moved back to back, from first_step[tid] to new_first_step[tid]."""
+    tid = wp.tid()
+    source = first_step[tid]
+    target = new_first_step[tid]
+    for i in range(filled[tid]):
+        out_voxel[target + i] = step_voxel[source + i]
+        out_likelihood[target + i] = step_likelihood[source + i]
 
 
 # ---------------------------------------------------------------- the sensor cause model

@@ -1,10 +1,15 @@
 """ConfidenceMap's speed-ups change no bit: the chunking of the block listing, the packed scan
-order, and the rescale test of the update (a map whose bins fall towards underflow mid-scan)."""
+order, the rescale test of the update (a map whose bins fall towards underflow mid-scan), and
+the block listing's walk over block planes only."""
 
 import numpy as np
 import pytest
+import warp as wp
 
+from tests.crm_reference import ReferenceCrm
 from tests.test_crm import SMALL, random_scans
+from vogjax.kernels import confidence as confidence_kernels
+from vogjax.kernels import hashing, traversal
 from vogjax.maps import confidence
 from vogjax.maps.confidence import ConfidenceMap
 
@@ -65,3 +70,102 @@ def test_conflicting_beams_through_one_voxel_rescale_alike_on_both_paths():
         np.testing.assert_array_equal(a, b)
     _, mean, variance = maps[0][:3]
     assert np.all(np.isfinite(mean)) and np.all(variance >= 0)
+
+
+@wp.kernel
+def _walk_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
+                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64, inv_resolution: wp.float64,
+                      block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32),
+                      voxel_counts: wp.array(dtype=wp.int32)):
+    """Reference: the voxel walk of fill_cone_steps, voxel by voxel, listing the block of every
+    voxel it passes with a positive distance (each block once on entering it)."""
+    tid = wp.tid()
+    length = lengths[tid]
+    w = traversal.ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, length)
+    voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
+    n_blocks = int(0)
+    n_voxels = int(0)
+    last = wp.int64(hashing.EMPTY_KEY)
+    steps = int(0)
+    while t_in < length and steps <= w.max_steps:
+        if wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length) > t_in:
+            key = hashing.pack_block(hashing.block_of(voxel))
+            if key != last:
+                block_keys[tid, n_blocks] = key
+                n_blocks += 1
+                last = key
+            n_voxels += 1
+        voxel, t_max, t_in, _new = traversal.walk_step(voxel, w.step, t_max, w.t_delta)
+        steps += 1
+    block_counts[tid] = n_blocks
+    voxel_counts[tid] = n_voxels
+
+
+def _hostile_beams(rng, resolution):
+    """Beams from voxel and block corners and plane points along axes and diagonals (planes of
+    two or three axes crossed at one distance), and random ones; lengths up to 30 blocks."""
+    s = resolution
+    corners = np.array([[0, 0, 0], [8 * s, 8 * s, 8 * s], [-8 * s, 0, 4 * s], [3 * s, -5 * s, 0.5 * s],
+                        [0.5 * s, 0.5 * s, 0.5 * s]])
+    axes = [[1, 0, 0], [0, -1, 0], [0, 0, 1], [1, 1, 0], [1, -1, 1], [-1, -1, -1], [1, 2, 0], [2, 1, 1],
+            [1, 1, 1e-12], [0.6, 0.8, 0]]
+    starts, directions = [], []
+    for c in corners:
+        for d in axes:
+            starts.append(c)
+            directions.append(d)
+    starts += list(rng.uniform(-3, 3, (300, 3)))
+    directions += list(rng.normal(size=(300, 3)))
+    starts, directions = np.array(starts, np.float64), np.array(directions, np.float64)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    lengths = np.concatenate([rng.uniform(0.01, 30 * 8 * s, len(starts) - 300), rng.uniform(0.0, 6.0, 300)])
+    return starts, directions, lengths, len(starts) - 300
+
+
+@pytest.mark.parametrize("resolution", [0.1, 0.25, 0.037])
+def test_block_listing_is_the_voxel_walks_blocks(resolution):
+    """list_cone_blocks walks block planes only, summing each axis's plane distances as the
+    voxel walk does: its blocks are exactly those the voxel walk meets, in order, and its bound
+    is the voxel walk's count (above it only where two axes' planes are crossed at once)."""
+    rng = np.random.default_rng(8)
+    starts, directions, lengths, hostile = _hostile_beams(rng, resolution)
+    n, room = len(starts), 512
+    arrays = [wp.array(starts, dtype=wp.vec3d), wp.array(directions, dtype=wp.vec3d), wp.array(lengths, dtype=wp.float64)]
+    args = [np.float64(resolution), np.float64(1.0 / resolution)]
+    outputs = []
+    for kernel in (confidence_kernels.list_cone_blocks, _walk_cone_blocks):
+        keys = wp.full((n, room), hashing.EMPTY_KEY, dtype=wp.int64)
+        counts, steps = wp.empty(n, dtype=wp.int32), wp.empty(n, dtype=wp.int32)
+        wp.launch(kernel, dim=n, inputs=[*arrays, *args], outputs=[keys, counts, steps], device="cpu")
+        outputs.append((keys.numpy(), counts.numpy(), steps.numpy()))
+    (keys, counts, bounds), (ref_keys, ref_counts, ref_voxels) = outputs
+    np.testing.assert_array_equal(counts, ref_counts)
+    np.testing.assert_array_equal(keys, ref_keys)
+    assert np.all(bounds >= ref_voxels)
+    np.testing.assert_array_equal(bounds[hostile:], ref_voxels[hostile:])  # random beams: no ties
+    assert np.any(bounds[:hostile] > ref_voxels[:hostile])  # the hostile ones do tie
+
+
+def test_beams_whose_planes_tie_match_the_reference():
+    """Beams along diagonals from voxel corners cross two or three axes' planes at once: the
+    walk fills fewer voxels than the listing's bound, and the cones are moved back to back."""
+    cfg = SMALL.replace(range_sigma_m=0.05)
+    s = cfg.voxel_size
+    origins = np.array([[0.0, 0.0, 0.0], [s, 2 * s, 0.5 * s]])
+    d = np.array([[1, 1, 0], [1, 1, 1], [1, -1, 0], [0, 1, 1], [-1, -1, 1], [1, 0.5, 0]], np.float64)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    points = np.concatenate([o + d * r for o in origins for r in (1.1, 1.7)]).astype(np.float32)
+    scan_index = np.repeat(np.arange(2), 12)
+    crm, ref = ConfidenceMap(cfg, "cpu"), ReferenceCrm(cfg)
+    for s_ in range(2):
+        crm.integrate_scan(origins[s_], points[scan_index == s_])
+        ref.integrate_scan(origins[s_].astype(np.float32), points[scan_index == s_])
+    centres = crm.voxels()[0]
+    keys = [tuple(k) for k in np.floor(centres / cfg.voxel_size).astype(int)]
+    assert set(keys) == set(ref.cells)
+    np.testing.assert_allclose(crm.distribution(centres), np.array([ref.cells[k] for k in keys]), atol=2e-6)
+    batch = ConfidenceMap(cfg, "cpu")
+    batch._sorted_path = True
+    batch.integrate_scans(origins, points, scan_index)
+    for a, b in zip(batch.voxels(), crm.voxels()):
+        np.testing.assert_array_equal(a, b)

@@ -98,6 +98,19 @@ class _Cones:
     step_likelihood: wp.array
 
 
+def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) -> _Cones:
+    """The cones with each beam's first `filled` steps only, back to back."""
+    first_step = np.zeros(len(filled) + 1, np.int64)
+    np.cumsum(filled, out=first_step[1:])
+    total = int(first_step[-1])
+    compact = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device), cones.returned,
+                     wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device))
+    wp.launch(confidence.compact_cone_steps, dim=len(filled),
+              inputs=[cones.d_first_step, d_filled, compact.d_first_step, cones.step_voxel, cones.step_likelihood],
+              outputs=[compact.step_voxel, compact.step_likelihood], device=device)
+    return compact
+
+
 _executor: concurrent.futures.ThreadPoolExecutor | None = None
 
 
@@ -250,9 +263,9 @@ class ConfidenceMap:
         return lo, int(beams.scan_ends[end_scan - 1])
 
     def _plan(self, beams: _Beams, first_scan: int, end_scan: int, passes: list, keys: list) -> None:
-        """Walk the cones of scans [first_scan, end_scan) (one launch): their blocks go to `keys`,
-        and the scans to `passes` as (first, end, voxels per cone, the most of them), SCANS_PER_PASS
-        scans each, halved while above STEP_BUDGET voxels."""
+        """List the cones' blocks of scans [first_scan, end_scan) (one launch): the blocks go to
+        `keys`, and the scans to `passes` as (first, end, room per cone, the most of it),
+        SCANS_PER_PASS scans each, halved while above STEP_BUDGET voxels."""
         lo, hi = self._beam_range(beams, first_scan, end_scan)
         count = hi - lo
         if count == 0:
@@ -266,17 +279,17 @@ class ConfidenceMap:
         while True:
             block_keys = wp.full((count, max_blocks), hashing.EMPTY_KEY, dtype=wp.int64, device=device)
             block_counts = wp.empty(count, dtype=wp.int32, device=device)
-            step_counts = wp.empty(count, dtype=wp.int32, device=device)
+            step_bounds = wp.empty(count, dtype=wp.int32, device=device)
             parallel.split_launch(lambda part, a, b: wp.launch(
                 confidence.list_cone_blocks, dim=b - a,
                 inputs=[starts[a:b], directions[a:b], lengths[a:b], resolution, inv_resolution],
-                outputs=[block_keys[a:b], block_counts[a:b], step_counts[a:b]], device=device),
+                outputs=[block_keys[a:b], block_counts[a:b], step_bounds[a:b]], device=device),
                 count, parallel.num_parts(device, count))
             most = int(block_counts.numpy().max())
             if most <= max_blocks:
                 break
             max_blocks = most  # round-off made a cone longer than the bound: list again
-        steps = step_counts.numpy().astype(np.int64)
+        steps = step_bounds.numpy().astype(np.int64)  # room per cone; the walk then counts exactly
         listed = block_keys.numpy()
         # neighbouring beams of a scan cross the same blocks in the same order: an entry equal to
         # the previous beam's at the same place is listed there already (np.unique then sorts a
@@ -321,15 +334,22 @@ class ConfidenceMap:
                        wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device),
                        wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device))
         ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
+        filled = wp.empty(count, dtype=wp.int32, device=device)
         parallel.split_launch(lambda part, a, b: wp.launch(
             confidence.fill_cone_steps, dim=b - a,
             inputs=[starts[a:b], directions[a:b], lengths[a:b], ranges[a:b], cones.returned[a:b],
                     cones.d_first_step[a:b + 1], resolution, inv_resolution, np.float64(cfg.range_sigma_m),
                     np.float64(cfg.max_range), int(cfg.cause_range == "centre"), store.table_keys,
                     store.table_slots],
-            outputs=[cones.step_voxel, cones.step_likelihood], device=device),
+            outputs=[cones.step_voxel, cones.step_likelihood, filled[a:b]], device=device),
             count, parallel.num_parts(device, count) if parts is None else parts)
-        return cones
+        counts = filled.numpy().astype(np.int64)
+        if np.any(counts < 0):
+            raise RuntimeError("internal error: a cone voxel lies in a block its listing missed (please report)")
+        if np.array_equal(counts, steps):
+            return cones
+        # planes of two axes crossed at one distance: a voxel passed in no distance, room unused
+        return _compacted(cones, counts, filled, device) if counts.any() else None  # a tie of planes on two axes: fewer voxels than room
 
     def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
                 cones: "_Cones | None", before_launch=None) -> None:
