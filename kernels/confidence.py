@@ -498,7 +498,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 # reach past all of them, each f0 lies between T s and s (the product of their
                 # 1 - m less one factor, times s), so T >= 1e-200 and 1e-80 <= s <= 1e299 (no
                 # product near underflow, none near the top) make them all free at once: no
-                # backward pass and no factor over them.
+                # backward pass and no factor over them. They are counted as T is summed, and
+                # uncounted in the rare case the bounds fail.
                 band = lo
                 while band < hi and step_likelihood[band] == wp.float64(0.0):
                     band += 1
@@ -507,23 +508,25 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                                   lo, step_mean, step_tail)
                 reach = wp.float64(1.0)  # T_i
                 for i in range(lo, band):
-                    m64 = wp.float64(mean_or_prior(mean, step_voxel[i], prior_mean))
+                    v = step_voxel[i]
+                    m64 = wp.float64(mean_or_prior(mean, v, prior_mean))
                     reach = reach * (wp.float64(1.0) - m64)
+                    p = int(pending[v])
+                    touched[count] = v  # kept only if the voxel is new to the scan (no branch)
+                    count += wp.where(p == 0, 1, 0)
+                    p = wp.max(p, 1)
+                    if p > MOST_FREE_PASSES:  # passes of earlier beams only: this one stays undoable
+                        apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
+                        p = 1
+                    pending[v] = wp.uint8(p + 1)
                 first = band  # the first step whose factor is computed
                 s = keep * tail
-                if (floor_term == wp.float64(0.0) and reach >= wp.float64(1.0e-200) and s >= wp.float64(1.0e-80)
+                if not (floor_term == wp.float64(0.0) and reach >= wp.float64(1.0e-200) and s >= wp.float64(1.0e-80)
                         and s <= wp.float64(1.0e299)):
+                    # near underflow, or spurious readings: every step's factor as it comes
                     for i in range(lo, band):
                         v = step_voxel[i]
-                        p = int(pending[v])
-                        touched[count] = v  # kept only if the voxel is new to the scan (no branch)
-                        count += wp.where(p == 0, 1, 0)
-                        p = wp.max(p, 1) + 1
-                        if p > MOST_FREE_PASSES:
-                            apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
-                            p = 1
-                        pending[v] = wp.uint8(p)
-                else:  # near underflow, or spurious readings: every step's factor as it comes
+                        pending[v] = wp.uint8(int(pending[v]) - 1)
                     beam_tails(lo, band, tail, step_voxel, step_likelihood, mean, prior_mean, lo, step_mean, step_tail)
                     reach = wp.float64(1.0)
                     first = lo
@@ -549,10 +552,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                         count += 1
                         p = 1
                     if free_pass:
-                        p += 1
                         if p > MOST_FREE_PASSES:
                             apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                             p = 1
+                        p += 1
                     else:
                         apply_factor(bins, v, r)
                     pending[v] = wp.uint8(p)
@@ -592,10 +595,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 break
             r = step_factor[order[j]]
             if passes_freely(r):
-                free += 1
-                if free == MOST_FREE_PASSES:
+                if free == MOST_FREE_PASSES:  # counted passes applied before the next is counted
                     apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                     free = 0
+                free += 1
             else:
                 apply_factor(bins, v, r)
             j += 1

@@ -51,10 +51,13 @@ def test_scan_order_is_the_lexsort_of_scan_and_coordinates():
         np.testing.assert_array_equal(confidence._scan_order(points, scan_index), expected)
 
 
-def test_conflicting_beams_through_one_voxel_rescale_alike_on_both_paths():
+@pytest.mark.parametrize("spurious", [0.0, 0.01])
+def test_conflicting_beams_through_one_voxel_rescale_alike_on_both_paths(spurious):
     # in one scan 300 beams end in one voxel and 300 pass through it: every bin of it falls far
-    # below the rescale threshold mid-scan; the CPU and the sorted path must agree bit for bit
-    cfg = SMALL.replace(range_sigma_m=0.05)
+    # below the rescale threshold mid-scan, and more free passes than a pending byte counts
+    # reach the voxels before it; the CPU and the sorted path must agree bit for bit (with
+    # spurious readings the CPU counts each beam's free passes, then takes them back)
+    cfg = SMALL.replace(range_sigma_m=0.05, spurious_probability=spurious)
     rng = np.random.default_rng(11)
     origin = np.array([0.1, 0.1, 0.1])
     jitter = rng.uniform(-0.02, 0.02, (600, 3))
