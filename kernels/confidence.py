@@ -512,9 +512,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                     m64 = wp.float64(mean_or_prior(mean, v, prior_mean))
                     reach = reach * (wp.float64(1.0) - m64)
                     p = int(pending[v])
-                    touched[count] = v  # kept only if the voxel is new to the scan (no branch)
-                    count += wp.where(p == 0, 1, 0)
-                    p = wp.max(p, 1)
+                    # a branch, predicted not taken: without it each step's store would wait for
+                    # the last step's pending load (count would carry it)
+                    if p == 0:
+                        touched[count] = v
+                        count += 1
+                        p = 1
                     if p > MOST_FREE_PASSES:  # passes of earlier beams only: this one stays undoable
                         apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                         p = 1

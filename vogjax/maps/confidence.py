@@ -628,13 +628,20 @@ def _ordered_bits(values: np.ndarray) -> np.ndarray:
 def _scan_order(points: np.ndarray, scan_index: np.ndarray) -> np.ndarray:
     """np.lexsort((z, y, x, scan)) of finite float32 points (N,3), on packed keys: the same
     permutation (every sort here is stable). Beams of a scan seldom share an x, so one sort on
-    (scan, x) mostly settles it (a quarter of lexsort's time); (y, z) is sorted only on a tie."""
+    (scan, x) mostly settles it (a quarter of lexsort's time); (y, z) then orders the ties."""
     high = (scan_index.astype(np.uint64) << np.uint64(32)) | _ordered_bits(points[:, 0])
     order = np.argsort(high, kind="stable")
     ordered = high[order]
-    if np.any(ordered[1:] == ordered[:-1]):
-        low = (_ordered_bits(points[:, 1]) << np.uint64(32)) | _ordered_bits(points[:, 2])
-        return np.lexsort((low, high))
+    same = ordered[1:] == ordered[:-1]
+    if not same.any():
+        return order
+    tied = np.zeros(len(order), bool)  # the runs of equal (scan, x), sorted among themselves by (y, z)
+    tied[1:] |= same
+    tied[:-1] |= same
+    at = np.flatnonzero(tied)
+    runs = order[at]  # each run in input order: the sort below keeps equal points so (stable)
+    low = (_ordered_bits(points[runs, 1]) << np.uint64(32)) | _ordered_bits(points[runs, 2])
+    order[at] = runs[np.lexsort((low, high[runs]))]
     return order
 
 
