@@ -134,13 +134,23 @@ def planes_after(t: wp.float64, delta: wp.float64, planes: int, length: wp.float
     return t, before
 
 
+@wp.func
+def recent_slot(block: wp.vec3i, size: int) -> int:
+    h = (block[0] * 73856093) ^ (block[1] * 19349663) ^ (block[2] * 83492791)
+    return h & (size - 1)
+
+
 @wp.kernel
 def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
-                     inv_resolution: wp.float64, block_keys: wp.array2d(dtype=wp.int64),
-                     block_counts: wp.array(dtype=wp.int32), step_bounds: wp.array(dtype=wp.int32)):
+                     inv_resolution: wp.float64, recent: wp.array(dtype=wp.int64),
+                     block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32),
+                     step_bounds: wp.array(dtype=wp.int32)):
     """Per beam: the blocks its cone's voxels lie in, in walk order, and a bound on how many
     voxels the cone has (exact unless two axes cross voxel planes at the same distance).
+    block_keys[tid, n] holds the n-th block, or EMPTY_KEY where `recent` (a small table of
+    blocks listed lately, by a hash of the block, EMPTY_KEY at first) holds it: another beam
+    listed it (neighbouring beams cross the same blocks), so the host need not sort it again.
 
     Walks block by block. Along each axis the distance to every voxel plane is summed one plane
     at a time from the voxel walk's start, exactly as walk_step sums it, so every block plane
@@ -168,7 +178,13 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     while t_in < length and moves <= w.max_steps:
         if first_boundary(block_plane, length) > t_in:
             if n_blocks < capacity:
-                block_keys[tid, n_blocks] = pack_block(block)
+                key = pack_block(block)
+                r = recent_slot(block, recent.shape[0])
+                if recent[r] == key:
+                    key = EMPTY_KEY
+                else:
+                    recent[r] = key
+                block_keys[tid, n_blocks] = key
             n_blocks += 1
         # the axis whose block plane comes first; on a tie the block between lasts no distance
         # and is not listed, so the order does not matter
@@ -184,6 +200,8 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
         planes += before
         moves += 1
     block_counts[tid] = n_blocks  # above the capacity: the host lists again with more room
+    for n in range(n_blocks, capacity):
+        block_keys[tid, n] = EMPTY_KEY
     # every block plane now lies at or past the end, so every plane before it was counted
     # (but if the walk gave up, which it never does: then the voxel walk's most)
     if t_in < length:

@@ -11,6 +11,7 @@ from tests.test_crm import SMALL, random_scans
 from vogjax.kernels import confidence as confidence_kernels
 from vogjax.kernels import hashing, traversal
 from vogjax.maps import confidence
+from vogjax.maps.blocks import EMPTY_KEY
 from vogjax.maps.confidence import ConfidenceMap
 
 
@@ -88,7 +89,7 @@ def _walk_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
     voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     n_blocks = int(0)
     n_voxels = int(0)
-    last = wp.int64(hashing.EMPTY_KEY)
+    last = wp.int64(-1)  # EMPTY_KEY
     steps = int(0)
     while t_in < length and steps <= w.max_steps:
         if wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length) > t_in:
@@ -129,24 +130,42 @@ def _hostile_beams(rng, resolution):
 def test_block_listing_is_the_voxel_walks_blocks(resolution):
     """list_cone_blocks walks block planes only, summing each axis's plane distances as the
     voxel walk does: its blocks are exactly those the voxel walk meets, in order, and its bound
-    is the voxel walk's count (above it only where two axes' planes are crossed at once)."""
+    is the voxel walk's count (above it only where two axes' planes are crossed at once). Blocks
+    it listed lately are left out, but each block is listed by some beam."""
     rng = np.random.default_rng(8)
     starts, directions, lengths, hostile = _hostile_beams(rng, resolution)
     n, room = len(starts), 512
     arrays = [wp.array(starts, dtype=wp.vec3d), wp.array(directions, dtype=wp.vec3d), wp.array(lengths, dtype=wp.float64)]
     args = [np.float64(resolution), np.float64(1.0 / resolution)]
-    outputs = []
-    for kernel in (confidence_kernels.list_cone_blocks, _walk_cone_blocks):
-        keys = wp.full((n, room), hashing.EMPTY_KEY, dtype=wp.int64)
-        counts, steps = wp.empty(n, dtype=wp.int32), wp.empty(n, dtype=wp.int32)
-        wp.launch(kernel, dim=n, inputs=[*arrays, *args], outputs=[keys, counts, steps], device="cpu")
-        outputs.append((keys.numpy(), counts.numpy(), steps.numpy()))
-    (keys, counts, bounds), (ref_keys, ref_counts, ref_voxels) = outputs
+
+    def listing(recent_blocks, beams):
+        keys = wp.empty((n, room), dtype=wp.int64)
+        counts, bounds = wp.empty(n, dtype=wp.int32), wp.empty(n, dtype=wp.int32)
+        for a, b in beams:
+            recent = wp.full(recent_blocks, EMPTY_KEY, dtype=wp.int64)
+            wp.launch(confidence_kernels.list_cone_blocks, dim=b - a,
+                      inputs=[arrays[0][a:b], arrays[1][a:b], arrays[2][a:b], *args, recent],
+                      outputs=[keys[a:b], counts[a:b], bounds[a:b]], device="cpu")
+        return keys.numpy(), counts.numpy(), bounds.numpy()
+
+    ref_keys, ref_counts = wp.full((n, room), EMPTY_KEY, dtype=wp.int64), wp.empty(n, dtype=wp.int32)
+    ref_voxels = wp.empty(n, dtype=wp.int32)
+    wp.launch(_walk_cone_blocks, dim=n, inputs=[*arrays, *args], outputs=[ref_keys, ref_counts, ref_voxels], device="cpu")
+    ref_keys, ref_counts, ref_voxels = ref_keys.numpy(), ref_counts.numpy(), ref_voxels.numpy()
+    # beam by beam (nothing listed lately): every block, in order
+    keys, counts, bounds = listing(2048, [(i, i + 1) for i in range(n)])
     np.testing.assert_array_equal(counts, ref_counts)
     np.testing.assert_array_equal(keys, ref_keys)
     assert np.all(bounds >= ref_voxels)
     np.testing.assert_array_equal(bounds[hostile:], ref_voxels[hostile:])  # random beams: no ties
     assert np.any(bounds[:hostile] > ref_voxels[:hostile])  # the hostile ones do tie
+    # all at once, a small table of blocks listed lately (collisions): each block listed at least once
+    for size in (1, 16, 2048):
+        keys, counts, _ = listing(size, [(0, n)])
+        np.testing.assert_array_equal(counts, ref_counts)
+        assert set(keys[keys != EMPTY_KEY].tolist()) == set(ref_keys[ref_keys != EMPTY_KEY].tolist())
+        listed = keys != EMPTY_KEY
+        assert np.all(keys[listed] == ref_keys[listed])  # in place
 
 
 def test_beams_whose_planes_tie_match_the_reference():

@@ -63,6 +63,8 @@ from vogjax.validation import float_array, index_array, within_key_range
 SCANS_PER_PASS = 64
 # Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 80 on CUDA).
 STEP_BUDGET = 1 << 21
+# Blocks a listing thread remembers, so that it lists each of them about once (8 bytes each).
+RECENT_BLOCKS = 2048
 # Passes whose cones' blocks are listed in one launch are merged while their beams times the
 # blocks a cone may cross stay below this (8 bytes of scratch each; one pass may exceed it).
 PLAN_ENTRIES = 1 << 21
@@ -276,27 +278,24 @@ class ConfidenceMap:
         directions = wp.array(beams.directions[lo:hi], dtype=wp.vec3d, device=device)
         lengths = wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device)
         max_blocks = self._max_blocks(float(beams.lengths[lo:hi].max()))
+        parts = parallel.num_parts(device, count)
         while True:
-            block_keys = wp.full((count, max_blocks), hashing.EMPTY_KEY, dtype=wp.int64, device=device)
+            block_keys = wp.empty((count, max_blocks), dtype=wp.int64, device=device)
             block_counts = wp.empty(count, dtype=wp.int32, device=device)
             step_bounds = wp.empty(count, dtype=wp.int32, device=device)
+            recent = wp.full((parts, RECENT_BLOCKS), hashing.EMPTY_KEY, dtype=wp.int64, device=device)
             parallel.split_launch(lambda part, a, b: wp.launch(
                 confidence.list_cone_blocks, dim=b - a,
-                inputs=[starts[a:b], directions[a:b], lengths[a:b], resolution, inv_resolution],
+                inputs=[starts[a:b], directions[a:b], lengths[a:b], resolution, inv_resolution, recent[part]],
                 outputs=[block_keys[a:b], block_counts[a:b], step_bounds[a:b]], device=device),
-                count, parallel.num_parts(device, count))
+                count, parts)
             most = int(block_counts.numpy().max())
             if most <= max_blocks:
                 break
             max_blocks = most  # round-off made a cone longer than the bound: list again
         steps = step_bounds.numpy().astype(np.int64)  # room per cone; the walk then counts exactly
         listed = block_keys.numpy()
-        # neighbouring beams of a scan cross the same blocks in the same order: an entry equal to
-        # the previous beam's at the same place is listed there already (np.unique then sorts a
-        # fraction of the entries)
-        fresh = listed != EMPTY_KEY
-        fresh[1:] &= listed[1:] != listed[:-1]
-        keys.append(np.unique(listed[fresh]))
+        keys.append(np.unique(listed[listed != EMPTY_KEY]))  # blocks listed lately are left out
         total = np.zeros(count + 1, np.int64)
         np.cumsum(steps, out=total[1:])
 
