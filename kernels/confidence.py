@@ -32,7 +32,8 @@ one forward pass: no division by m^ or 1 - m^ anywhere.
 A scan: every beam's factors are computed from the means before the scan; each voxel then
 multiplies in the factors of the beams that cross it in beam order (the host orders a scan's
 beams by their endpoints), rescaling if they fall towards underflow, and at the end of the scan
-is renormalised, floored at bin_floor, renormalised again, and gets its new mean and variance.
+is renormalised, floored at bin_floor, renormalised again, and gets its new mean (its variance
+once the batch is done).
 On the CPU one sequential launch does a whole pass of scans in order; on CUDA the factors are
 computed in parallel and a stable sort by voxel replays each voxel's factors in beam order. The
 two give the same bits.
@@ -473,9 +474,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return wp.vec2f(mean, bin_sum(wp.cw_mul(b, wp.cw_mul(d, d))))
 
     @wp.func
-    def normalise(bins: wp.array(dtype=Bins), voxel: int, floor: wp.float32,
-                  mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
-        """End of a scan: bins to sum 1, none below `floor`, sum 1 again; the new moments."""
+    def normalise(bins: wp.array(dtype=Bins), voxel: int, floor: wp.float32, mean: wp.array(dtype=wp.float32)):
+        """End of a scan: bins to sum 1, none below `floor`, sum 1 again; the new mean (the
+        next scan's beams read it). The variance waits for the end of the batch
+        (variance_of_blocks)."""
         b = bins[voxel]
         total = bin_sum(b)
         if total > wp.float32(0.0) and total < wp.float32(1.0e30):
@@ -484,9 +486,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         else:  # cannot happen with a positive floor; a voxel never becomes NaN
             b = ONES * (wp.float32(1.0) / wp.float32(K))
         bins[voxel] = b
-        mv = moments(b)
-        mean[voxel] = mv[0]
-        variance[voxel] = mv[1]
+        mean[voxel] = moments(b)[0]
 
     @wp.kernel(module=module)
     def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
@@ -496,7 +496,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
                            touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins),
                            bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8)):
+                           pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
         compute_beam_factors and apply_scan_groups, in the same order per voxel. pending[v] is 0
         for a voxel the scan has not reached, else 1 + the free passes not yet applied."""
@@ -589,7 +589,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                     early = early + bins[touched[t + PREFETCH_VOXELS]][0]
                 v = touched[t]
                 apply_free_passes(bins, v, free_powers, int(pending[v]) - 1)
-                normalise(bins, v, floor, mean, variance)
+                normalise(bins, v, floor, mean)
                 pending[v] = wp.uint8(0)
             if early < wp.float32(0.0):  # never: bins are not negative (keeps the reads)
                 step_mean[0] = early
@@ -599,8 +599,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                           keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
                           step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
                           floor: wp.float32, free_powers: wp.array(dtype=Bins), bins: wp.array(dtype=Bins),
-                          mean: wp.array(dtype=wp.float32),
-                          variance: wp.array(dtype=wp.float32)):
+                          mean: wp.array(dtype=wp.float32)):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
         first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
         beam order (the sort is stable), then renormalises. Launched over the scan's steps, an
@@ -624,7 +623,16 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 apply_factor(bins, v, r)
             j += 1
         apply_free_passes(bins, v, free_powers, free)
-        normalise(bins, v, floor, mean, variance)
+        normalise(bins, v, floor, mean)
+
+    @wp.kernel(module=module)
+    def variance_of_blocks(slots: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),
+                           mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+        """The variance of every observed voxel of the blocks in `slots` (the end of a batch)."""
+        tid = wp.tid()
+        v = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
+        if not wp.isnan(mean[v]):
+            variance[v] = moments(bins[v])[1]
 
     @wp.kernel(module=module)
     def compute_moments(observed: wp.array(dtype=wp.uint8), bins: wp.array(dtype=Bins),
@@ -652,5 +660,6 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
     return types.SimpleNamespace(Bins=Bins, free_powers=free_powers, integrate_in_order=integrate_in_order,
+                                 variance_of_blocks=variance_of_blocks,
                                  apply_scan_groups=apply_scan_groups, compute_moments=compute_moments,
                                  lookup_bins=lookup_bins)

@@ -235,8 +235,23 @@ class ConfidenceMap:
                 end = further
             self._plan(beams, first, end, passes, keys)
             first = end
-        if keys:
-            self._store.ensure_blocks(wp.array(np.unique(np.concatenate(keys)), dtype=wp.int64, device=self.device))
+        if not keys:
+            return
+        listed = wp.array(np.unique(np.concatenate(keys)), dtype=wp.int64, device=self.device)
+        self._store.ensure_blocks(listed)
+        self._apply_passes(beams, passes)
+        self._update_variances(self._store.find(listed))
+
+    def _update_variances(self, slots: wp.array) -> None:
+        """Variances of the observed voxels of the blocks in `slots`: only queries read them, so
+        they are computed once a batch is in, not after every scan."""
+        layers = self._store.layers
+        parallel.split_launch(lambda part, a, b: wp.launch(
+            self._kernels.variance_of_blocks, dim=(b - a) * BLOCK_VOXELS,
+            inputs=[slots[a:b], layers["bins"], layers["mean"]], outputs=[layers["variance"]], device=self.device),
+            slots.shape[0], parallel.num_parts(self.device, slots.shape[0] * BLOCK_VOXELS))
+
+    def _apply_passes(self, beams: _Beams, passes: list) -> None:
         if not passes:
             return
         overlap = not self.device.is_cuda and len(passes) > 1
@@ -378,7 +393,7 @@ class ConfidenceMap:
             if before_launch is not None:
                 before_launch()
             wp.launch(self._kernels.integrate_in_order, dim=1, inputs=inputs,
-                      outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"]],
+                      outputs=[layers["bins"], layers["mean"], layers["pending"]],
                       device=device)
             return
         if before_launch is not None:
@@ -418,7 +433,7 @@ class ConfidenceMap:
             self._kernels.apply_scan_groups, dim=1,
             inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor),
                     self._free_powers],
-            outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device, record_cmd=True)
+            outputs=[layers["bins"], layers["mean"]], device=device, record_cmd=True)
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends.tolist()):
             if beam_hi > beam_lo:
