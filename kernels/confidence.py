@@ -46,7 +46,7 @@ import types
 import numpy as np
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, pack_block
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, observed, pack_block
 from .traversal import FAR, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -288,7 +288,7 @@ def compact_cone_steps(first_step: wp.array(dtype=wp.int32), filled: wp.array(dt
 @wp.func
 def mean_or_prior(mean: wp.array(dtype=wp.float32), voxel: int, prior_mean: wp.float32) -> wp.float32:
     m = mean[voxel]
-    if wp.isnan(m):
+    if not observed(m):
         return prior_mean
     return m
 
@@ -631,7 +631,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         """The variance of every observed voxel of the blocks in `slots` (the end of a batch)."""
         tid = wp.tid()
         v = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
-        if not wp.isnan(mean[v]):
+        if observed(mean[v]):
             variance[v] = moments(bins[v])[1]
 
     @wp.kernel(module=module)

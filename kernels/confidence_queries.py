@@ -6,7 +6,7 @@ Never-observed voxels (NaN in the mean layer, or no block at all) answer the pri
 
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block
+from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block, observed
 from .traversal import ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -65,7 +65,7 @@ def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         m = stored(slot, voxel, mean)
         v = stored(slot, voxel, variance)
-        if wp.isnan(m):
+        if not observed(m):
             m = prior_mean
             v = prior_variance
             unknown += 1
@@ -115,7 +115,7 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
         t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), max_range)
         if t_out > t_in:
             m = stored(slot, voxel, mean)
-            if wp.isnan(m):
+            if not observed(m):
                 m = prior_mean
             probability = wp.float64(m) * passing
             if probability > best_probability:
@@ -152,7 +152,7 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
         if t_out > t_in:
             m = stored(slot, voxel, mean)
             v = stored(slot, voxel, variance)
-            if wp.isnan(m):
+            if not observed(m):
                 m = prior_mean
                 v = prior_variance
             total = total + wp.float64(m) + wp.float64(v)

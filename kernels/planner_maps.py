@@ -10,7 +10,7 @@ the map's own queries answer.
 import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
-from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block
+from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block, observed
 from .submap_view import SubmapView, submap_value, voxel_centre
 
 wp.set_module_options({"enable_backward": False})
@@ -69,7 +69,7 @@ def voxel_value(m: MapAccess, voxel: wp.vec3i, slot: int, candidates: wp.array(d
         centre = voxel_centre(voxel, m.resolution)
         for k in range(first, last):
             value = submap_value(m.views[candidates[k]], centre, m.inv_resolution)
-            if not wp.isnan(value):
+            if observed(value):
                 total += to_fixed_point(value)
                 count += 1
     return from_fixed_point(total, count, m.clamp_min, m.clamp_max)
