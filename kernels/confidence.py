@@ -217,10 +217,12 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
                     resolution: wp.float64, inv_resolution: wp.float64, sigma: wp.float64,
                     max_range: wp.float64, at_centre: int, table_keys: wp.array(dtype=wp.int64),
                     table_slots: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                    step_likelihood: wp.array(dtype=wp.float64), filled: wp.array(dtype=wp.int32)):
+                    step_likelihood: wp.array(dtype=wp.float64), filled: wp.array(dtype=wp.int32),
+                    band_start: wp.array(dtype=wp.int32)):
     """Per beam, its cone's blocks listed by `list_cone_blocks`: each cone voxel's index in the
     voxel pool and its likelihood L_c, at the beam's steps [first_step[tid], first_step[tid + 1])
-    (room for list_cone_blocks' bound); `filled` counts those written.
+    (room for list_cone_blocks' bound); `filled` counts those written, `band_start` those before
+    the first nonzero likelihood (the reading's noise band; `filled` if none).
     at_centre: a cause's range is the distance to its voxel's centre (the paper's Eq. 18), not
     spread over its chord."""
     tid = wp.tid()
@@ -266,6 +268,10 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
         voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
     filled[tid] = n - first_step[tid]
+    band = first_step[tid]
+    while band < n and step_likelihood[band] == wp.float64(0.0):
+        band += 1
+    band_start[tid] = band - first_step[tid]
     if missing != 0:
         filled[tid] = -1
 
@@ -490,6 +496,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
 
     @wp.kernel(module=module)
     def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
+                           beam_band: wp.array(dtype=wp.int32),
                            returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
                            step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
                            spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
@@ -518,9 +525,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 # product near underflow, none near the top) make them all free at once: no
                 # backward pass and no factor over them. They are counted as T is summed, and
                 # uncounted in the rare case the bounds fail.
-                band = lo
-                while band < hi and step_likelihood[band] == wp.float64(0.0):
-                    band += 1
+                band = lo + beam_band[beam]
                 # one beam's scratch at a time, so it stays in the cache
                 tail = beam_tails(band, hi, tail_beyond_cone(hit), step_voxel, step_likelihood, mean, prior_mean,
                                   lo, step_mean, step_tail)

@@ -98,6 +98,7 @@ class _Cones:
     returned: wp.array
     step_voxel: wp.array
     step_likelihood: wp.array
+    band_start: wp.array  # (B,) int32: the steps of a cone before its first nonzero likelihood
 
 
 def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) -> _Cones:
@@ -106,7 +107,8 @@ def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) ->
     np.cumsum(filled, out=first_step[1:])
     total = int(first_step[-1])
     compact = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device), cones.returned,
-                     wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device))
+                     wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
+                     cones.band_start)  # counted from each cone's first step: unchanged
     wp.launch(confidence.compact_cone_steps, dim=len(filled),
               inputs=[cones.d_first_step, d_filled, compact.d_first_step, cones.step_voxel, cones.step_likelihood],
               outputs=[compact.step_voxel, compact.step_likelihood], device=device)
@@ -346,7 +348,8 @@ class ConfidenceMap:
         lengths = wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device)
         cones = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
                        wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device),
-                       wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device))
+                       wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
+                       wp.empty(count, dtype=wp.int32, device=device))
         ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
         filled = wp.empty(count, dtype=wp.int32, device=device)
         parallel.split_launch(lambda part, a, b: wp.launch(
@@ -355,7 +358,7 @@ class ConfidenceMap:
                     cones.d_first_step[a:b + 1], resolution, inv_resolution, np.float64(cfg.range_sigma_m),
                     np.float64(cfg.max_range), int(cfg.cause_range == "centre"), store.table_keys,
                     store.table_slots],
-            outputs=[cones.step_voxel, cones.step_likelihood, filled[a:b]], device=device),
+            outputs=[cones.step_voxel, cones.step_likelihood, filled[a:b], cones.band_start[a:b]], device=device),
             count, parallel.num_parts(device, count) if parts is None else parts)
         counts = filled.numpy().astype(np.int64)
         if np.any(counts < 0):
@@ -385,7 +388,7 @@ class ConfidenceMap:
         layers = store.layers
         scan_ends = (beams.scan_ends[first_scan:end_scan] - lo).astype(np.int32)
         if not self._sorted_path:
-            inputs = [wp.array(scan_ends, dtype=wp.int32, device=device), d_first, d_returned, step_voxel,
+            inputs = [wp.array(scan_ends, dtype=wp.int32, device=device), d_first, cones.band_start, d_returned, step_voxel,
                       step_likelihood, *model, np.float32(cfg.bin_floor),
                       wp.empty(longest, dtype=wp.float32, device=device),
                       wp.empty(longest, dtype=wp.float64, device=device),
