@@ -58,6 +58,8 @@ INV_SQRT_2PI = wp.constant(wp.float64(1.0 / math.sqrt(2.0 * math.pi)))
 SHORT_CHORD_SIGMAS = wp.constant(wp.float64(1.0e-3))
 # The range noise is taken as exactly zero beyond this many sigma (its tail there is 6e-16).
 NOISE_CUTOFF = wp.constant(wp.float64(8.0))
+# A chord ending this many sigma before a reading is past NOISE_CUTOFF whatever the rounding.
+FAR_SIGMAS = wp.constant(wp.float64(8.0001))
 # Bins are scaled back up when the largest falls below this mid-scan (many beams in one scan).
 RESCALE_BELOW = wp.constant(wp.float32(1.0e-20))
 
@@ -238,8 +240,14 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
     missing = int(0)
     new_block = bool(True)
     steps = int(0)
-    u_in = z / sigma  # chord ends as (z - t) / sigma; each boundary's tail is computed once
-    tail_in = tail(u_in)
+    # Chord ends as u = (z - t) / sigma, each boundary's tail computed once, from the first
+    # step that ends within FAR_SIGMAS of the reading: before it every u is at least
+    # NOISE_CUTOFF, so every likelihood exactly 0 (what the formulas give there), unwritten.
+    far_until = z - FAR_SIGMAS * sigma
+    near = bool(False)
+    u_in = wp.float64(0.0)
+    tail_in = wp.float64(0.0)
+    band = int(-1)
     while t_in < length and steps <= w.max_steps:
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
@@ -257,20 +265,28 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
                 else:
                     step_likelihood[n] = no_return_likelihood(t_cause, sigma, max_range)
             elif hit:
-                u_out = (z - t_out) / sigma
-                tail_out = tail(u_out)
-                step_likelihood[n] = chord_likelihood(u_in, tail_in, u_out, tail_out, t_out - t_in, sigma)
-                u_in = u_out
-                tail_in = tail_out
+                if t_out <= far_until:
+                    step_likelihood[n] = wp.float64(0.0)
+                else:
+                    if not near:
+                        u_in = (z - t_in) / sigma
+                        tail_in = tail(u_in)
+                        near = True
+                    u_out = (z - t_out) / sigma
+                    tail_out = tail(u_out)
+                    step_likelihood[n] = chord_likelihood(u_in, tail_in, u_out, tail_out, t_out - t_in, sigma)
+                    u_in = u_out
+                    tail_in = tail_out
             else:
                 step_likelihood[n] = no_return_likelihood(wp.float64(0.5) * (t_in + t_out), sigma, max_range)
+            if band < 0 and step_likelihood[n] != wp.float64(0.0):
+                band = n
             n += 1
         voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
     filled[tid] = n - first_step[tid]
-    band = first_step[tid]
-    while band < n and step_likelihood[band] == wp.float64(0.0):
-        band += 1
+    if band < 0:
+        band = n
     band_start[tid] = band - first_step[tid]
     if missing != 0:
         filled[tid] = -1
@@ -496,7 +512,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
 
     @wp.kernel(module=module)
     def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
-                           beam_band: wp.array(dtype=wp.int32),
+                           beam_filled: wp.array(dtype=wp.int32), beam_band: wp.array(dtype=wp.int32),
                            returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
                            step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
                            spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
@@ -505,7 +521,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
                            pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
-        compute_beam_factors and apply_scan_groups, in the same order per voxel. pending[v] is 0
+        compute_beam_factors and apply_scan_groups, in the same order per voxel. A beam's cone is
+        its first beam_filled steps from beam_first_step (its room may hold more). pending[v] is 0
         for a voxel the scan has not reached, else 1 + the free passes not yet applied."""
         _tid = wp.tid()
         keep = wp.float64(1.0) - spurious
@@ -514,7 +531,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             count = int(0)
             while beam < scan_end_beam[scan]:
                 lo = beam_first_step[beam]
-                hi = beam_first_step[beam + 1]
+                hi = lo + beam_filled[beam]
                 hit = returned[beam] != 0
                 floor_term = spurious_term(hit, spurious, spurious_likelihood)
                 # The cone's steps before its first nonzero likelihood (the reading's noise has

@@ -99,6 +99,7 @@ class _Cones:
     step_voxel: wp.array
     step_likelihood: wp.array
     band_start: wp.array  # (B,) int32: the steps of a cone before its first nonzero likelihood
+    filled: wp.array  # (B,) int32: the steps of a cone (its room, first_step's difference, may hold more)
 
 
 def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) -> _Cones:
@@ -108,7 +109,7 @@ def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) ->
     total = int(first_step[-1])
     compact = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device), cones.returned,
                      wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
-                     cones.band_start)  # counted from each cone's first step: unchanged
+                     cones.band_start, d_filled)  # counted from each cone's first step: unchanged
     wp.launch(confidence.compact_cone_steps, dim=len(filled),
               inputs=[cones.d_first_step, d_filled, compact.d_first_step, cones.step_voxel, cones.step_likelihood],
               outputs=[compact.step_voxel, compact.step_likelihood], device=device)
@@ -349,9 +350,9 @@ class ConfidenceMap:
         cones = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
                        wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device),
                        wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
-                       wp.empty(count, dtype=wp.int32, device=device))
+                       wp.empty(count, dtype=wp.int32, device=device), wp.empty(count, dtype=wp.int32, device=device))
         ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
-        filled = wp.empty(count, dtype=wp.int32, device=device)
+        filled = cones.filled
         parallel.split_launch(lambda part, a, b: wp.launch(
             confidence.fill_cone_steps, dim=b - a,
             inputs=[starts[a:b], directions[a:b], lengths[a:b], ranges[a:b], cones.returned[a:b],
@@ -363,10 +364,13 @@ class ConfidenceMap:
         counts = filled.numpy().astype(np.int64)
         if np.any(counts < 0):
             raise RuntimeError("internal error: a cone voxel lies in a block its listing missed (please report)")
-        if np.array_equal(counts, steps):
-            return cones
-        # planes of two axes crossed at one distance: a voxel passed in no distance, room unused
-        return _compacted(cones, counts, filled, device) if counts.any() else None  # a tie of planes on two axes: fewer voxels than room
+        if not counts.any():
+            return None
+        if self._sorted_path and not np.array_equal(counts, steps):
+            # planes of two axes crossed at one distance: a voxel passed in no distance, room
+            # unused (the CPU path reads each cone's count instead)
+            return _compacted(cones, counts, filled, device)
+        return cones  # a tie of planes on two axes: fewer voxels than room
 
     def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
                 cones: "_Cones | None", before_launch=None) -> None:
@@ -388,7 +392,8 @@ class ConfidenceMap:
         layers = store.layers
         scan_ends = (beams.scan_ends[first_scan:end_scan] - lo).astype(np.int32)
         if not self._sorted_path:
-            inputs = [wp.array(scan_ends, dtype=wp.int32, device=device), d_first, cones.band_start, d_returned, step_voxel,
+            inputs = [wp.array(scan_ends, dtype=wp.int32, device=device), d_first, cones.filled, cones.band_start,
+                      d_returned, step_voxel,
                       step_likelihood, *model, np.float32(cfg.bin_floor),
                       wp.empty(longest, dtype=wp.float32, device=device),
                       wp.empty(longest, dtype=wp.float64, device=device),
