@@ -129,7 +129,8 @@ def _background() -> concurrent.futures.ThreadPoolExecutor:
 @dataclasses.dataclass(frozen=True)
 class _Beams:
     """Beams in scan order, float64: starts, unit directions (N,3); ranges (N,) to the reading;
-    lengths (N,) of the cones; returned (N,) int32; scan_ends (S,) one past each scan's beams."""
+    lengths (N,) of the cones; returned (N,) int32; scan_ends (S,) one past each scan's beams;
+    `on_device`: starts, directions, lengths, ranges, returned as Warp arrays (passes slice them)."""
 
     starts: np.ndarray
     directions: np.ndarray
@@ -137,6 +138,7 @@ class _Beams:
     lengths: np.ndarray
     returned: np.ndarray
     scan_ends: np.ndarray
+    on_device: tuple
 
 
 class ConfidenceMap:
@@ -209,7 +211,8 @@ class ConfidenceMap:
         points, scan_index = points[order], scan_index[order]
         starts = origins.astype(np.float64)[scan_index]
         offsets = points.astype(np.float64) - starts
-        ranges = np.linalg.norm(offsets, axis=1)
+        squares = offsets * offsets
+        ranges = np.sqrt(squares[:, 0] + squares[:, 1] + squares[:, 2])  # np.linalg.norm's sum, 5x faster
         if np.any(ranges == 0):
             raise ValueError("points must differ from their scan's origin (a beam needs a direction)")
         directions = offsets / ranges[:, None] if len(ranges) else offsets
@@ -219,7 +222,13 @@ class ConfidenceMap:
         # a cone reaches cone_sigmas past its reading
         within_key_range("points", starts + directions * lengths[:, None], cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         scan_ends = np.searchsorted(scan_index, np.arange(1, origins.shape[0] + 1)).astype(np.int64)
-        return _Beams(starts, directions, ranges, lengths, returned.astype(np.int32), scan_ends)
+        returned = returned.astype(np.int32)
+        on_device = (wp.array(starts, dtype=wp.vec3d, device=self.device),
+                     wp.array(directions, dtype=wp.vec3d, device=self.device),
+                     wp.array(lengths, dtype=wp.float64, device=self.device),
+                     wp.array(ranges, dtype=wp.float64, device=self.device),
+                     wp.array(returned, dtype=wp.int32, device=self.device))
+        return _Beams(starts, directions, ranges, lengths, returned, scan_ends, on_device)
 
     def _integrate_passes(self, beams: _Beams) -> None:
         """List every cone's blocks and allocate them all at once (a vector layer is costly to
@@ -292,9 +301,7 @@ class ConfidenceMap:
             return
         cfg, device = self.config, self.device
         resolution, inv_resolution = np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)
-        starts = wp.array(beams.starts[lo:hi], dtype=wp.vec3d, device=device)
-        directions = wp.array(beams.directions[lo:hi], dtype=wp.vec3d, device=device)
-        lengths = wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device)
+        starts, directions, lengths = (a[lo:hi] for a in beams.on_device[:3])
         max_blocks = self._max_blocks(float(beams.lengths[lo:hi].max()))
         parts = parallel.num_parts(device, count)
         while True:
@@ -344,14 +351,11 @@ class ConfidenceMap:
         if total == 0:
             return None
         resolution, inv_resolution = np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)
-        starts = wp.array(beams.starts[lo:hi], dtype=wp.vec3d, device=device)
-        directions = wp.array(beams.directions[lo:hi], dtype=wp.vec3d, device=device)
-        lengths = wp.array(beams.lengths[lo:hi], dtype=wp.float64, device=device)
+        starts, directions, lengths, ranges, returned = (a[lo:hi] for a in beams.on_device)
         cones = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
-                       wp.array(beams.returned[lo:hi], dtype=wp.int32, device=device),
+                       returned,
                        wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
                        wp.empty(count, dtype=wp.int32, device=device), wp.empty(count, dtype=wp.int32, device=device))
-        ranges = wp.array(beams.ranges[lo:hi], dtype=wp.float64, device=device)
         filled = cones.filled
         parallel.split_launch(lambda part, a, b: wp.launch(
             confidence.fill_cone_steps, dim=b - a,
