@@ -47,7 +47,7 @@ import numpy as np
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, observed, pack_block
-from .traversal import FAR, ray_walk_begin, voxel_key, walk_step
+from .traversal import FAR, ray_walk_begin, smaller, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -118,12 +118,6 @@ def centre_distance(voxel: wp.vec3i, origin: wp.vec3d, resolution: wp.float64) -
                  (wp.float64(voxel[1]) + half) * resolution - origin[1],
                  (wp.float64(voxel[2]) + half) * resolution - origin[2])
     return wp.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-
-
-@wp.func
-def smaller(a: wp.float64, b: wp.float64) -> wp.float64:
-    """wp.min of two numbers that are never NaN, without its NaN test (one select)."""
-    return wp.where(a <= b, a, b)
 
 
 @wp.func

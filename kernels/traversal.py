@@ -254,6 +254,13 @@ def walk_step(voxel: wp.vec3i, step: wp.vec3i, t_max: wp.vec3d, t_delta: wp.vec3
 
 
 @wp.func
+def smaller(a: wp.float64, b: wp.float64) -> wp.float64:
+    """wp.min of two distances, which are never NaN: one select (wp.min also tests for NaN,
+    which keeps a walk's step from compiling to plain compares)."""
+    return wp.where(a <= b, a, b)
+
+
+@wp.func
 def segment_continues(voxel: wp.vec3i, t_max: wp.vec3d, w: VoxelWalk, steps: int) -> bool:
     # OctoMap stops on reaching the end voxel, or when round-off carried it past the end.
     return (not same_voxel(voxel, w.last)
