@@ -458,16 +458,20 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return (p[0] + p[1]) + (p[2] + p[3])
 
     @wp.func
-    def scale_bins(bins: wp.array(dtype=Bins), voxel: int, factor: Bins):
-        """Multiply a voxel's bins by `factor` (one value per level), kept away from underflow."""
-        b = wp.cw_mul(bins[voxel], factor)
+    def scaled(b: Bins, factor: Bins) -> Bins:
+        """Bins times `factor` (one value per level), kept away from underflow."""
+        b = wp.cw_mul(b, factor)
         # the 16-way max only when neither end bin clears the threshold (the same test, and
         # the same bits, at half the cost of the update: rescaling is rare)
         if b[0] < RESCALE_BELOW and b[K - 1] < RESCALE_BELOW:
             top = wp.max(b)
             if top < RESCALE_BELOW and top > wp.float32(0.0):
                 b = b * (wp.float32(1.0) / top)
-        bins[voxel] = b
+        return b
+
+    @wp.func
+    def scale_bins(bins: wp.array(dtype=Bins), voxel: int, factor: Bins):
+        bins[voxel] = scaled(bins[voxel], factor)
 
     @wp.func
     def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
@@ -480,14 +484,19 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return r[0] == wp.float32(1.0) and r[1] == wp.float32(0.0)
 
     @wp.func
-    def apply_free_passes(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), n: int):
-        """Multiply a voxel's bins by (1 - m_k)^n, FREE_CHUNK passes at a time."""
+    def passed_freely(b: Bins, free_powers: wp.array(dtype=Bins), n: int) -> Bins:
+        """Bins times (1 - m_k)^n, FREE_CHUNK passes at a time."""
         left = n
         while left >= FREE_CHUNK:
-            scale_bins(bins, voxel, free_powers[FREE_CHUNK])
+            b = scaled(b, free_powers[FREE_CHUNK])
             left -= FREE_CHUNK
         if left > 0:
-            scale_bins(bins, voxel, free_powers[left])
+            b = scaled(b, free_powers[left])
+        return b
+
+    @wp.func
+    def apply_free_passes(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), n: int):
+        bins[voxel] = passed_freely(bins[voxel], free_powers, n)
 
     @wp.func
     def at_least(b: Bins, floor: wp.float32) -> Bins:
@@ -505,11 +514,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return wp.vec2f(mean, bin_sum(wp.cw_mul(b, wp.cw_mul(d, d))))
 
     @wp.func
-    def normalise(bins: wp.array(dtype=Bins), voxel: int, floor: wp.float32, mean: wp.array(dtype=wp.float32)):
-        """End of a scan: bins to sum 1, none below `floor`, sum 1 again; the new mean (the
-        next scan's beams read it). The variance waits for the end of the batch
-        (variance_of_blocks)."""
-        b = bins[voxel]
+    def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), free: int,
+                    floor: wp.float32, mean: wp.array(dtype=wp.float32)):
+        """End of a scan for a voxel it reached: its `free` passes not yet applied, then bins to
+        sum 1, none below `floor`, sum 1 again; the new mean (the next scan's beams read it).
+        The variance waits for the end of the batch (variance_of_blocks)."""
+        b = passed_freely(bins[voxel], free_powers, free)
         total = bin_sum(b)
         if total > wp.float32(0.0) and total < wp.float32(1.0e30):
             b = at_least(b * (wp.float32(1.0) / total), floor)
@@ -619,8 +629,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 if t + PREFETCH_VOXELS < count:
                     early = early + bins[touched[t + PREFETCH_VOXELS]][0]
                 v = touched[t]
-                apply_free_passes(bins, v, free_powers, int(pending[v]) - 1)
-                normalise(bins, v, floor, mean)
+                finish_scan(bins, v, free_powers, int(pending[v]) - 1, floor, mean)
                 pending[v] = wp.uint8(0)
             if early < wp.float32(0.0):  # never: bins are not negative (keeps the reads)
                 step_mean[0] = early
@@ -653,8 +662,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             else:
                 apply_factor(bins, v, r)
             j += 1
-        apply_free_passes(bins, v, free_powers, free)
-        normalise(bins, v, floor, mean)
+        finish_scan(bins, v, free_powers, free, floor, mean)
 
     @wp.kernel(module=module)
     def variance_of_blocks(slots: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),
