@@ -223,11 +223,10 @@ class ConfidenceMap:
         within_key_range("points", starts + directions * lengths[:, None], cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         scan_ends = np.searchsorted(scan_index, np.arange(1, origins.shape[0] + 1)).astype(np.int64)
         returned = returned.astype(np.int32)
-        on_device = (wp.array(starts, dtype=wp.vec3d, device=self.device),
-                     wp.array(directions, dtype=wp.vec3d, device=self.device),
-                     wp.array(lengths, dtype=wp.float64, device=self.device),
-                     wp.array(ranges, dtype=wp.float64, device=self.device),
-                     wp.array(returned, dtype=wp.int32, device=self.device))
+        copy = self.device.is_cuda  # on a CPU, Warp arrays over the host arrays (kernels only read them)
+        on_device = tuple(wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, copy=copy)
+                          for a, dtype in ((starts, wp.vec3d), (directions, wp.vec3d), (lengths, wp.float64),
+                                           (ranges, wp.float64), (returned, wp.int32)))
         return _Beams(starts, directions, ranges, lengths, returned, scan_ends, on_device)
 
     def _integrate_passes(self, beams: _Beams) -> None:
