@@ -31,9 +31,11 @@ one forward pass: no division by m^ or 1 - m^ anywhere.
 
 A scan: every beam's factors are computed from the means before the scan; each voxel then
 multiplies in the factors of the beams that cross it in beam order (the host orders a scan's
-beams by their endpoints), rescaling if they fall towards underflow, and at the end of the scan
-is renormalised, floored at bin_floor, renormalised again, and gets its new mean (its variance
-once the batch is done).
+beams by their endpoints), rescaling if they fall towards underflow. A factor of exactly
+(1, 0), f(m) = 1 - m (a beam passing long before its reading: L = 0 up to there, so P = 0 and
+f1 = 0), is a free pass: only counted, and the count's power of 1 - m_k applied at the end of
+the scan, before the voxel is renormalised, floored at bin_floor, renormalised again, and gets
+its new mean (its variance once the batch is done).
 On the CPU one sequential launch does a whole pass of scans in order; on CUDA the factors are
 computed in parallel and a stable sort by voxel replays each voxel's factors in beam order. The
 two give the same bits.
