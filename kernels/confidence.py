@@ -48,7 +48,8 @@ import types
 import numpy as np
 import warp as wp
 
-from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, index_in_block, observed, pack_block
+from .hashing import (BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, hash_key, index_in_block, observed,
+                      pack_block)
 from .traversal import FAR, ray_walk_begin, smaller, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -139,12 +140,6 @@ def planes_after(t: wp.float64, delta: wp.float64, planes: int, length: wp.float
     return t, before
 
 
-@wp.func
-def recent_slot(block: wp.vec3i, size: int) -> int:
-    h = (block[0] * 73856093) ^ (block[1] * 19349663) ^ (block[2] * 83492791)
-    return h & (size - 1)
-
-
 @wp.kernel
 def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
@@ -184,7 +179,7 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
         if first_boundary(block_plane, length) > t_in:
             if n_blocks < capacity:
                 key = pack_block(block)
-                r = recent_slot(block, recent.shape[0])
+                r = int(hash_key(key) & wp.uint32(recent.shape[0] - 1))
                 if recent[r] == key:
                     key = EMPTY_KEY
                 else:
@@ -671,7 +666,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
         """The variance of every observed voxel of the blocks in `slots` (the end of a batch)."""
         tid = wp.tid()
-        v = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
+        slot = slots[tid // BLOCK_VOXELS]
+        if slot < 0:
+            return
+        v = slot * BLOCK_VOXELS + tid % BLOCK_VOXELS
         if observed(mean[v]):
             variance[v] = moments(bins[v])[1]
 

@@ -63,7 +63,8 @@ from vogjax.validation import float_array, index_array, within_key_range
 SCANS_PER_PASS = 64
 # Cone voxels per pass; a pass above it is split (about 36 bytes of scratch each, 80 on CUDA).
 STEP_BUDGET = 1 << 21
-# Blocks a listing thread remembers, so that it lists each of them about once (8 bytes each).
+# Blocks a listing thread remembers, so that it lists each of them about once (8 bytes each; a
+# power of two: a block's hash picks its place).
 RECENT_BLOCKS = 2048
 # Passes whose cones' blocks are listed in one launch are merged while their beams times the
 # blocks a cone may cross stay below this (8 bytes of scratch each; one pass may exceed it).
@@ -373,7 +374,7 @@ class ConfidenceMap:
             # planes of two axes crossed at one distance: a voxel passed in no distance, room
             # unused (the CPU path reads each cone's count instead)
             return _compacted(cones, counts, filled, device)
-        return cones  # a tie of planes on two axes: fewer voxels than room
+        return cones
 
     def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
                 cones: "_Cones | None", before_launch=None) -> None:
