@@ -35,7 +35,8 @@ beams by their endpoints), rescaling if they fall towards underflow. A factor of
 (1, 0), f(m) = 1 - m (a beam passing long before its reading: L = 0 up to there, so P = 0 and
 f1 = 0), is a free pass: only counted, and the count's power of 1 - m_k applied at the end of
 the scan, before the voxel is renormalised, floored at bin_floor, renormalised again, and gets
-its new mean (its variance once the batch is done).
+its new mean and variance (a batch of many scans computes the variances once at its end
+instead: the same bits).
 On the CPU one sequential launch does a whole pass of scans in order; on CUDA the factors are
 computed in parallel and a stable sort by voxel replays each voxel's factors in beam order. The
 two give the same bits.
@@ -512,10 +513,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
 
     @wp.func
     def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), free: int,
-                    floor: wp.float32, mean: wp.array(dtype=wp.float32)):
+                    floor: wp.float32, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
+                    with_variance: int):
         """End of a scan for a voxel it reached: its `free` passes not yet applied, then bins to
-        sum 1, none below `floor`, sum 1 again; the new mean (the next scan's beams read it).
-        The variance waits for the end of the batch (variance_of_blocks)."""
+        sum 1, none below `floor`, sum 1 again; the new mean (the next scan's beams read it),
+        and the new variance if `with_variance` (else variance_of_blocks computes it from the
+        same bins once the batch is in: the same bits)."""
         b = passed_freely(bins[voxel], free_powers, free)
         total = bin_sum(b)
         if total > wp.float32(0.0) and total < wp.float32(1.0e30):
@@ -524,7 +527,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         else:  # cannot happen with a positive floor; a voxel never becomes NaN
             b = ONES * (wp.float32(1.0) / wp.float32(K))
         bins[voxel] = b
-        mean[voxel] = moments(b)[0]
+        mv = moments(b)
+        mean[voxel] = mv[0]
+        if with_variance != 0:
+            variance[voxel] = mv[1]
 
     @wp.kernel(module=module)
     def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
@@ -534,8 +540,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
                            step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
                            touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins),
-                           bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                           pending: wp.array(dtype=wp.uint8)):
+                           with_variance: int, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
+                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
         compute_beam_factors and apply_scan_groups, in the same order per voxel. A beam's cone is
         its first beam_filled steps from beam_first_step (its room may hold more). pending[v] is 0
@@ -626,7 +632,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 if t + PREFETCH_VOXELS < count:
                     early = early + bins[touched[t + PREFETCH_VOXELS]][0]
                 v = touched[t]
-                finish_scan(bins, v, free_powers, int(pending[v]) - 1, floor, mean)
+                finish_scan(bins, v, free_powers, int(pending[v]) - 1, floor, mean, variance, with_variance)
                 pending[v] = wp.uint8(0)
             if early < wp.float32(0.0):  # never: bins are not negative (keeps the reads)
                 step_mean[0] = early
@@ -635,8 +641,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),
                           keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
                           step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
-                          floor: wp.float32, free_powers: wp.array(dtype=Bins), bins: wp.array(dtype=Bins),
-                          mean: wp.array(dtype=wp.float32)):
+                          floor: wp.float32, free_powers: wp.array(dtype=Bins), with_variance: int,
+                          bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
+                          variance: wp.array(dtype=wp.float32)):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
         first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
         beam order (the sort is stable), then renormalises. Launched over the scan's steps, an
@@ -659,7 +666,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             else:
                 apply_factor(bins, v, r)
             j += 1
-        finish_scan(bins, v, free_powers, free, floor, mean)
+        finish_scan(bins, v, free_powers, free, floor, mean, variance, with_variance)
 
     @wp.kernel(module=module)
     def variance_of_blocks(slots: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),

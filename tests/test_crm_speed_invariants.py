@@ -191,3 +191,20 @@ def test_beams_whose_planes_tie_match_the_reference():
     batch.integrate_scans(origins, points, scan_index)
     for a, b in zip(batch.voxels(), crm.voxels()):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("sorted_path", [False, True])
+def test_variances_at_the_end_of_a_batch_are_those_after_every_scan(monkeypatch, sorted_path):
+    rng = np.random.default_rng(12)
+    origins, points, scan_index = random_scans(rng, 8, 15)
+    probe = np.concatenate([points, origins])
+    results = []
+    for at_end in (0.0, float("inf")):  # always at the end, never
+        monkeypatch.setattr(confidence, "VARIANCES_AT_END", at_end)
+        crm = ConfidenceMap(SMALL, "cpu")
+        crm._sorted_path = sorted_path
+        crm.integrate_scans(origins, points, scan_index)
+        results.append((*_contents(crm, probe), crm.variance(probe)))
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
+    assert np.isfinite(results[0][2]).all()  # the observed voxels' variances were computed

@@ -66,6 +66,9 @@ STEP_BUDGET = 1 << 21
 # Blocks a listing thread remembers, so that it lists each of them about once (8 bytes each; a
 # power of two: a block's hash picks its place).
 RECENT_BLOCKS = 2048
+# A batch computes its variances at its end when its cones' voxel steps reach this many times
+# the voxels of its blocks (else after every scan).
+VARIANCES_AT_END = 1.0
 # Passes whose cones' blocks are listed in one launch are merged while their beams times the
 # blocks a cone may cross stay below this (8 bytes of scratch each; one pass may exceed it).
 PLAN_ENTRIES = 1 << 21
@@ -251,19 +254,24 @@ class ConfidenceMap:
             return
         listed = wp.array(np.unique(np.concatenate(keys)), dtype=wp.int64, device=self.device)
         self._store.ensure_blocks(listed)
-        self._apply_passes(beams, passes)
-        self._update_variances(self._store.find(listed))
+        # Variances are read by queries only: a batch whose cones step more often than its
+        # blocks hold voxels computes them once at its end, over those blocks; a small one
+        # after every scan, for the voxels the scan reached (the same bits either way).
+        steps = sum(int(planned[2].sum()) for planned in passes)
+        at_end = listed.shape[0] * BLOCK_VOXELS * VARIANCES_AT_END <= steps
+        self._apply_passes(beams, passes, with_variance=not at_end)
+        if at_end:
+            self._update_variances(self._store.find(listed))
 
     def _update_variances(self, slots: wp.array) -> None:
-        """Variances of the observed voxels of the blocks in `slots`: only queries read them, so
-        they are computed once a batch is in, not after every scan."""
+        """Variances of the observed voxels of the blocks in `slots`."""
         layers = self._store.layers
         parallel.split_launch(lambda part, a, b: wp.launch(
             self._kernels.variance_of_blocks, dim=(b - a) * BLOCK_VOXELS,
             inputs=[slots[a:b], layers["bins"], layers["mean"]], outputs=[layers["variance"]], device=self.device),
             slots.shape[0], parallel.num_parts(self.device, slots.shape[0] * BLOCK_VOXELS))
 
-    def _apply_passes(self, beams: _Beams, passes: list) -> None:
+    def _apply_passes(self, beams: _Beams, passes: list, with_variance: bool) -> None:
         if not passes:
             return
         overlap = not self.device.is_cuda and len(passes) > 1
@@ -276,11 +284,11 @@ class ConfidenceMap:
                     # threads then does not contend for the GIL while the update runs
                     def walk_next(following=passes[i + 1]):
                         ahead.append(_background().submit(self._walk_cones, beams, *following, parts=1))
-                    self._update(beams, *planned, cones, before_launch=walk_next)
+                    self._update(beams, *planned, cones, with_variance, before_launch=walk_next)
                     cones = ahead[0].result()
                     continue
                 ahead.append(self._walk_cones(beams, *passes[i + 1], parts=None))
-            self._update(beams, *planned, cones)
+            self._update(beams, *planned, cones, with_variance)
             cones = ahead[0] if ahead else None
 
     def _max_blocks(self, length: float) -> int:
@@ -377,7 +385,7 @@ class ConfidenceMap:
         return cones
 
     def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
-                cones: "_Cones | None", before_launch=None) -> None:
+                cones: "_Cones | None", with_variance: bool, before_launch=None) -> None:
         """Apply scans [first_scan, end_scan), their cones walked, one after the other;
         `before_launch()` is called once, just before the (CPU) update is launched."""
         if cones is None:
@@ -401,11 +409,11 @@ class ConfidenceMap:
                       step_likelihood, *model, np.float32(cfg.bin_floor),
                       wp.empty(longest, dtype=wp.float32, device=device),
                       wp.empty(longest, dtype=wp.float64, device=device),
-                      wp.empty(total, dtype=wp.int32, device=device), self._free_powers]
+                      wp.empty(total, dtype=wp.int32, device=device), self._free_powers, int(with_variance)]
             if before_launch is not None:
                 before_launch()
             wp.launch(self._kernels.integrate_in_order, dim=1, inputs=inputs,
-                      outputs=[layers["bins"], layers["mean"], layers["pending"]],
+                      outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"]],
                       device=device)
             return
         if before_launch is not None:
@@ -444,8 +452,8 @@ class ConfidenceMap:
         groups_of_scan = wp.launch(
             self._kernels.apply_scan_groups, dim=1,
             inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor),
-                    self._free_powers],
-            outputs=[layers["bins"], layers["mean"]], device=device, record_cmd=True)
+                    self._free_powers, int(with_variance)],
+            outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device, record_cmd=True)
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends.tolist()):
             if beam_hi > beam_lo:
