@@ -66,6 +66,10 @@ NOISE_CUTOFF = wp.constant(wp.float64(8.0))
 FAR_SIGMAS = wp.constant(wp.float64(8.0001))
 # Bins are scaled back up when the largest falls below this mid-scan (many beams in one scan).
 RESCALE_BELOW = wp.constant(wp.float32(1.0e-20))
+# Below this a largest bin is scaled by TWO_TO_100 first (1 / it would overflow float32).
+TINY = wp.constant(wp.float32(1.0e-37))
+SMALLEST_NORMAL = wp.constant(wp.float32(np.finfo(np.float32).tiny))
+TWO_TO_100 = wp.constant(wp.float32(2.0**100))
 
 
 # ---------------------------------------------------------------- geometry of the cones
@@ -425,22 +429,25 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     K = int(num_bins)
     module = f"vogjax.kernels.confidence_bins_{K}"  # one module (one compile) per bin count
     Bins = wp.types.vector(length=K, dtype=wp.float32)
+    Bins64 = wp.types.vector(length=K, dtype=wp.float64)
     last = float(K - 1)
 
     levels = np.arange(K, dtype=np.float32) / np.float32(last)
     LEVELS = Bins(*levels.tolist())
     ONES = Bins(*([1.0] * K))
     QUADS, REST = K // 4, K % 4
-    # Most cone steps are free passes, f(m) = 1 - m: a voxel counts a scan's (in its pending
-    # byte, up to MOST_FREE_PASSES at a time) and takes their product (1 - m_k)^n after the
-    # scan's other factors, FREE_CHUNK passes at a time, each chunk rounded once from float64.
-    # A chunk scales no bin but the last below (1/(K-1))^FREE_CHUNK >= 1e-15, so a top bin at
-    # the rescale threshold stays a normal float32.
+    # Most cone steps are free passes, f(m) = 1 - m. A voxel counts them (in its pending byte
+    # on the CPU, up to MOST_FREE_PASSES) and takes their product (1 - m_k)^n before its next
+    # other factor, or at the scan's end: in float64, FREE_CHUNK passes at a time from a table
+    # of powers, rescaled after each chunk. A chunk scales no bin but the last below
+    # (1/(K-1))^FREE_CHUNK >= 1e-15, so the bin that becomes the top (the last one goes to 0)
+    # keeps its place even where it was far below the top in float32 (a voxel hundreds of
+    # readings ended in, then passed by): one pass at a time in float32 would keep it too.
     passed = 1.0 - levels.astype(np.float64)
     FREE_CHUNK = max(1, min(64, int(15.0 / math.log10(last)))) if K > 2 else 64
     PREFETCH_VOXELS = 16
     MOST_FREE_PASSES = 254  # pending counts 1 + the passes
-    free_powers = (passed[None, :] ** np.arange(FREE_CHUNK + 1)[:, None]).astype(np.float32)
+    free_powers = passed[None, :] ** np.arange(FREE_CHUNK + 1)[:, None]
 
     @wp.func
     def bin_sum(b: Bins) -> wp.float32:
@@ -464,6 +471,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         if b[0] < RESCALE_BELOW and b[K - 1] < RESCALE_BELOW:
             top = wp.max(b)
             if top < RESCALE_BELOW and top > wp.float32(0.0):
+                if top < TINY:  # 1 / top would overflow: first an exact power of two
+                    b = b * TWO_TO_100
+                    top = top * TWO_TO_100
                 b = b * (wp.float32(1.0) / top)
         return b
 
@@ -482,18 +492,36 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return r[0] == wp.float32(1.0) and r[1] == wp.float32(0.0)
 
     @wp.func
-    def passed_freely(b: Bins, free_powers: wp.array(dtype=Bins), n: int) -> Bins:
-        """Bins times (1 - m_k)^n, FREE_CHUNK passes at a time."""
-        left = n
-        while left >= FREE_CHUNK:
-            b = scaled(b, free_powers[FREE_CHUNK])
-            left -= FREE_CHUNK
-        if left > 0:
-            b = scaled(b, free_powers[left])
-        return b
+    def largest64(x: Bins64) -> wp.float64:
+        top = x[0]
+        for k in range(1, K):
+            top = wp.where(x[k] > top, x[k], top)
+        return top
 
     @wp.func
-    def apply_free_passes(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), n: int):
+    def passed_freely(b: Bins, free_powers: wp.array(dtype=Bins64), n: int) -> Bins:
+        """Bins times (1 - m_k)^n, in float64, FREE_CHUNK passes at a time, rescaled to a top
+        bin of 1 whenever it falls below RESCALE_BELOW (the scan's end renormalises anyway)."""
+        if n <= 0:
+            return b
+        x = Bins64()
+        for k in range(K):  # a subnormal bin has lost its precision: 0 (as a float32 pass would make it)
+            x[k] = wp.where(b[k] >= SMALLEST_NORMAL, wp.float64(b[k]), wp.float64(0.0))
+        left = n
+        while left > 0:
+            chunk = wp.min(left, FREE_CHUNK)
+            x = wp.cw_mul(x, free_powers[chunk])
+            left -= chunk
+            top = largest64(x)
+            if top < wp.float64(RESCALE_BELOW) and top > wp.float64(0.0):
+                x = x * (wp.float64(1.0) / top)
+        out = Bins()
+        for k in range(K):
+            out[k] = wp.float32(x[k])
+        return out
+
+    @wp.func
+    def apply_free_passes(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins64), n: int):
         bins[voxel] = passed_freely(bins[voxel], free_powers, n)
 
     @wp.func
@@ -512,7 +540,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return wp.vec2f(mean, bin_sum(wp.cw_mul(b, wp.cw_mul(d, d))))
 
     @wp.func
-    def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins), free: int,
+    def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins64), free: int,
                     floor: wp.float32, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
                     with_variance: int):
         """End of a scan for a voxel it reached: its `free` passes not yet applied, then bins to
@@ -539,7 +567,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
                            spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
                            step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
-                           touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins),
+                           touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins64),
                            with_variance: int, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
                            variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
@@ -621,7 +649,10 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                             apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                             p = 1
                         p += 1
-                    else:
+                    else:  # the passes counted so far go first: factors keep their order
+                        if p > 1:
+                            apply_free_passes(bins, v, free_powers, p - 1)
+                            p = 1
                         apply_factor(bins, v, r)
                     pending[v] = wp.uint8(p)
                 beam += 1
@@ -641,7 +672,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),
                           keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
                           step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
-                          floor: wp.float32, free_powers: wp.array(dtype=Bins), with_variance: int,
+                          floor: wp.float32, free_powers: wp.array(dtype=Bins64), with_variance: int,
                           bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
                           variance: wp.array(dtype=wp.float32)):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
@@ -663,7 +694,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                     apply_free_passes(bins, v, free_powers, MOST_FREE_PASSES)
                     free = 0
                 free += 1
-            else:
+            else:  # the passes counted so far go first: factors keep their order
+                apply_free_passes(bins, v, free_powers, free)
+                free = 0
                 apply_factor(bins, v, r)
             j += 1
         finish_scan(bins, v, free_powers, free, floor, mean, variance, with_variance)
@@ -705,7 +738,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         else:
             values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
-    return types.SimpleNamespace(Bins=Bins, free_powers=free_powers, integrate_in_order=integrate_in_order,
+    return types.SimpleNamespace(Bins=Bins, Bins64=Bins64, free_powers=free_powers, integrate_in_order=integrate_in_order,
                                  variance_of_blocks=variance_of_blocks,
                                  apply_scan_groups=apply_scan_groups, compute_moments=compute_moments,
                                  lookup_bins=lookup_bins)

@@ -159,7 +159,7 @@ class ConfidenceMap:
         self.device = devices.resolve(device)
         self._kernels = confidence.for_bins(self.config.num_bins)
         self._prior = self._kernels.Bins(*self.config.prior.tolist())
-        self._free_powers = wp.array(self._kernels.free_powers, dtype=self._kernels.Bins, device=self.device)
+        self._free_powers = wp.array(self._kernels.free_powers, dtype=self._kernels.Bins64, device=self.device)
         self._store = BlockStore(self.device, self._layer_specs())
         self._lock = ReadWriteLock()
         # The parallel path replays each voxel's factors after a sort; on the CPU one thread
