@@ -208,3 +208,47 @@ def test_variances_at_the_end_of_a_batch_are_those_after_every_scan(monkeypatch,
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
     assert np.isfinite(results[0][2]).all()  # the observed voxels' variances were computed
+
+
+@pytest.mark.parametrize("free_beams", [253, 254, 255])
+def test_a_full_count_of_free_passes_flushes_alike_on_both_paths(free_beams):
+    """254 passes fill a voxel's count just as a beam whose free passes are taken back
+    (spurious readings) reaches it: the passes go before its factor on both paths (64 bins,
+    where the order shows in the bits)."""
+    cfg = SMALL.replace(range_sigma_m=0.1, num_bins=64, spurious_probability=0.01)
+    origin = np.array([0.1, 0.1, 0.1])
+    rng = np.random.default_rng(0)
+    d = np.tile([-1.0, 0.0, 0.0], (free_beams, 1)) + rng.uniform(-0.05, 0.05, (free_beams, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    points = np.concatenate([origin + d * 3.0, [[1.5, 0.1, 0.1]]]).astype(np.float32)  # no returns, then a return
+    maps = []
+    for sorted_path in (False, True):
+        crm = ConfidenceMap(cfg, "cpu")
+        crm._sorted_path = sorted_path
+        crm.integrate_scan(origin, points)
+        crm.integrate_scan(origin, points)
+        maps.append(_contents(crm, points))
+    for a, b in zip(*maps):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("hits, passes", [(800, 12), (1000, 20)])
+def test_free_passes_after_hundreds_of_readings_keep_the_next_level(hits, passes):
+    """A voxel hundreds of a scan's readings end in, then passed by a few beams of the same
+    scan: the passes rule out m = 1 and the evidence leaves m = 14/15 (the reference). Applied
+    as one power, the next level lies far below float32's range at first: it is kept (float64
+    powers, rescaled), not lost to a uniform reset."""
+    cfg = SMALL.replace(range_sigma_m=0.02, num_bins=16)
+    origin = np.array([0.1, 0.12, 0.12])
+    rng = np.random.default_rng(1)
+    points = np.concatenate([[1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (hits, 3)),
+                             [1.9, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (passes, 3))]).astype(np.float32)
+    ref = ReferenceCrm(cfg)
+    ref.integrate_scan(origin.astype(np.float32), points)
+    voxel = np.array([[1.12, 0.12, 0.12]])
+    expected = ref.cells[tuple(np.floor(voxel[0] / cfg.voxel_size).astype(int))]
+    for sorted_path in (False, True):
+        crm = ConfidenceMap(cfg, "cpu")
+        crm._sorted_path = sorted_path
+        crm.integrate_scan(origin, points)
+        np.testing.assert_allclose(crm.distribution(voxel)[0], expected, atol=2e-6)
