@@ -504,6 +504,19 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         bin of 1 whenever it falls below RESCALE_BELOW (the scan's end renormalises anyway)."""
         if n <= 0:
             return b
+        if b[0] >= RESCALE_BELOW:
+            # bin 0 (m = 0) never shrinks, so the top stays at least it: in float32 the powers
+            # lose nothing that passes one at a time would keep
+            left = n
+            while left > 0:
+                chunk = wp.min(left, FREE_CHUNK)
+                power = free_powers[chunk]
+                single = Bins()
+                for k in range(K):
+                    single[k] = wp.float32(power[k])
+                b = wp.cw_mul(b, single)
+                left -= chunk
+            return b
         x = Bins64()
         for k in range(K):  # a subnormal bin has lost its precision: 0 (as a float32 pass would make it)
             x[k] = wp.where(b[k] >= SMALLEST_NORMAL, wp.float64(b[k]), wp.float64(0.0))
