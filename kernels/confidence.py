@@ -555,7 +555,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     @wp.func
     def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins64), free: int,
                     floor: wp.float32, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
-                    with_variance: int):
+                    with_variance: int, resets: wp.array(dtype=wp.int32)):
         """End of a scan for a voxel it reached: its `free` passes not yet applied, then bins to
         sum 1, none below `floor`, sum 1 again; the new mean (the next scan's beams read it),
         and the new variance if `with_variance` (else variance_of_blocks computes it from the
@@ -565,8 +565,11 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         if total > wp.float32(0.0) and total < wp.float32(1.0e30):
             b = at_least(b * (wp.float32(1.0) / total), floor)
             b = b * (wp.float32(1.0) / bin_sum(b))
-        else:  # cannot happen with a positive floor; a voxel never becomes NaN
+        else:
+            # every bin underflowed within the scan (hundreds of its readings in one voxel, the
+            # evidence's range beyond float32's): the prior, counted (the host warns); never NaN
             b = ONES * (wp.float32(1.0) / wp.float32(K))
+            wp.atomic_add(resets, 0, 1)
         bins[voxel] = b
         mv = moments(b)
         mean[voxel] = mv[0]
@@ -582,7 +585,8 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                            step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
                            touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins64),
                            with_variance: int, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8)):
+                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8),
+                           resets: wp.array(dtype=wp.int32)):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
         compute_beam_factors and apply_scan_groups, in the same order per voxel. A beam's cone is
         its first beam_filled steps from beam_first_step (its room may hold more). pending[v] is 0
@@ -676,7 +680,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 if t + PREFETCH_VOXELS < count:
                     early = early + bins[touched[t + PREFETCH_VOXELS]][0]
                 v = touched[t]
-                finish_scan(bins, v, free_powers, int(pending[v]) - 1, floor, mean, variance, with_variance)
+                finish_scan(bins, v, free_powers, int(pending[v]) - 1, floor, mean, variance, with_variance, resets)
                 pending[v] = wp.uint8(0)
             if early < wp.float32(0.0):  # never: bins are not negative (keeps the reads)
                 step_mean[0] = early
@@ -687,7 +691,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                           step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
                           floor: wp.float32, free_powers: wp.array(dtype=Bins64), with_variance: int,
                           bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                          variance: wp.array(dtype=wp.float32)):
+                          variance: wp.array(dtype=wp.float32), resets: wp.array(dtype=wp.int32)):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
         first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
         beam order (the sort is stable), then renormalises. Launched over the scan's steps, an
@@ -712,7 +716,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 free = 0
                 apply_factor(bins, v, r)
             j += 1
-        finish_scan(bins, v, free_powers, free, floor, mean, variance, with_variance)
+        finish_scan(bins, v, free_powers, free, floor, mean, variance, with_variance, resets)
 
     @wp.kernel(module=module)
     def variance_of_blocks(slots: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),

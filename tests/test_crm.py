@@ -189,3 +189,25 @@ def test_empty_scans_change_nothing():
     crm.integrate_scan(np.zeros(3), np.zeros((0, 3)))
     assert len(crm.voxels()[0]) == 0 and crm.num_blocks == 0
     assert crm.raycast(np.zeros((0, 3)), np.zeros((0, 3)), 1.0).hit.shape == (0,)
+
+
+def test_a_voxel_whose_bins_underflow_within_a_scan_is_reset_and_reported():
+    """3 bins: 200 readings of one scan end in a voxel (its m = 1/2 level falls out of float32's
+    range against m = 1), then a beam of the scan passes it (ruling out m = 1). The bins cannot
+    hold the answer: the voxel goes back to the prior, and the map says so (a warning and a
+    count), never silently and never NaN."""
+    cfg = SMALL.replace(range_sigma_m=0.02, num_bins=3)
+    origin = np.array([0.1, 0.12, 0.12])
+    rng = np.random.default_rng(1)
+    points = np.concatenate([[1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (200, 3)),
+                             [[1.9, 0.12, 0.12]]]).astype(np.float32)
+    for sorted_path in (False, True):
+        crm = ConfidenceMap(cfg, "cpu")
+        crm._sorted_path = sorted_path
+        with pytest.warns(RuntimeWarning, match="fell back to the prior"):
+            crm.integrate_scan(origin, points)
+        assert crm.prior_resets == 1
+        np.testing.assert_array_equal(crm.distribution(np.array([[1.12, 0.12, 0.12]]))[0], np.full(3, np.float32(1 / 3)))
+    fine = ConfidenceMap(cfg, "cpu")  # a scan with a tenth of the readings keeps its evidence
+    fine.integrate_scan(origin, points[180:])
+    assert fine.prior_resets == 0

@@ -45,6 +45,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 import warp as wp
@@ -160,6 +161,9 @@ class ConfidenceMap:
         self._kernels = confidence.for_bins(self.config.num_bins)
         self._prior = self._kernels.Bins(*self.config.prior.tolist())
         self._free_powers = wp.array(self._kernels.free_powers, dtype=self._kernels.Bins64, device=self.device)
+        self._resets = wp.zeros(1, dtype=wp.int32, device=self.device)
+        # voxel updates that fell back to the prior (every bin underflowed within a scan): see README
+        self.prior_resets = 0
         self._store = BlockStore(self.device, self._layer_specs())
         self._lock = ReadWriteLock()
         # The parallel path replays each voxel's factors after a sort; on the CPU one thread
@@ -259,9 +263,17 @@ class ConfidenceMap:
         # after every scan, for the voxels the scan reached (the same bits either way).
         steps = sum(int(planned[2].sum()) for planned in passes)
         at_end = listed.shape[0] * BLOCK_VOXELS * VARIANCES_AT_END <= steps
+        self._resets.zero_()
         self._apply_passes(beams, passes, with_variance=not at_end)
         if at_end:
             self._update_variances(self._store.find(listed))
+        resets = int(self._resets.numpy()[0])
+        if resets:
+            self.prior_resets += resets
+            warnings.warn(f"ConfidenceMap: {resets} voxel update(s) fell back to the prior: so many readings of "
+                          f"one scan in one voxel that its {self.config.num_bins} float32 bins could not hold "
+                          "the evidence (more bins, or fewer readings a scan, avoid it)", RuntimeWarning,
+                          stacklevel=3)
 
     def _update_variances(self, slots: wp.array) -> None:
         """Variances of the observed voxels of the blocks in `slots`."""
@@ -413,7 +425,7 @@ class ConfidenceMap:
             if before_launch is not None:
                 before_launch()
             wp.launch(self._kernels.integrate_in_order, dim=1, inputs=inputs,
-                      outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"]],
+                      outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"], self._resets],
                       device=device)
             return
         if before_launch is not None:
@@ -453,7 +465,8 @@ class ConfidenceMap:
             self._kernels.apply_scan_groups, dim=1,
             inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor),
                     self._free_powers, int(with_variance)],
-            outputs=[layers["bins"], layers["mean"], layers["variance"]], device=device, record_cmd=True)
+            outputs=[layers["bins"], layers["mean"], layers["variance"], self._resets], device=device,
+            record_cmd=True)
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends.tolist()):
             if beam_hi > beam_lo:
