@@ -438,11 +438,9 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
     QUADS, REST = K // 4, K % 4
     # Most cone steps are free passes, f(m) = 1 - m. A voxel counts them (in its pending byte
     # on the CPU, up to MOST_FREE_PASSES) and takes their product (1 - m_k)^n before its next
-    # other factor, or at the scan's end: in float64, FREE_CHUNK passes at a time from a table
-    # of powers, rescaled after each chunk. A chunk scales no bin but the last below
-    # (1/(K-1))^FREE_CHUNK >= 1e-15, so the bin that becomes the top (the last one goes to 0)
-    # keeps its place even where it was far below the top in float32 (a voxel hundreds of
-    # readings ended in, then passed by): one pass at a time in float32 would keep it too.
+    # other factor, or at the scan's end, FREE_CHUNK passes at a time from a table of powers
+    # computed in float64 (passed_freely). A chunk scales no bin but the last below
+    # (1/(K-1))^FREE_CHUNK >= 1e-15.
     passed = 1.0 - levels.astype(np.float64)
     FREE_CHUNK = max(1, min(64, int(15.0 / math.log10(last)))) if K > 2 else 64
     PREFETCH_VOXELS = 16
@@ -500,8 +498,11 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
 
     @wp.func
     def passed_freely(b: Bins, free_powers: wp.array(dtype=Bins64), n: int) -> Bins:
-        """Bins times (1 - m_k)^n, in float64, FREE_CHUNK passes at a time, rescaled to a top
-        bin of 1 whenever it falls below RESCALE_BELOW (the scan's end renormalises anyway)."""
+        """Bins times (1 - m_k)^n, FREE_CHUNK passes at a time. While bin 0 clears RESCALE_BELOW
+        in float32; else in float64, rescaled to a top bin of 1 whenever it falls below
+        RESCALE_BELOW (the scan's end renormalises anyway), so that a level far below the top
+        is not lost when the passes zero the top (m = 1): a voxel hundreds of a scan's
+        readings ended in, then passed by."""
         if n <= 0:
             return b
         if b[0] >= RESCALE_BELOW:
