@@ -476,25 +476,14 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return b
 
     @wp.func
-    def scale_bins(bins: wp.array(dtype=Bins), voxel: int, factor: Bins):
-        bins[voxel] = scaled(bins[voxel], factor)
-
-    @wp.func
     def apply_factor(bins: wp.array(dtype=Bins), voxel: int, r: wp.vec2f):
         """Multiply a voxel's bins by f(m_k) = r0 + m_k (r1 - r0)."""
-        scale_bins(bins, voxel, ONES * r[0] + LEVELS * (r[1] - r[0]))
+        bins[voxel] = scaled(bins[voxel], ONES * r[0] + LEVELS * (r[1] - r[0]))
 
     @wp.func
     def passes_freely(r: wp.vec2f) -> bool:
         """The factor of a beam that passes the voxel long before its reading: f(m) = 1 - m."""
         return r[0] == wp.float32(1.0) and r[1] == wp.float32(0.0)
-
-    @wp.func
-    def largest64(x: Bins64) -> wp.float64:
-        top = x[0]
-        for k in range(1, K):
-            top = wp.where(x[k] > top, x[k], top)
-        return top
 
     @wp.func
     def passed_freely(b: Bins, free_powers: wp.array(dtype=Bins64), n: int) -> Bins:
@@ -526,7 +515,7 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             chunk = wp.min(left, FREE_CHUNK)
             x = wp.cw_mul(x, free_powers[chunk])
             left -= chunk
-            top = largest64(x)
+            top = wp.max(x)
             if top < wp.float64(RESCALE_BELOW) and top > wp.float64(0.0):
                 x = x * (wp.float64(1.0) / top)
         out = Bins()

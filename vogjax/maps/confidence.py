@@ -133,15 +133,11 @@ def _background() -> concurrent.futures.ThreadPoolExecutor:
 
 @dataclasses.dataclass(frozen=True)
 class _Beams:
-    """Beams in scan order, float64: starts, unit directions (N,3); ranges (N,) to the reading;
-    lengths (N,) of the cones; returned (N,) int32; scan_ends (S,) one past each scan's beams;
-    `on_device`: starts, directions, lengths, ranges, returned as Warp arrays (passes slice them)."""
+    """Beams in scan order: `on_device`, Warp arrays that passes slice: starts, unit directions
+    (N,3) vec3d; lengths (N,) of the cones, ranges (N,) to the readings, float64; returned (N,)
+    int32. On the host: lengths (N,) and scan_ends (S,), one past each scan's beams."""
 
-    starts: np.ndarray
-    directions: np.ndarray
-    ranges: np.ndarray
     lengths: np.ndarray
-    returned: np.ndarray
     scan_ends: np.ndarray
     on_device: tuple
 
@@ -237,11 +233,12 @@ class ConfidenceMap:
         within_key_range("points", scratch, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         scan_ends = np.searchsorted(scan_index, np.arange(1, origins.shape[0] + 1)).astype(np.int64)
         returned = returned.astype(np.int32)
-        copy = self.device.is_cuda  # on a CPU, Warp arrays over the host arrays (kernels only read them)
+        # on a CPU, Warp arrays over the host arrays (kernels only read them; each array keeps its own)
+        copy = self.device.is_cuda
         on_device = tuple(wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, copy=copy)
                           for a, dtype in ((starts, wp.vec3d), (directions, wp.vec3d), (lengths, wp.float64),
                                            (ranges, wp.float64), (returned, wp.int32)))
-        return _Beams(starts, directions, ranges, lengths, returned, scan_ends, on_device)
+        return _Beams(lengths, scan_ends, on_device)
 
     def _integrate_passes(self, beams: _Beams) -> None:
         """List every cone's blocks and allocate them all at once (a vector layer is costly to
