@@ -3,7 +3,8 @@
 Each voxel holds a distribution over its occupancy level m at num_bins points m_k = k/(K-1)
 (a vector layer), its mean and variance (scalar layers, NaN while never observed) and a
 "pending" byte. A beam is the ray from the sensor along the reading; its *cone* is every voxel
-it passes with a chord of positive length, from the sensor out to the reading plus cone_sigmas
+it passes with a chord longer than MIN_CHORD_EDGES voxel edges (traversal.py: not one it only
+touches at an edge or a corner), from the sensor out to the reading plus cone_sigmas
 standard deviations (to max_range for a beam without a return). Along the cone, with m^_c the
 mean of voxel c before the scan:
 
@@ -51,7 +52,7 @@ import warp as wp
 
 from .hashing import (BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, hash_key, index_in_block, observed,
                       pack_block)
-from .traversal import FAR, ray_walk_begin, smaller, voxel_key, walk_step
+from .traversal import FAR, holds_chord, ray_walk_begin, smaller, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -160,7 +161,8 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     Walks block by block. Along each axis the distance to every voxel plane is summed one plane
     at a time from the voxel walk's start, exactly as walk_step sums it, so every block plane
     lies where the voxel walk meets it: a block is listed iff the voxel walk (fill_cone_steps)
-    spends a positive distance in it before the cone's end. The voxel walk takes one step per
+    spends more than MIN_CHORD_EDGES voxel edges in it before the cone's end, so every block
+    holding a cone voxel is listed. The voxel walk takes one step per
     voxel plane before the end, plus one: that count is the bound."""
     tid = wp.tid()
     length = lengths[tid]
@@ -181,7 +183,7 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     t_in = wp.float64(0.0)
     moves = int(0)
     while t_in < length and moves <= w.max_steps:
-        if first_boundary(block_plane, length) > t_in:
+        if holds_chord(t_in, first_boundary(block_plane, length), resolution):
             if n_blocks < capacity:
                 key = pack_block(block)
                 r = int(hash_key(key) & wp.uint32(recent.shape[0] - 1))
@@ -254,9 +256,12 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         t_out = first_boundary(t_max, length)
-        if t_out > t_in and n >= end:
+        in_cone = holds_chord(t_in, t_out, resolution)
+        if in_cone and n >= end:
             missing = 1  # more voxels than the listing's bound: never; the host raises
-        if t_out > t_in and n < end:
+        if not in_cone:
+            near = False  # a sliver at an edge or a corner, left out: the next chord's tail afresh
+        elif n < end:
             if slot < 0:  # a block the listing missed: never (list_cone_blocks); the host raises
                 missing = 1
             step_voxel[n] = wp.max(slot, 0) * BLOCK_VOXELS + index_in_block(voxel)

@@ -7,7 +7,7 @@ Never-observed voxels (NaN in the mean layer, or no block at all) answer the pri
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block, observed
-from .traversal import ray_walk_begin, voxel_key, walk_step
+from .traversal import holds_chord, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -45,7 +45,8 @@ def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array
                          variance_max: wp.array(dtype=wp.float32), reach: wp.array(dtype=wp.float32)):
     """First voxel whose mean reaches occupied_threshold within the range; over the voxels
     before it: how many are unknown or free, the sum and maximum of their variances, and the
-    probability that a beam passes them all without bouncing (prod of 1 - mean)."""
+    probability that a beam passes them all without bouncing (prod of 1 - mean). Voxels the ray
+    only touches at an edge or a corner (holds_chord) are not on it, as in integration."""
     tid = wp.tid()
     max_range = max_ranges[tid]
     w = ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, max_range)
@@ -63,23 +64,24 @@ def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array
     while t_entry < max_range and steps <= w.max_steps:
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
-        m = stored(slot, voxel, mean)
-        v = stored(slot, voxel, variance)
-        if not observed(m):
-            m = prior_mean
-            v = prior_variance
-            unknown += 1
-        elif m >= occupied_threshold:
-            found = True
-            t_hit = t_entry
-            break
-        elif m <= free_threshold:
-            free += 1
-        else:
-            unknown += 1
-        total = total + wp.float64(v)
-        largest = wp.max(largest, v)
-        passing = passing * (wp.float64(1.0) - wp.float64(m))
+        if holds_chord(t_entry, wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), max_range), resolution):
+            m = stored(slot, voxel, mean)
+            v = stored(slot, voxel, variance)
+            if not observed(m):
+                m = prior_mean
+                v = prior_variance
+                unknown += 1
+            elif m >= occupied_threshold:
+                found = True
+                t_hit = t_entry
+                break
+            elif m <= free_threshold:
+                free += 1
+            else:
+                unknown += 1
+            total = total + wp.float64(v)
+            largest = wp.max(largest, v)
+            passing = passing * (wp.float64(1.0) - wp.float64(m))
         voxel, t_max, t_entry, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
     hit[tid] = found
@@ -113,7 +115,7 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), max_range)
-        if t_out > t_in:
+        if holds_chord(t_in, t_out, resolution):
             m = stored(slot, voxel, mean)
             if not observed(m):
                 m = prior_mean
@@ -136,10 +138,21 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
                       table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
                       variance: wp.array(dtype=wp.float32), prior_mean: wp.float32,
                       prior_variance: wp.float32, costs: wp.array(dtype=wp.float64)):
-    """Sum of mean + variance (Eq. 34) over every voxel a segment passes with positive length."""
+    """Sum of mean + variance (Eq. 34) over every voxel a segment passes (holds_chord); a point's
+    (a segment too short for that) is its voxel's."""
     tid = wp.tid()
     length = lengths[tid]
     w = ray_walk_begin(starts[tid], directions[tid], resolution, inv_resolution, length)
+    if not holds_chord(wp.float64(0.0), length, resolution):
+        # a point, or a segment shorter than a walk counts a voxel for: the voxel it starts in
+        slot = find_voxel_slot(table_keys, table_slots, w.voxel)
+        m = stored(slot, w.voxel, mean)
+        v = stored(slot, w.voxel, variance)
+        if not observed(m):
+            m = prior_mean
+            v = prior_variance
+        costs[tid] = wp.float64(m) + wp.float64(v)
+        return
     total = wp.float64(0.0)
     voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     slot = int(-1)
@@ -149,7 +162,7 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
-        if t_out > t_in:
+        if holds_chord(t_in, t_out, resolution):
             m = stored(slot, voxel, mean)
             v = stored(slot, voxel, variance)
             if not observed(m):

@@ -15,6 +15,9 @@ from scipy.special import erfc
 
 NOISE_CUTOFF = 8.0
 SHORT_CHORD_SIGMAS = 1e-3
+# A voxel is in a beam's cone when the beam spends more than this many voxel edges in it: not one
+# it only touches at an edge or a corner, which rounding gives a chord of ~1e-16 m.
+MIN_CHORD_EDGES = 1e-6
 
 
 def beam(origin, point, cfg):
@@ -30,7 +33,8 @@ def beam(origin, point, cfg):
 
 
 def cone(start, direction, length, voxel_size):
-    """[(voxel key, t_in, t_out)] of every voxel the segment passes with positive length."""
+    """[(voxel key, t_in, t_out)] of every voxel the segment spends more than MIN_CHORD_EDGES
+    voxel edges in."""
     ts = [0.0, length]
     for axis in range(3):
         d = direction[axis]
@@ -45,7 +49,7 @@ def cone(start, direction, length, voxel_size):
     ts = sorted(ts)
     out = []
     for t0, t1 in zip(ts[:-1], ts[1:]):
-        if t1 > t0:
+        if t1 - t0 > MIN_CHORD_EDGES * voxel_size:
             mid = start + direction * (0.5 * (t0 + t1))
             key = tuple(int(math.floor(c / voxel_size)) for c in mid)
             if out and out[-1][0] == key:

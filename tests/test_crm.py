@@ -34,9 +34,14 @@ def test_matches_brute_force_reference(changes):
     for s in range(5):
         crm.integrate_scan(origins[s], points[scan_index == s])
         ref.integrate_scan(origins[s].astype(np.float32), points[scan_index == s])
+    assert_matches(crm, ref)
+
+
+def assert_matches(crm, ref):
+    """The same voxels observed, with the reference's distributions and moments."""
     centres, mean, variance = crm.voxels()
-    keys = keys_of(centres, cfg)
-    assert set(keys) == set(ref.cells)  # the same voxels observed
+    keys = keys_of(centres, crm.config)
+    assert set(keys) == set(ref.cells)
     expected = np.array([ref.cells[k] for k in keys])
     np.testing.assert_allclose(crm.distribution(centres), expected, atol=2e-6)
     moments = np.array([ref.moments(k) for k in keys])
@@ -70,6 +75,50 @@ def test_bin_counts_off_the_sums_four_lanes_match_the_reference(num_bins):
 def test_reference_with_the_sensor_model_of_the_paper():
     """cause_range "centre" and no spurious readings: exactly the paper's Eqs. 14-27."""
     test_matches_brute_force_reference({"cause_range": "centre", "spurious_probability": 0.0, "num_bins": 16})
+
+
+# Voxel edges exact in binary, so readings can lie exactly on them.
+EDGES = CrmConfig(voxel_size=0.25, max_range=4.0, range_sigma_m=0.05, num_bins=16)
+
+
+def grid_wall():
+    """Readings on voxel edges and corners of the plane x = 1.5: a beam from the origin to any of
+    them leaves a voxel where two or three of its planes meet."""
+    j, k = np.meshgrid(np.arange(-4, 5), np.arange(-4, 5))
+    return np.stack([np.full(j.size, 1.5), j.ravel() * 0.25, k.ravel() * 0.25], 1)
+
+
+def test_a_beam_through_a_voxel_edge_leaves_out_the_voxels_it_only_touches():
+    """A reading on the edge x = 1.5, y = 0.25 takes the beam from voxel (5,0,0) straight into
+    (6,1,0). The walk sums plane distances one plane at a time and met x = 1.5 an ulp after
+    y = 0.25, so voxel (5,1,0) was in the cone with a chord of 2e-16 m: at the prior mean it
+    halved the reach of the voxel after it and, its chord too short to average the noise over,
+    took the reading (mean 0.82) while the reading's voxel stayed at 0.58."""
+    crm, ref = ConfidenceMap(EDGES, "cpu"), ReferenceCrm(EDGES)
+    for _ in range(5):
+        crm.integrate_scan(np.zeros(3), np.array([[1.5, 0.25, 0.0]]))
+        ref.integrate_scan(np.zeros(3, np.float32), np.array([[1.5, 0.25, 0.0]]))
+    assert not crm.observed(np.array([[1.375, 0.375, 0.125]]))[0]  # voxel (5,1,0)
+    assert crm.state(np.array([[1.625, 0.375, 0.125]]))[0] == OCCUPIED  # voxel (6,1,0), the reading's
+    assert_matches(crm, ref)
+
+
+def test_readings_on_voxel_edges_and_corners_match_the_reference():
+    points = grid_wall()
+    crm, ref = ConfidenceMap(EDGES, "cpu"), ReferenceCrm(EDGES)
+    for _ in range(3):
+        crm.integrate_scan(np.zeros(3), points)
+        ref.integrate_scan(np.zeros(3, np.float32), points)
+    assert_matches(crm, ref)
+    assert np.all(crm.state(points * (1.6 / 1.5)) == OCCUPIED)  # each reading's voxel, just past the edge
+    # ray casts along the same edges count the voxels the beams passed, not the ones they touch
+    result = crm.raycast(np.zeros((len(points), 3)), points, 3.0)
+    unit = points / np.linalg.norm(points, axis=1, keepdims=True)
+    assert result.hit.all()
+    for i in range(len(points)):
+        expected = _raycast_reference(crm, np.zeros(3), unit[i], 3.0)
+        for name, value in expected.items():
+            np.testing.assert_allclose(getattr(result, name)[i], value, rtol=1e-5, atol=1e-6, err_msg=name)
 
 
 def test_sorted_path_gives_the_same_bits_as_the_sequential_one():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.crm_reference import cone
+from tests.crm_reference import MIN_CHORD_EDGES, cone
 from vogjax.config import SonarConfig
 from vogjax.config.crm import CrmConfig
 from vogjax.maps.confidence import ConfidenceMap
@@ -63,10 +63,14 @@ def test_edge_risk_sums_the_voxels_a_segment_passes():
     starts = rng.uniform(-0.3, 2.5, (25, 3)) * [1, 0.4, 0.1]
     ends = starts + rng.normal(size=(25, 3)) * [1.0, 0.3, 0.05]
     ends[0] = starts[0]  # a point costs its voxel
+    ends[1] = starts[1] + 1e-9  # so does a segment shorter than a walk counts a voxel for
+    # segments from a voxel corner to voxel edges and corners: not the voxels they only touch
+    grid = np.stack(np.meshgrid([1.5, 2.2], [-0.3, 0.0, 0.2], [0.0, 0.1]), -1).reshape(-1, 3)
+    starts, ends = np.r_[starts, np.zeros_like(grid)], np.r_[ends, grid]
     got = edge_risk(crm, starts, ends)
-    for i in range(25):
+    for i in range(len(starts)):
         length = float(np.linalg.norm(ends[i] - starts[i]))
-        if length == 0:
+        if length <= MIN_CHORD_EDGES * CFG.voxel_size:
             expected = collision_risk(crm, starts[i:i + 1])[0]
         else:
             voxels = cone(starts[i], (ends[i] - starts[i]) / length, length, CFG.voxel_size)

@@ -82,7 +82,7 @@ def _walk_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
                       block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32),
                       voxel_counts: wp.array(dtype=wp.int32)):
     """Reference: the voxel walk of fill_cone_steps, voxel by voxel, listing the block of every
-    voxel it passes with a positive distance (each block once on entering it)."""
+    voxel it takes into the cone (traversal.holds_chord; each block once on entering it)."""
     tid = wp.tid()
     length = lengths[tid]
     w = traversal.ray_walk_begin(origins[tid], directions[tid], resolution, inv_resolution, length)
@@ -92,7 +92,7 @@ def _walk_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dt
     last = wp.int64(-1)  # EMPTY_KEY
     steps = int(0)
     while t_in < length and steps <= w.max_steps:
-        if wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length) > t_in:
+        if traversal.holds_chord(t_in, wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length), resolution):
             key = hashing.pack_block(hashing.block_of(voxel))
             if key != last:
                 block_keys[tid, n_blocks] = key

@@ -75,8 +75,6 @@ def edge_risk(crm: ConfidenceMap, starts, ends) -> np.ndarray:
     lengths = np.linalg.norm(offsets, axis=1)
     check_walk_length("ends", lengths, cfg.voxel_size)
     directions = np.where(lengths[:, None] > 0, offsets / np.maximum(lengths, 1e-300)[:, None], [1.0, 0.0, 0.0])
-    # a point: its own voxel (the walk covers [0, length), so give it a sliver of length)
-    lengths = np.where(lengths > 0, lengths, 1e-9 * cfg.voxel_size)
     out = wp.empty(starts.shape[0], dtype=wp.float64, device=device)
     with crm.reading():
         if starts.shape[0]:
