@@ -31,3 +31,20 @@ def test_kernel_module_builds_for_cuda(name, tmp_path):
     for kernel in (v for v in vars(module).values() if isinstance(v, wp.Kernel)):
         if kernel.module.name == module.__name__:
             assert kernel.key in ptx  # each kernel has its entry point
+
+
+@pytest.mark.parametrize("num_bins", [3, 16])
+def test_confidence_bins_module_builds_for_cuda(num_bins, tmp_path):
+    """The confidence-rich map's kernels over distributions live in one module per bin count
+    (kernels.confidence.for_bins), which the module scan above does not see."""
+    wp.init()
+    runtime = wp._src.context.runtime
+    if 90 not in getattr(runtime, "nvrtc_supported_archs", set()):
+        pytest.skip("this Warp build has no NVRTC for sm_90")
+    from vogjax.kernels import confidence
+
+    bins = confidence.for_bins(num_bins)
+    paths = wp.compile_aot_module(bins.integrate_in_order.module, arch=90, use_ptx=True, module_dir=tmp_path)
+    ptx = paths[0].read_text()
+    for kernel in (v for v in vars(bins).values() if isinstance(v, wp.Kernel)):
+        assert kernel.key in ptx
