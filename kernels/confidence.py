@@ -162,7 +162,8 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     at a time from the voxel walk's start, exactly as walk_step sums it, so every block plane
     lies where the voxel walk meets it: a block is listed iff the voxel walk (fill_cone_steps)
     spends more than MIN_CHORD_EDGES voxel edges in it before the cone's end, so every block
-    holding a cone voxel is listed. The voxel walk takes one step per
+    holding a cone voxel is listed (and, where only slivers share such a span, one holding none:
+    allocated, left at the prior). The voxel walk takes one step per
     voxel plane before the end, plus one: that count is the bound."""
     tid = wp.tid()
     length = lengths[tid]

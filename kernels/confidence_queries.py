@@ -131,6 +131,18 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
     ranges[tid] = best
 
 
+@wp.func
+def voxel_cost(slot: int, voxel: wp.vec3i, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
+               prior_mean: wp.float32, prior_variance: wp.float32) -> wp.float64:
+    """mean + variance of a voxel, the prior's where never observed."""
+    m = stored(slot, voxel, mean)
+    v = stored(slot, voxel, variance)
+    if not observed(m):
+        m = prior_mean
+        v = prior_variance
+    return wp.float64(m) + wp.float64(v)
+
+
 @wp.kernel
 def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
                       lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
@@ -138,22 +150,14 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
                       table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
                       variance: wp.array(dtype=wp.float32), prior_mean: wp.float32,
                       prior_variance: wp.float32, costs: wp.array(dtype=wp.float64)):
-    """Sum of mean + variance (Eq. 34) over every voxel a segment passes (holds_chord); a point's
-    (a segment too short for that) is its voxel's."""
+    """Sum of mean + variance (Eq. 34) over every voxel a segment passes (holds_chord). A segment
+    that passes none (a point, or one too short to hold a chord on either side of a plane) costs
+    the voxel it starts in."""
     tid = wp.tid()
     length = lengths[tid]
     w = ray_walk_begin(starts[tid], directions[tid], resolution, inv_resolution, length)
-    if not holds_chord(wp.float64(0.0), length, resolution):
-        # a point, or a segment shorter than a walk counts a voxel for: the voxel it starts in
-        slot = find_voxel_slot(table_keys, table_slots, w.voxel)
-        m = stored(slot, w.voxel, mean)
-        v = stored(slot, w.voxel, variance)
-        if not observed(m):
-            m = prior_mean
-            v = prior_variance
-        costs[tid] = wp.float64(m) + wp.float64(v)
-        return
     total = wp.float64(0.0)
+    passed = int(0)
     voxel, t_max, t_in = wp.vec3i(w.voxel), wp.vec3d(w.t_max), wp.float64(0.0)
     slot = int(-1)
     new_block = bool(True)
@@ -163,12 +167,11 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
             slot = find_voxel_slot(table_keys, table_slots, voxel)
         t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
         if holds_chord(t_in, t_out, resolution):
-            m = stored(slot, voxel, mean)
-            v = stored(slot, voxel, variance)
-            if not observed(m):
-                m = prior_mean
-                v = prior_variance
-            total = total + wp.float64(m) + wp.float64(v)
+            total = total + voxel_cost(slot, voxel, mean, variance, prior_mean, prior_variance)
+            passed += 1
         voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
+    if passed == 0:
+        total = voxel_cost(find_voxel_slot(table_keys, table_slots, w.voxel), w.voxel, mean, variance, prior_mean,
+                           prior_variance)
     costs[tid] = total

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tests.crm_reference import MIN_CHORD_EDGES, cone
+from tests.crm_reference import cone
 from vogjax.config import SonarConfig
 from vogjax.config.crm import CrmConfig
 from vogjax.maps.confidence import ConfidenceMap
@@ -63,17 +63,18 @@ def test_edge_risk_sums_the_voxels_a_segment_passes():
     starts = rng.uniform(-0.3, 2.5, (25, 3)) * [1, 0.4, 0.1]
     ends = starts + rng.normal(size=(25, 3)) * [1.0, 0.3, 0.05]
     ends[0] = starts[0]  # a point costs its voxel
-    ends[1] = starts[1] + 1e-9  # so does a segment shorter than a walk counts a voxel for
+    ends[1] = starts[1] + 1e-9  # so does a segment too short to hold a chord in any voxel
+    starts[2], ends[2] = [0.1 - 0.75e-7, 0.05, 0.05], [0.1 + 0.75e-7, 0.05, 0.05]  # even across a plane
     # segments from a voxel corner to voxel edges and corners: not the voxels they only touch
     grid = np.stack(np.meshgrid([1.5, 2.2], [-0.3, 0.0, 0.2], [0.0, 0.1]), -1).reshape(-1, 3)
     starts, ends = np.r_[starts, np.zeros_like(grid)], np.r_[ends, grid]
     got = edge_risk(crm, starts, ends)
     for i in range(len(starts)):
         length = float(np.linalg.norm(ends[i] - starts[i]))
-        if length <= MIN_CHORD_EDGES * CFG.voxel_size:
+        voxels = cone(starts[i], (ends[i] - starts[i]) / max(length, 1e-300), length, CFG.voxel_size)
+        if not voxels:
             expected = collision_risk(crm, starts[i:i + 1])[0]
         else:
-            voxels = cone(starts[i], (ends[i] - starts[i]) / length, length, CFG.voxel_size)
             centres = np.array([(np.array(k) + 0.5) * CFG.voxel_size for k, _, _ in voxels])
             expected = collision_risk(crm, centres).sum()
         assert got[i] == pytest.approx(expected, rel=1e-6)

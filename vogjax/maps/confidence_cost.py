@@ -63,7 +63,8 @@ def collision_risk(crm: ConfidenceMap, points) -> np.ndarray:
 def edge_risk(crm: ConfidenceMap, starts, ends) -> np.ndarray:
     """(E,) float64 cost of moving along each straight segment starts (E,3) -> ends (E,3): the
     one-step cost mean + variance (Eq. 34) summed over every voxel the segment passes (Eq. 31
-    with one step per voxel). Zero-length segments cost their start voxel. Fits the planner's
+    with one step per voxel). A segment that passes no voxel (zero length, or shorter than a
+    millionth of a voxel edge on each side of a plane) costs its start voxel. Fits the planner's
     `risk` hook: `NbvPlanner(..., risk=functools.partial(edge_risk, crm))`."""
     _check_map(crm)
     starts = float_array("starts", starts, (-1, 3), np.float64)
