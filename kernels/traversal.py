@@ -110,7 +110,10 @@ def segment_walk_begin(origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
             w.t_max[i] = (border - wp.float64(origin[i])) / wp.float64(direction)
             w.t_delta[i] = resolution / wp.abs(wp.float64(direction))
     w.max_steps = l1_distance(w.voxel, w.last) + 2
-    w.active = not same_voxel(w.voxel, w.last)
+    # A segment whose float32 length underflows to 0 (under about 3e-23 m, across a plane
+    # through 0) has no direction: walked, its infinite t's would step l1 + 2 voxels along
+    # one axis (OctoMap loops forever on it). It walks nothing, like a segment within a voxel.
+    w.active = not same_voxel(w.voxel, w.last) and length > wp.float32(0.0)
     return w
 
 
