@@ -529,15 +529,16 @@ def test_ctrl_c_is_one_line_and_status_130(tmp_path, monkeypatch, capsys):
 
 def test_a_beam_too_short_for_a_float32_direction_clears_nothing():
     """1.4e-30 m from the origin to the next voxel down: its float32 length underflows to 0, and
-    its walk used to clear voxels up to 40 cm away along z (OctoMap loops forever on it). Like a
+    its walk used to clear voxels up to 40 cm away along y (OctoMap loops forever on it). Like a
     beam within one voxel, it marks its endpoint only; a line query answers its end voxel."""
     origin, point = np.zeros(3, np.float32), np.array([[-1e-30, -1e-30, 0.0]], np.float32)
     vmap = vj.VoxelMap(vj.MapConfig(voxel_size=0.1), device="cpu")
     vmap.integrate_scan(origin, point)
     centres, log_odds = vmap.voxels()
     assert np.floor(centres / 0.1).astype(int).tolist() == [[-1, -1, 0]] and log_odds[0] > 0
-    values, lengths = vmap.line_query(origin[None], point)
-    assert lengths.tolist() == [1]
-    # a short beam that float32 can still give a direction walks as before: origin voxel free
+    assert vmap.line_query(origin[None], point)[1].tolist() == [1]
+    # a short beam that float32 can still give a direction walks as before: its origin voxel free
     vmap.integrate_scan(origin, np.array([[-1e-12, -1e-12, 0.0]], np.float32))
-    assert len(vmap.voxels()[0]) == 2
+    centres, log_odds = vmap.voxels()
+    assert sorted(np.floor(centres / 0.1).astype(int).tolist()) == [[-1, -1, 0], [0, 0, 0]]
+    assert log_odds[np.all(np.floor(centres / 0.1) == 0, axis=1)][0] < 0
