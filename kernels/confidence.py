@@ -52,7 +52,7 @@ import warp as wp
 
 from .hashing import (BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, hash_key, index_in_block, observed,
                       pack_block)
-from .traversal import FAR, holds_chord, ray_walk_begin, smaller, voxel_key, walk_step
+from .traversal import FAR, first_boundary, holds_chord, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -127,11 +127,6 @@ def centre_distance(voxel: wp.vec3i, origin: wp.vec3d, resolution: wp.float64) -
                  (wp.float64(voxel[1]) + half) * resolution - origin[1],
                  (wp.float64(voxel[2]) + half) * resolution - origin[2])
     return wp.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-
-
-@wp.func
-def first_boundary(t_max: wp.vec3d, length: wp.float64) -> wp.float64:
-    return smaller(smaller(smaller(t_max[0], t_max[1]), t_max[2]), length)
 
 
 @wp.func

@@ -7,7 +7,7 @@ Never-observed voxels (NaN in the mean layer, or no block at all) answer the pri
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, find_voxel_slot, index_in_block, observed
-from .traversal import holds_chord, ray_walk_begin, voxel_key, walk_step
+from .traversal import first_boundary, holds_chord, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
 
@@ -64,7 +64,7 @@ def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array
     while t_entry < max_range and steps <= w.max_steps:
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
-        if holds_chord(t_entry, wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), max_range), resolution):
+        if holds_chord(t_entry, first_boundary(t_max, max_range), resolution):
             m = stored(slot, voxel, mean)
             v = stored(slot, voxel, variance)
             if not observed(m):
@@ -114,7 +114,7 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
     while t_in < max_range and steps <= w.max_steps:
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
-        t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), max_range)
+        t_out = first_boundary(t_max, max_range)
         if holds_chord(t_in, t_out, resolution):
             m = stored(slot, voxel, mean)
             if not observed(m):
@@ -165,7 +165,7 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
     while t_in < length and steps <= w.max_steps:
         if new_block:
             slot = find_voxel_slot(table_keys, table_slots, voxel)
-        t_out = wp.min(wp.min(wp.min(t_max[0], t_max[1]), t_max[2]), length)
+        t_out = first_boundary(t_max, length)
         if holds_chord(t_in, t_out, resolution):
             total = total + voxel_cost(slot, voxel, mean, variance, prior_mean, prior_variance)
             passed += 1

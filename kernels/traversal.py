@@ -271,6 +271,12 @@ def smaller(a: wp.float64, b: wp.float64) -> wp.float64:
 
 
 @wp.func
+def first_boundary(t_max: wp.vec3d, length: wp.float64) -> wp.float64:
+    """Where a walk leaves its voxel: the nearest boundary, or `length` if that comes first."""
+    return smaller(smaller(smaller(t_max[0], t_max[1]), t_max[2]), length)
+
+
+@wp.func
 def holds_chord(t_in: wp.float64, t_out: wp.float64, resolution: wp.float64) -> bool:
     """Whether a ray spends more than MIN_CHORD_EDGES voxel edges between t_in and t_out."""
     return t_out - t_in > MIN_CHORD_EDGES * resolution

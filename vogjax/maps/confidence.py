@@ -394,8 +394,8 @@ class ConfidenceMap:
         if not counts.any():
             return None
         if self._sorted_path and not np.array_equal(counts, steps):
-            # planes of two axes crossed at one distance: a voxel passed in no distance, room
-            # unused (the CPU path reads each cone's count instead)
+            # planes of two axes crossed at about one distance: a voxel passed in no distance,
+            # or a sliver left out, room unused (the CPU path reads each cone's count instead)
             return _compacted(cones, counts, filled, device)
         return cones
 
