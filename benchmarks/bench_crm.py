@@ -116,7 +116,7 @@ def make_beams(duration_s: float) -> Beams2D:
 def random_world(rng: np.random.Generator) -> np.ndarray:
     """(400,) float truth: half the cells occupied at random, the 4 x 4 cells around the robot free."""
     world = (rng.random((2 * HALF, 2 * HALF)) < 0.5).astype(np.float64)
-    world[HALF - 2:HALF + 2, HALF - 2:HALF + 2] = 0.0
+    world[HALF - 2 : HALF + 2, HALF - 2 : HALF + 2] = 0.0
     return world.reshape(-1)
 
 
@@ -199,8 +199,14 @@ def crm_config_2d(variance: float, num_bins: int | None = None) -> CrmConfig:
     """The CRM of the 2D experiment: the paper's model as is (readings from cell centres, no
     spurious readings), the sensor's true noise; nothing tuned."""
     changes = {} if num_bins is None else {"num_bins": num_bins}
-    return CrmConfig(voxel_size=CELL, max_range=RANGE, range_sigma_m=math.sqrt(variance), cause_range="centre",
-                     spurious_probability=0.0, **changes)
+    return CrmConfig(
+        voxel_size=CELL,
+        max_range=RANGE,
+        range_sigma_m=math.sqrt(variance),
+        cause_range="centre",
+        spurious_probability=0.0,
+        **changes,
+    )
 
 
 def ism_final(z: np.ndarray, beams: Beams2D, settings: list[dict]) -> np.ndarray:
@@ -242,10 +248,16 @@ def part_2d(args) -> dict:
             crm_curves.append(map_error(mean, world))
             ism_curves.append(map_error(ism_run(z, beams, ISM_PAPER, checkpoints), world))
         mean0, variance0 = crm_run(z_all[0], beams, config, checkpoints[-1:])
-        fig3 = {"world": worlds[0], "crm_mean": mean0[-1], "crm_variance": variance0[-1],
-                "visible": visible_cells(worlds[0], beams),
-                "ism": ism_run(z_all[0], beams, ISM_PAPER, checkpoints[-1:])[-1],
-                "crm_curve": crm_curves[0], "ism_curve": ism_curves[0], "time_s": checkpoints / RATE_HZ}
+        fig3 = {
+            "world": worlds[0],
+            "crm_mean": mean0[-1],
+            "crm_variance": variance0[-1],
+            "visible": visible_cells(worlds[0], beams),
+            "ism": ism_run(z_all[0], beams, ISM_PAPER, checkpoints[-1:])[-1],
+            "crm_curve": crm_curves[0],
+            "ism_curve": ism_curves[0],
+            "time_s": checkpoints / RATE_HZ,
+        }
         noise = noise_levels(args, beams, checkpoints)
         bins = bin_tradeoff(args, beams, worlds, z_all) if not args.quick or args.bins else None
     seconds = time.perf_counter() - start
@@ -254,19 +266,35 @@ def part_2d(args) -> dict:
     crm_visible, ism_visible = np.array(crm_visible), np.array(ism_visible)
     crm_brier, ism_brier = np.array(crm_brier), np.array(ism_brier)
     result = {
-        "setup": {"world_m": 2 * HALF * CELL, "cell_m": CELL, "range_m": RANGE, "fov_deg": FOV_DEG, "beams": BEAMS,
-                  "rate_hz": RATE_HZ, "turn_deg_s": TURN_DEG_S, "duration_s": duration,
-                  "noise_variance_m2": NOISE_VARIANCE, "maps": maps, "occupied_fraction": 0.5,
-                  "readings": "Eq. 17: distance to the centre of the first occupied cell plus noise; past 1 m: no return",
-                  "crm": config.to_dict(), "ism_settings": settings, "ism_paper_setting": paper},
-        "crm_error": crm_error.tolist(), "ism_error": ism_error.tolist(),
-        "crm_inconsistency": crm_inc.tolist(), "ism_inconsistency": ism_inc.tolist(),
+        "setup": {
+            "world_m": 2 * HALF * CELL,
+            "cell_m": CELL,
+            "range_m": RANGE,
+            "fov_deg": FOV_DEG,
+            "beams": BEAMS,
+            "rate_hz": RATE_HZ,
+            "turn_deg_s": TURN_DEG_S,
+            "duration_s": duration,
+            "noise_variance_m2": NOISE_VARIANCE,
+            "maps": maps,
+            "occupied_fraction": 0.5,
+            "readings": "Eq. 17: distance to the centre of the first occupied cell plus noise; past 1 m: no return",
+            "crm": config.to_dict(),
+            "ism_settings": settings,
+            "ism_paper_setting": paper,
+        },
+        "crm_error": crm_error.tolist(),
+        "ism_error": ism_error.tolist(),
+        "crm_inconsistency": crm_inc.tolist(),
+        "ism_inconsistency": ism_inc.tolist(),
         # the same error over the cells some beam can reach (up to the first obstacle): without the
         # cells no sensor sees, where a map can only bet on the world's share of occupied cells
-        "crm_error_visible": crm_visible.tolist(), "ism_error_visible": ism_visible.tolist(),
+        "crm_error_visible": crm_visible.tolist(),
+        "ism_error_visible": ism_visible.tolist(),
         # sum of squared errors (the Brier score), which the mean of a distribution minimises; the
         # summed |error| above rewards saturated 0/1 estimates whenever they are right more often than not
-        "crm_squared_error": crm_brier.tolist(), "ism_squared_error": ism_brier.tolist(),
+        "crm_squared_error": crm_brier.tolist(),
+        "ism_squared_error": ism_brier.tolist(),
         "summary": {
             "maps_crm_error_below_all_36": int(np.sum(crm_error < ism_error.min(axis=1))),
             "maps_crm_error_below_paper_ism": int(np.sum(crm_error < ism_error[:, paper])),
@@ -279,12 +307,17 @@ def part_2d(args) -> dict:
             "crm_squared_error_mean": float(crm_brier.mean()),
             "best_fixed_ism_squared_error_mean": float(ism_brier.mean(axis=0).min()),
             "best_fixed_ism_visible_error_mean": float(ism_visible.mean(axis=0).min()),
-            "crm_error_mean": float(crm_error.mean()), "best_ism_error_mean": float(ism_error.min(axis=1).mean()),
+            "crm_error_mean": float(crm_error.mean()),
+            "best_ism_error_mean": float(ism_error.min(axis=1).mean()),
             "best_fixed_ism_error_mean": float(ism_error.mean(axis=0).min()),
-            "crm_inconsistency_mean": float(crm_inc.mean()), "best_ism_inconsistency_mean": float(ism_inc.min(axis=1).mean()),
+            "crm_inconsistency_mean": float(crm_inc.mean()),
+            "best_ism_inconsistency_mean": float(ism_inc.min(axis=1).mean()),
         },
-        "error_over_time": {"time_s": (checkpoints / RATE_HZ).tolist(), "crm": np.mean(crm_curves, axis=0).tolist(),
-                            "ism_paper": np.mean(ism_curves, axis=0).tolist()},
+        "error_over_time": {
+            "time_s": (checkpoints / RATE_HZ).tolist(),
+            "crm": np.mean(crm_curves, axis=0).tolist(),
+            "ism_paper": np.mean(ism_curves, axis=0).tolist(),
+        },
         "noise_levels": noise,
         "bins_tradeoff": bins,
         "seconds": {"total": seconds, "crm_integration": crm_s},
@@ -296,8 +329,13 @@ def part_2d(args) -> dict:
 def noise_levels(args, beams: Beams2D, checkpoints: np.ndarray) -> dict:
     """Fig. 5: mean error over time at each noise variance, CRM and the paper's ISM, over a few worlds."""
     worlds = 2 if args.quick else 10
-    out = {"variances_m2": list(NOISE_LEVELS), "worlds": worlds, "time_s": (checkpoints / RATE_HZ).tolist(),
-           "crm": [], "ism_paper": []}
+    out = {
+        "variances_m2": list(NOISE_LEVELS),
+        "worlds": worlds,
+        "time_s": (checkpoints / RATE_HZ).tolist(),
+        "crm": [],
+        "ism_paper": [],
+    }
     rng = np.random.default_rng(5)
     for variance in tqdm(NOISE_LEVELS, desc="noise levels", leave=False):
         crm, ism = [], []
@@ -317,8 +355,14 @@ def bin_tradeoff(args, beams: Beams2D, worlds: list, z_all: list) -> dict:
     counts = (4, 8, 16, 32, 64)
     use = min(len(worlds), 3 if args.quick else 10)
     end = np.array([beams.num_scans])
-    out = {"num_bins": list(counts), "worlds": use, "error": [], "inconsistency": [], "mean_vs_64_bins": [],
-           "bytes_per_voxel": []}
+    out = {
+        "num_bins": list(counts),
+        "worlds": use,
+        "error": [],
+        "inconsistency": [],
+        "mean_vs_64_bins": [],
+        "bytes_per_voxel": [],
+    }
     means = {}
     for k in tqdm(counts, desc="bin counts", leave=False):
         config = crm_config_2d(NOISE_VARIANCE, k)
@@ -345,9 +389,14 @@ def figures_2d(out: Path, result: dict, fig3: dict) -> None:
     extent = (-HALF * CELL, HALF * CELL, -HALF * CELL, HALF * CELL)
 
     fig, axes = plt.subplots(1, 4, figsize=(16, 4))
-    for ax, (title, values) in zip(axes[:3], (("ground truth", fig3["world"]),
-                                              ("log-odds, the paper's ISM", fig3["ism"]),
-                                              ("confidence-rich map (mean)", fig3["crm_mean"]))):
+    for ax, (title, values) in zip(
+        axes[:3],
+        (
+            ("ground truth", fig3["world"]),
+            ("log-odds, the paper's ISM", fig3["ism"]),
+            ("confidence-rich map (mean)", fig3["crm_mean"]),
+        ),
+    ):
         ax.imshow(grid(values), origin="lower", cmap="gray_r", vmin=0, vmax=1, extent=extent)
         ax.plot(0, 0, "r^")
         ax.set_title(title)
@@ -500,20 +549,34 @@ def part_3d(args) -> dict:
     truth = scene.occupancy(0.1)
     laps = 1 if args.quick else 2
     map_config = vj.MapConfig(voxel_size=0.1, max_range=11.0)
-    out = {"scene": args.scene, "laps": laps, "voxel_size_m": 0.1, "map_config": map_config.to_dict(),
-           "noise": [], "machine": machine(args.device)}
+    out = {
+        "scene": args.scene,
+        "laps": laps,
+        "voxel_size_m": 0.1,
+        "map_config": map_config.to_dict(),
+        "noise": [],
+        "machine": machine(args.device),
+    }
     for noise in tqdm(NOISES_3D, desc="sonar noise", leave=False):
         origins, points, scan_index, no_return = sonar_rays(scene, noise, laps, seed=11)
         crm_config = CrmConfig(voxel_size=0.1, max_range=11.0, range_sigma_m=noise)
         timed = noise == TIMED_NOISE
         repeats = 1 if args.quick or not timed else 5
         # compile and warm both first; then alternate them, so both see the same machine load
-        ConfidenceMap(crm_config, args.device).integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
-        vj.VoxelMap(map_config, args.device).integrate_scans(origins[:4], points[scan_index < 4], scan_index[scan_index < 4])
+        ConfidenceMap(crm_config, args.device).integrate_scans(
+            origins[:4], points[scan_index < 4], scan_index[scan_index < 4]
+        )
+        vj.VoxelMap(map_config, args.device).integrate_scans(
+            origins[:4], points[scan_index < 4], scan_index[scan_index < 4]
+        )
         pairs = []
         for _ in range(repeats):
-            t_vox, voxmap = best_time(1, lambda: _built(vj.VoxelMap(map_config, args.device), origins, points, scan_index))
-            t_crm, crm = best_time(1, lambda: _built(ConfidenceMap(crm_config, args.device), origins, points, scan_index))
+            t_vox, voxmap = best_time(
+                1, lambda: _built(vj.VoxelMap(map_config, args.device), origins, points, scan_index)
+            )
+            t_crm, crm = best_time(
+                1, lambda: _built(ConfidenceMap(crm_config, args.device), origins, points, scan_index)
+            )
             pairs.append((t_crm, t_vox))
         pairs = np.array(pairs)
         t_crm, t_vox = pairs.min(axis=0)
@@ -529,26 +592,45 @@ def part_3d(args) -> dict:
         crm_error = np.abs(crm_scores - target)
         vox_error = np.abs(vox_scores - target)
         row = {
-            "range_noise_m": noise, "scans": int(origins.shape[0]), "rays": int(points.shape[0]),
-            "no_return_fraction": no_return, "crm_config": crm_config.to_dict(),
-            "voxels_compared": int(keep.sum()), "occupied_voxels": int(occupied.sum()),
-            "crm_observed_voxels": int(len(centres)), "voxelmap_observed_voxels": int(len(vox_centres)),
-            "mean_abs_error": {"crm": float(crm_error.mean()), "voxelmap": float(vox_error.mean()),
-                               "crm_occupied": float(crm_error[occupied].mean()),
-                               "voxelmap_occupied": float(vox_error[occupied].mean()),
-                               "crm_free": float(crm_error[~occupied].mean()),
-                               "voxelmap_free": float(vox_error[~occupied].mean())},
+            "range_noise_m": noise,
+            "scans": int(origins.shape[0]),
+            "rays": int(points.shape[0]),
+            "no_return_fraction": no_return,
+            "crm_config": crm_config.to_dict(),
+            "voxels_compared": int(keep.sum()),
+            "occupied_voxels": int(occupied.sum()),
+            "crm_observed_voxels": int(len(centres)),
+            "voxelmap_observed_voxels": int(len(vox_centres)),
+            "mean_abs_error": {
+                "crm": float(crm_error.mean()),
+                "voxelmap": float(vox_error.mean()),
+                "crm_occupied": float(crm_error[occupied].mean()),
+                "voxelmap_occupied": float(vox_error[occupied].mean()),
+                "crm_free": float(crm_error[~occupied].mean()),
+                "voxelmap_free": float(vox_error[~occupied].mean()),
+            },
             "voxels_crm_closer": float(np.mean(crm_error < vox_error)),
             "auc": {"crm": roc(crm_scores, occupied).auc, "voxelmap": roc(vox_scores, occupied).auc},
             "inconsistency_per_voxel": {
                 "crm": inconsistency(crm_scores, crm_variance[keep], target) / keep.sum(),
-                "voxelmap": inconsistency(vox_scores, vox_scores * (1 - vox_scores), target) / keep.sum()},
-            "integration_s": {"crm": float(t_crm), "voxelmap": float(t_vox), "ratio": float(t_crm / t_vox),
-                              "median_paired_ratio": float(np.median(pairs[:, 0] / pairs[:, 1])),
-                              "repeats": repeats, "timed": timed},
-            "memory": {"crm_bytes_per_voxel": crm.bytes_per_voxel, "voxelmap_bytes_per_voxel": 4,
-                       "crm_bytes": crm.memory_bytes(), "voxelmap_bytes": voxmap.memory_bytes(),
-                       "crm_blocks": crm.num_blocks, "voxelmap_blocks": voxmap.num_blocks},
+                "voxelmap": inconsistency(vox_scores, vox_scores * (1 - vox_scores), target) / keep.sum(),
+            },
+            "integration_s": {
+                "crm": float(t_crm),
+                "voxelmap": float(t_vox),
+                "ratio": float(t_crm / t_vox),
+                "median_paired_ratio": float(np.median(pairs[:, 0] / pairs[:, 1])),
+                "repeats": repeats,
+                "timed": timed,
+            },
+            "memory": {
+                "crm_bytes_per_voxel": crm.bytes_per_voxel,
+                "voxelmap_bytes_per_voxel": 4,
+                "crm_bytes": crm.memory_bytes(),
+                "voxelmap_bytes": voxmap.memory_bytes(),
+                "crm_blocks": crm.num_blocks,
+                "voxelmap_blocks": voxmap.num_blocks,
+            },
         }
         out["noise"].append(row)
         if timed:
@@ -564,8 +646,15 @@ def bins_3d(args, config: CrmConfig, origins, points, scan_index, truth, vox_cen
 
     counts = (4, 8, 16, 32, 64)
     maps = {}
-    out = {"num_bins": list(counts), "mean_abs_error": [], "auc": [], "mean_vs_64_bins": [], "std_vs_64_bins": [],
-           "bytes_per_voxel": [], "integration_s": []}
+    out = {
+        "num_bins": list(counts),
+        "mean_abs_error": [],
+        "auc": [],
+        "mean_vs_64_bins": [],
+        "std_vs_64_bins": [],
+        "bytes_per_voxel": [],
+        "integration_s": [],
+    }
     for k in tqdm(counts, desc="bin counts", leave=False):
         cfg = config.replace(num_bins=k)
         ConfidenceMap(cfg, "cpu").integrate_scans(origins[:2], points[scan_index < 2], scan_index[scan_index < 2])
@@ -601,18 +690,30 @@ def print_3d(result: dict) -> None:
     print(f"3D, scene {result['scene']}, {result['laps']} laps of its survey:")
     if "bins_tradeoff" in result:
         b = result["bins_tradeoff"]
-        print("   bins: " + ", ".join(f"{k}: |mean - 64 bins| {d:.3f}, {n} B/voxel" for k, d, n in
-                                     zip(b["num_bins"], b["mean_vs_64_bins"], b["bytes_per_voxel"])))
+        print(
+            "   bins: "
+            + ", ".join(
+                f"{k}: |mean - 64 bins| {d:.3f}, {n} B/voxel"
+                for k, d, n in zip(b["num_bins"], b["mean_vs_64_bins"], b["bytes_per_voxel"])
+            )
+        )
     for row in result["noise"]:
         e, a, t = row["mean_abs_error"], row["auc"], row["integration_s"]
-        print(f"   noise {row['range_noise_m']:.2f} m, {row['rays']} rays: mean |error| CRM {e['crm']:.3f} vs log-odds "
-              f"{e['voxelmap']:.3f} on {row['voxels_compared']} voxels; AUC CRM {a['crm']:.3f} vs {a['voxelmap']:.3f}; "
-              f"integration CRM {t['crm']:.2f} s vs {t['voxelmap']:.2f} s ({t['ratio']:.1f}x)")
+        print(
+            f"   noise {row['range_noise_m']:.2f} m, {row['rays']} rays: mean |error| CRM {e['crm']:.3f} vs log-odds "
+            f"{e['voxelmap']:.3f} on {row['voxels_compared']} voxels; AUC CRM {a['crm']:.3f} vs {a['voxelmap']:.3f}; "
+            f"integration CRM {t['crm']:.2f} s vs {t['voxelmap']:.2f} s ({t['ratio']:.1f}x)"
+        )
 
 
 def machine(device: str) -> dict:
-    return {"device": device, "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-            "python": platform.python_version(), "warp": wp.__version__}
+    return {
+        "device": device,
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "warp": wp.__version__,
+    }
 
 
 def main():
@@ -631,15 +732,22 @@ def main():
         result["machine"] = machine("cpu")
         (args.out / "crm_2d.json").write_text(json.dumps(result, indent=1))
         s = result["summary"]
-        print(f"2D, {result['setup']['maps']} worlds in {result['seconds']['total']:.0f} s: CRM error below all 36 ISMs "
-              f"in {s['maps_crm_error_below_all_36']}, below the paper's ISM in {s['maps_crm_error_below_paper_ism']}; "
-              f"inconsistency below all 36 in {s['maps_crm_inconsistency_below_all_36']}")
-        print(f"   mean error CRM {s['crm_error_mean']:.2f}, best fixed ISM {s['best_fixed_ism_error_mean']:.2f}, best ISM "
-              f"per world {s['best_ism_error_mean']:.2f}; visible cells: CRM {s['crm_visible_error_mean']:.2f}, best fixed "
-              f"ISM {s['best_fixed_ism_visible_error_mean']:.2f}; squared error CRM {s['crm_squared_error_mean']:.2f}, best "
-              f"fixed ISM {s['best_fixed_ism_squared_error_mean']:.2f} (CRM below all 36 in "
-              f"{s['maps_crm_squared_error_below_all_36']} worlds); mean I_c CRM {s['crm_inconsistency_mean']:.2f}, "
-              f"least ISM per world {s['best_ism_inconsistency_mean']:.2f}")
+        print(
+            f"2D, {result['setup']['maps']} worlds in {result['seconds']['total']:.0f} s: CRM error below all 36 ISMs "
+            f"in {s['maps_crm_error_below_all_36']}, below the paper's ISM in {s['maps_crm_error_below_paper_ism']}; "
+            f"inconsistency below all 36 in {s['maps_crm_inconsistency_below_all_36']}"
+        )
+        print(
+            f"   mean error CRM {s['crm_error_mean']:.2f}, best fixed ISM {s['best_fixed_ism_error_mean']:.2f}, best "
+            f"ISM "
+            f"per world {s['best_ism_error_mean']:.2f}; visible cells: CRM {s['crm_visible_error_mean']:.2f}, best "
+            f"fixed "
+            f"ISM {s['best_fixed_ism_visible_error_mean']:.2f}; squared error CRM {s['crm_squared_error_mean']:.2f}, "
+            f"best "
+            f"fixed ISM {s['best_fixed_ism_squared_error_mean']:.2f} (CRM below all 36 in "
+            f"{s['maps_crm_squared_error_below_all_36']} worlds); mean I_c CRM {s['crm_inconsistency_mean']:.2f}, "
+            f"least ISM per world {s['best_ism_inconsistency_mean']:.2f}"
+        )
     if args.part in ("all", "3d"):
         result = part_3d(args)
         (args.out / f"crm_3d_{args.device.split(':')[0]}.json").write_text(json.dumps(result, indent=1))

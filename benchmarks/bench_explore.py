@@ -21,7 +21,8 @@
     python benchmarks/bench_explore.py --out benchmarks/results --reuse /tmp/bench_runs
 
 `--reuse DIR` takes every ARM_SEED.h5 with its ARM_SEED.explore.csv found in DIR (as `--keep`
-leaves them) instead of exploring again (runs it lacks are explored, into `--keep` if given): the run file is replayed through the pipeline's Mapper
+leaves them) instead of exploring again (runs it lacks are explored, into `--keep` if given):
+the run file is replayed through the pipeline's Mapper
 as explore() fed it (the same maps, checked against the CSV's explored volume), the summary
 comes from the run and the CSV (wall_s: null, unknown), and the timing probe runs at the CSV's
 planning moments, from the pose the planner planned from (explore's estimate: the last scan's
@@ -70,10 +71,15 @@ def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
     # Eq. 4.1 adds dt * N(0, Sigma) to each step (Sigma in m^2/s, Sodhi's values): a variance of
     # dt * Sigma per second, a fifth of what Sodhi's Eq. 10 (NavNoise's reading) accrues at 5 Hz
     sodhi = vj.NavNoise()
-    thesis = dataclasses.replace(sodhi, sigma2_x=sodhi.sigma2_x * SCAN_PERIOD_S, sigma2_y=sodhi.sigma2_y * SCAN_PERIOD_S,
-                                 sigma2_yaw=sodhi.sigma2_yaw * SCAN_PERIOD_S)
-    return PlannerConfig(seed=seed), vj.PipelineConfig(map=vj.MapConfig(voxel_size=0.095), scans_per_submap=100,
-                                                       nav_noise=thesis)
+    thesis = dataclasses.replace(
+        sodhi,
+        sigma2_x=sodhi.sigma2_x * SCAN_PERIOD_S,
+        sigma2_y=sodhi.sigma2_y * SCAN_PERIOD_S,
+        sigma2_yaw=sodhi.sigma2_yaw * SCAN_PERIOD_S,
+    )
+    return PlannerConfig(seed=seed), vj.PipelineConfig(
+        map=vj.MapConfig(voxel_size=0.095), scans_per_submap=100, nav_noise=thesis
+    )
 
 
 def occupied_centres(block_map) -> np.ndarray:
@@ -91,8 +97,11 @@ def reconstruction(points: np.ndarray, surface: np.ndarray, voxel_size: float) -
     moved = points @ T[:3, :3].T + T[:3, 3]
     distance, _ = cKDTree(surface).query(moved, workers=-1)
     reached, _ = cKDTree(moved).query(surface, distance_upper_bound=2 * voxel_size, workers=-1)
-    return {"rmse_m": float(np.sqrt(np.mean(distance**2))), "coverage": float(np.isfinite(reached).mean()),
-            "voxels": len(points)}
+    return {
+        "rmse_m": float(np.sqrt(np.mean(distance**2))),
+        "coverage": float(np.isfinite(reached).mean()),
+        "voxels": len(points),
+    }
 
 
 def box_hits(scene, truth: np.ndarray) -> int:
@@ -153,27 +162,46 @@ class TimingProbe:
             return
         self.next = mapper.num_submaps + self.every
         filling = list(range(mapper.num_submaps, len(mapper.submaps)))
-        maps = {"global": planner.Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map,
-                "virtual": mapper.vog}
+        maps = {
+            "global": planner.Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map,
+            "virtual": mapper.vog,
+        }
         rng = np.random.default_rng(mapper.num_submaps)
         lo, hi = self.scene.bounds[0] + BOX_M / 2, self.scene.bounds[1] - BOX_M / 2
-        views = np.array([vj.geometry.pose_from_xyz_yaw(*rng.uniform(lo, hi), rng.uniform(-np.pi, np.pi))
-                          for _ in range(self.views)]) @ self.sensor.T_vehicle_sensor
+        views = (
+            np.array(
+                [
+                    vj.geometry.pose_from_xyz_yaw(*rng.uniform(lo, hi), rng.uniform(-np.pi, np.pi))
+                    for _ in range(self.views)
+                ]
+            )
+            @ self.sensor.T_vehicle_sensor
+        )
         entry = {"submaps": mapper.num_submaps}
         for name, m in maps.items():
-            nbv = planner.NbvPlanner(self.config, bounds=self.scene.bounds, sensor=self.sensor,
-                                     region=self.scene.region())
+            nbv = planner.NbvPlanner(
+                self.config, bounds=self.scene.bounds, sensor=self.sensor, region=self.scene.region()
+            )
             result = nbv.plan(m, T)
             per_ray = []
             for _ in range(3):
                 start = time.perf_counter()
-                gain = planner.view_gain(m, views, self.sensor, max_range_m=self.config.gain_range_m,
-                                         region=self.scene.region())
+                gain = planner.view_gain(
+                    m, views, self.sensor, max_range_m=self.config.gain_range_m, region=self.scene.region()
+                )
                 per_ray.append((time.perf_counter() - start) / gain.rays)
-            entry[name] = {"plan_s": result.seconds, "plan_rays": result.rays, "nodes": result.nodes,
-                           "ray_s": float(np.median(per_ray)), "gain_rays": gain.rays}
-        print(f"  timing at {entry['submaps']} submaps: plan {entry['global']['plan_s']:.2f} s global, "
-              f"{entry['virtual']['plan_s']:.2f} s virtual", flush=True)
+            entry[name] = {
+                "plan_s": result.seconds,
+                "plan_rays": result.rays,
+                "nodes": result.nodes,
+                "ray_s": float(np.median(per_ray)),
+                "gain_rays": gain.rays,
+            }
+        print(
+            f"  timing at {entry['submaps']} submaps: plan {entry['global']['plan_s']:.2f} s global, "
+            f"{entry['virtual']['plan_s']:.2f} s virtual",
+            flush=True,
+        )
         self.rows.append(entry)
 
 
@@ -184,8 +212,13 @@ def replay(out: Path, rows, arm: str, seed: int, scene, probe=None) -> tuple[Map
     explore() gave, rebuilt from the run and the CSV."""
     config, pipeline = table_4_2(seed)
     with Dataset(out) as run:
-        expected = {"map": arm, "seed": seed, "planner": config.to_dict(), "nav_noise": pipeline.nav_noise.to_dict(),
-                    "pipeline": {"scans_per_submap": pipeline.scans_per_submap, "voxel_size": pipeline.map.voxel_size}}
+        expected = {
+            "map": arm,
+            "seed": seed,
+            "planner": config.to_dict(),
+            "nav_noise": pipeline.nav_noise.to_dict(),
+            "pipeline": {"scans_per_submap": pipeline.scans_per_submap, "voxel_size": pipeline.map.voxel_size},
+        }
         wrong = [key for key, value in expected.items() if run.metadata.get(key) != value]
         if wrong:
             raise ValueError(f"{out} was not explored with table_4_2's settings ({', '.join(wrong)} differ)")
@@ -195,8 +228,9 @@ def replay(out: Path, rows, arm: str, seed: int, scene, probe=None) -> tuple[Map
     for start, end in zip([0] + moments, moments + [len(scans)]):
         if probe is not None and start and mapper.num_submaps >= probe.next:
             k = mapper.num_submaps - 1  # explore's estimate: navigation corrected by the last finished submap
-            probe.measure(mapper, mapper.vog.pose(k) @ inverse(mapper.submaps[k].T_world_base_nav)
-                          @ scans.pose_nav[start - 1])
+            probe.measure(
+                mapper, mapper.vog.pose(k) @ inverse(mapper.submaps[k].T_world_base_nav) @ scans.pose_nav[start - 1]
+            )
         if start == moments[-1]:  # the last plan: the online global map's explored volume then
             explored = known_m3(mapper.global_map, *scene.region())
         for first in range(start, end, PIECE_SCANS):
@@ -204,14 +238,22 @@ def replay(out: Path, rows, arm: str, seed: int, scene, probe=None) -> tuple[Map
     mapper.finish_submap()
     last = rows[-1]
     positions = np.vstack([scene.start_pose[:3, 3], scans.pose_truth[:, :3, 3]])
-    summary = {"scans": len(scans), "submaps": mapper.num_submaps, "iterations": len(rows),
-               "stopped": ("gain" if last["nodes"] else "blocked") if np.isnan(last["x_m"]) else "submaps",
-               "path_m": float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()),
-               "duration_s": len(scans) / sensor.rate_hz, "wall_s": None,
-               "reuse_check": {"explored_m3_csv": float(last["explored_m3"]), "explored_m3_replay": explored}}
+    summary = {
+        "scans": len(scans),
+        "submaps": mapper.num_submaps,
+        "iterations": len(rows),
+        "stopped": ("gain" if last["nodes"] else "blocked") if np.isnan(last["x_m"]) else "submaps",
+        "path_m": float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()),
+        "duration_s": len(scans) / sensor.rate_hz,
+        "wall_s": None,
+        "reuse_check": {"explored_m3_csv": float(last["explored_m3"]), "explored_m3_replay": explored},
+    }
     if not np.isclose(explored, last["explored_m3"], rtol=1e-5):
-        print(f"  WARNING: the replay's explored volume at the last plan ({explored:.3f} m^3) is not the CSV's "
-              f"({last['explored_m3']:.3f} m^3): the maps differ from the online ones", flush=True)
+        print(
+            f"  WARNING: the replay's explored volume at the last plan ({explored:.3f} m^3) is not the CSV's "
+            f"({last['explored_m3']:.3f} m^3): the maps differ from the online ones",
+            flush=True,
+        )
     return mapper, summary
 
 
@@ -231,34 +273,62 @@ def run_arm(arm: str, seed: int, submaps: int, folder: Path, scene_name: str, pr
                 probe(mapper, plan, row)
 
         start = time.perf_counter()
-        summary = explore(scene_name, out, submaps, map_kind=arm, seed=seed, planner_config=config,
-                          pipeline_config=pipeline, on_iteration=hook, overwrite=True)
+        summary = explore(
+            scene_name,
+            out,
+            submaps,
+            map_kind=arm,
+            seed=seed,
+            planner_config=config,
+            pipeline_config=pipeline,
+            on_iteration=hook,
+            overwrite=True,
+        )
         seconds = time.perf_counter() - start
         mapper, rows = kept["mapper"], list(np.genfromtxt(summary.csv_path, delimiter=",", names=True))
-        facts = {"scans": summary.scans, "submaps": summary.submaps, "iterations": summary.iterations,
-                 "stopped": summary.stopped, "path_m": summary.path_m, "duration_s": summary.duration_s,
-                 "wall_s": seconds}
+        facts = {
+            "scans": summary.scans,
+            "submaps": summary.submaps,
+            "iterations": summary.iterations,
+            "stopped": summary.stopped,
+            "path_m": summary.path_m,
+            "duration_s": summary.duration_s,
+            "wall_s": seconds,
+        }
     result = mapper.result()
     surface = scene.surface_points(50_000)
-    occupied = {key: occupied_centres(m) for key, m in (("standard", result.standard_map),
-                                                        ("without_loop_closures", result.navigation_merge),
-                                                        ("with_loop_closures", result.global_map))}
+    occupied = {
+        key: occupied_centres(m)
+        for key, m in (
+            ("standard", result.standard_map),
+            ("without_loop_closures", result.navigation_merge),
+            ("with_loop_closures", result.global_map),
+        )
+    }
     with Dataset(out) as run:
         truth = run.read(0, len(run)).pose_truth
     plan_s = np.array([r["plan_s"] for r in rows])
     scores = {key: reconstruction(points, surface, 0.095) for key, points in occupied.items()}
-    return {"arm": arm, "seed": seed, "reused": reuse, **facts,
-            "rmse_m": {key: score["rmse_m"] for key, score in scores.items()},
-            "coverage": {key: score["coverage"] for key, score in scores.items()},
-            "occupied_voxels": {key: score["voxels"] for key, score in scores.items()},
-            "trajectory_rmse_m": result.metrics["trajectory_rmse_m"],
-            "loop_closures": result.metrics["loop_closures"]["accepted"],
-            "collisions": box_hits(scene, truth), "plan_s_median": float(np.median(plan_s)),
-            "plan_s_p90": float(np.percentile(plan_s, 90)),
-            "rays_median": float(np.median([r["rays"] for r in rows])),
-            "csv": {name: [float(r[name]) for r in rows] for name in ("time_s", "submaps", "explored_m3", "path_m",
-                                                                       "plan_s", "rays")},
-            "explored": explored_curve(out, scene, 0.095)}
+    return {
+        "arm": arm,
+        "seed": seed,
+        "reused": reuse,
+        **facts,
+        "rmse_m": {key: score["rmse_m"] for key, score in scores.items()},
+        "coverage": {key: score["coverage"] for key, score in scores.items()},
+        "occupied_voxels": {key: score["voxels"] for key, score in scores.items()},
+        "trajectory_rmse_m": result.metrics["trajectory_rmse_m"],
+        "loop_closures": result.metrics["loop_closures"]["accepted"],
+        "collisions": box_hits(scene, truth),
+        "plan_s_median": float(np.median(plan_s)),
+        "plan_s_p90": float(np.percentile(plan_s, 90)),
+        "rays_median": float(np.median([r["rays"] for r in rows])),
+        "csv": {
+            name: [float(r[name]) for r in rows]
+            for name in ("time_s", "submaps", "explored_m3", "path_m", "plan_s", "rays")
+        },
+        "explored": explored_curve(out, scene, 0.095),
+    }
 
 
 def table_4_3(runs: list[dict]) -> list[dict]:
@@ -269,9 +339,12 @@ def table_4_3(runs: list[dict]) -> list[dict]:
     for seed in sorted({r["seed"] for r in runs}):
         arm = {r["arm"]: r for r in runs if r["seed"] == seed}
         if {"standard", "global"} <= arm.keys():
-            row = {"seed": seed, "standard": arm["standard"]["rmse_m"]["standard"],
-                   "without_loop_closures": arm["global"]["rmse_m"]["without_loop_closures"],
-                   "with_loop_closures": arm["global"]["rmse_m"]["with_loop_closures"]}
+            row = {
+                "seed": seed,
+                "standard": arm["standard"]["rmse_m"]["standard"],
+                "without_loop_closures": arm["global"]["rmse_m"]["without_loop_closures"],
+                "with_loop_closures": arm["global"]["rmse_m"]["with_loop_closures"],
+            }
             row["ordered"] = bool(row["with_loop_closures"] < row["without_loop_closures"] < row["standard"])
             rows.append(row)
     return rows
@@ -286,8 +359,12 @@ def main() -> None:
     parser.add_argument("--arms", default="standard,global", help="maps the planner plans on")
     parser.add_argument("--timing-every", type=int, default=15, help="submaps between timing probes (0: none)")
     parser.add_argument("--keep", type=Path, default=None, help="keep the run files in this folder")
-    parser.add_argument("--reuse", type=Path, default=None,
-                        help="take ARM_SEED.h5 and ARM_SEED.explore.csv from this folder where there (no exploring)")
+    parser.add_argument(
+        "--reuse",
+        type=Path,
+        default=None,
+        help="take ARM_SEED.h5 and ARM_SEED.explore.csv from this folder where there (no exploring)",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     scene = scenes.load(args.scene)
@@ -302,26 +379,41 @@ def main() -> None:
                 probe_here = None
                 if arm == "global" and seed == 0 and args.timing_every > 0:
                     probe = probe_here = TimingProbe(table_4_2(0)[0], scene, sonar, args.timing_every)
-                reuse = args.reuse is not None and (args.reuse / f"{arm}_{seed}.h5").exists() and \
-                    csv_path_of(args.reuse / f"{arm}_{seed}.h5").exists()
+                reuse = (
+                    args.reuse is not None
+                    and (args.reuse / f"{arm}_{seed}.h5").exists()
+                    and csv_path_of(args.reuse / f"{arm}_{seed}.h5").exists()
+                )
                 print(f"{'replaying' if reuse else 'exploring'}: {arm} map, seed {seed}", flush=True)
-                runs.append(run_arm(arm, seed, args.submaps, args.reuse if reuse else folder, args.scene,
-                                    probe_here, reuse))
+                runs.append(
+                    run_arm(arm, seed, args.submaps, args.reuse if reuse else folder, args.scene, probe_here, reuse)
+                )
                 r = runs[-1]
-                print(f"  {r['scans']} scans, {r['submaps']} submaps, stopped: {r['stopped']}, RMSE {r['rmse_m']}, "
-                      f"collisions {r['collisions']}, plan {r['plan_s_median']:.2f} s median", flush=True)
+                print(
+                    f"  {r['scans']} scans, {r['submaps']} submaps, stopped: {r['stopped']}, RMSE {r['rmse_m']}, "
+                    f"collisions {r['collisions']}, plan {r['plan_s_median']:.2f} s median",
+                    flush=True,
+                )
         scans = max(r["scans"] for r in runs)
         survey_path = folder / "survey.h5"
         simulate_run(args.scene, survey_path, num_scans=scans, sensor=sonar, progress=False)
         survey = explored_curve(survey_path, scene, 0.095)
-    report = {"machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": str(device)},
-              "scene": args.scene, "submaps": args.submaps, "runs": runs, "survey": survey,
-              "table_4_3": table_4_3(runs), "timing": probe.rows if probe else [],
-              "planner": PlannerConfig().to_dict()}
+    report = {
+        "machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": str(device)},
+        "scene": args.scene,
+        "submaps": args.submaps,
+        "runs": runs,
+        "survey": survey,
+        "table_4_3": table_4_3(runs),
+        "timing": probe.rows if probe else [],
+        "planner": PlannerConfig().to_dict(),
+    }
     for row in report["table_4_3"]:
-        print(f"Table 4.3, seed {row['seed']}: standard {row['standard']:.3f} m, without LC "
-              f"{row['without_loop_closures']:.3f} m, with LC {row['with_loop_closures']:.3f} m, "
-              f"{'ordered as the thesis' if row['ordered'] else 'NOT ordered as the thesis'}")
+        print(
+            f"Table 4.3, seed {row['seed']}: standard {row['standard']:.3f} m, without LC "
+            f"{row['without_loop_closures']:.3f} m, with LC {row['with_loop_closures']:.3f} m, "
+            f"{'ordered as the thesis' if row['ordered'] else 'NOT ordered as the thesis'}"
+        )
     path = args.out / f"explore_{'cuda' if device.is_cuda else 'cpu'}.json"
     path.write_text(json.dumps(report, indent=1))
     plot(report, args.out)
@@ -345,8 +437,11 @@ def plot(report: dict, folder: Path) -> None:
     ax.set_xticks(range(len(values)), labels, fontsize=7)
     ax.set_yscale("log")  # a map without loop closures can be metres off
     ax.set_ylabel("reconstruction RMSE [m]")
-    ax.set_title("Propeller explored by the planner (Ho Table 4.3): red standard map (planner on it),\n"
-                 "orange / blue the global-map run's virtual map without / with loop closures", fontsize=9)
+    ax.set_title(
+        "Propeller explored by the planner (Ho Table 4.3): red standard map (planner on it),\n"
+        "orange / blue the global-map run's virtual map without / with loop closures",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(folder / "explore_rmse.png", dpi=120)
     plt.close(fig)
@@ -369,8 +464,10 @@ def plot(report: dict, folder: Path) -> None:
     # 3. explored volume against time and against path length: the scene's region, and the
     # exploration bounds the planner flies in
     fig, axes = plt.subplots(2, 2, figsize=(9, 7))
-    volumes = (("region_m3", "explored volume of the scene [m^3]"),
-               ("bounds_m3", "explored volume inside the bounds [m^3]"))
+    volumes = (
+        ("region_m3", "explored volume of the scene [m^3]"),
+        ("bounds_m3", "explored volume inside the bounds [m^3]"),
+    )
     for row, (key, label) in zip(axes, volumes):
         for r in runs:
             e = r["explored"]

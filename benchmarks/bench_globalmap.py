@@ -28,13 +28,15 @@ import warp as wp  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 import vogjax as vj  # noqa: E402
-from vogjax.scenes import analytic  # noqa: E402
 from vogjax.report.timing import planner_rays  # noqa: E402
+from vogjax.scenes import analytic  # noqa: E402
 
 SCANS_PER_SUBMAP = 200
-DENSE_WORLD = ("pilings scene (mesh: seabed, deck, ten slanted piles), sonar (96 beams, 29 deg fan, "
-               "11 m) on a vehicle weaving between the pile rows 1.5-4.5 m above the seabed, yawing +-18 deg over "
-               "each submap's 200 scans")
+DENSE_WORLD = (
+    "pilings scene (mesh: seabed, deck, ten slanted piles), sonar (96 beams, 29 deg fan, "
+    "11 m) on a vehicle weaving between the pile rows 1.5-4.5 m above the seabed, yawing +-18 deg over "
+    "each submap's 200 scans"
+)
 
 
 def build_vog(num_submaps: int, device) -> vj.VogMap:
@@ -45,10 +47,11 @@ def build_vog(num_submaps: int, device) -> vj.VogMap:
     per_lap = 1500
     for k in tqdm(range(num_submaps), desc="building pier submaps", unit="submap"):
         lap, part = divmod(k * SCANS_PER_SUBMAP, per_lap)
-        sweep = analytic.orbit_sweep(scene, per_lap, radius_m=7.5 + 0.7 * (lap % 4),
-                                     depths_m=(2.0 + 0.5 * (lap % 5),), seed=lap)
+        sweep = analytic.orbit_sweep(
+            scene, per_lap, radius_m=7.5 + 0.7 * (lap % 4), depths_m=(2.0 + 0.5 * (lap % 5),), seed=lap
+        )
         rows = slice(part * 96, (part + SCANS_PER_SUBMAP) * 96)
-        origins = sweep.origins[part:part + SCANS_PER_SUBMAP].astype(np.float64)
+        origins = sweep.origins[part : part + SCANS_PER_SUBMAP].astype(np.float64)
         points = sweep.points[rows].astype(np.float64)
         heading = -origins[0, :2] / np.linalg.norm(origins[0, :2])
         pose = np.eye(4)
@@ -74,8 +77,14 @@ def build_dense_vog(num_submaps: int, device, yaw_sweep_rad: float = 0.1 * np.pi
         poses = np.tile(np.eye(4), (SCANS_PER_SUBMAP, 1, 1))
         poses[:, 0, 0], poses[:, 0, 1] = np.cos(yaw), -np.sin(yaw)
         poses[:, 1, 0], poses[:, 1, 1] = np.sin(yaw), np.cos(yaw)
-        poses[:, :3, 3] = np.stack([7.0 * np.sin(2 * np.pi * phase), 1.5 * np.sin(2 * np.pi * 3.1 * phase),
-                                    3.0 + 1.5 * np.sin(2 * np.pi * 1.7 * phase)], axis=1)
+        poses[:, :3, 3] = np.stack(
+            [
+                7.0 * np.sin(2 * np.pi * phase),
+                1.5 * np.sin(2 * np.pi * 3.1 * phase),
+                3.0 + 1.5 * np.sin(2 * np.pi * 1.7 * phase),
+            ],
+            axis=1,
+        )
         sim = scan(mesh, poses, sonar)
         ranges = np.where(sim.no_return, sonar.max_range_m * 1.05 + 0.1, sim.ranges)
         points = (sim.origins[:, None] + sim.directions * ranges[..., None]).reshape(-1, 3)
@@ -112,8 +121,16 @@ def merge_curve(vog: vj.VogMap, counts: list, repeats: int, desc: str) -> list:
 
         seconds, runs, pulls = timed(merge, repeats)
         gmap = holder["map"]
-        rows.append({"submaps": n, "seconds": seconds, "runs_s": runs, "voxel_updates": pulls,
-                     "blocks": gmap.store.live_blocks, "memory_bytes": gmap.memory_bytes()})
+        rows.append(
+            {
+                "submaps": n,
+                "seconds": seconds,
+                "runs_s": runs,
+                "voxel_updates": pulls,
+                "blocks": gmap.store.live_blocks,
+                "memory_bytes": gmap.memory_bytes(),
+            }
+        )
     return rows
 
 
@@ -160,32 +177,48 @@ def main():
         moved[:, :3, 3] += rng.normal(0, 0.05, (k, 3))
         vog.set_poses(ids, moved)
         seconds, _, report = timed(lambda: gmap.update_poses(vog))
-        updates.append({"reapplied": len(report.reapplied), "seconds": seconds,
-                        "voxel_updates": report.voxels_touched})
+        updates.append({"reapplied": len(report.reapplied), "seconds": seconds, "voxel_updates": report.voxels_touched})
         vog.set_poses(ids, home[ids])
         gmap.update_poses(vog)
 
-    result = {"machine": {"device": str(device), "cpu": platform.machine(), "cores": os.cpu_count(),
-                          "python": platform.python_version(), "warp": wp.__version__,
-                          "load_average": list(os.getloadavg())},  # a shared machine: how busy it was
-              "scans_per_submap": SCANS_PER_SUBMAP, "beams_per_scan": 96, "voxel_size_m": 0.1,
-              "rays": args.rays, "ray_length_m": 4.0, "repeats": args.repeats,
-              "full_merge": merge, "queries": queries, "update_poses": updates,
-              "dense_world": {"scene": DENSE_WORLD, "full_merge": dense_merge}}
+    result = {
+        "machine": {
+            "device": str(device),
+            "cpu": platform.machine(),
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "warp": wp.__version__,
+            "load_average": list(os.getloadavg()),
+        },  # a shared machine: how busy it was
+        "scans_per_submap": SCANS_PER_SUBMAP,
+        "beams_per_scan": 96,
+        "voxel_size_m": 0.1,
+        "rays": args.rays,
+        "ray_length_m": 4.0,
+        "repeats": args.repeats,
+        "full_merge": merge,
+        "queries": queries,
+        "update_poses": updates,
+        "dense_world": {"scene": DENSE_WORLD, "full_merge": dense_merge},
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     name = f"globalmap_{device.alias.split(':')[0]}"
     (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     _plot(result, args.out / f"{name}.png")
     for world, rows in (("pier", merge), ("dense", dense_merge)):
         for row in rows:
-            print(f"full merge {world:5s} {row['submaps']:4d} submaps: {row['seconds'] * 1e3:8.1f} ms "
-                  f"(runs {min(row['runs_s']) * 1e3:.0f}-{max(row['runs_s']) * 1e3:.0f} ms, "
-                  f"{row['voxel_updates'] / 1e6:.1f} M voxel updates)")
+            print(
+                f"full merge {world:5s} {row['submaps']:4d} submaps: {row['seconds'] * 1e3:8.1f} ms "
+                f"(runs {min(row['runs_s']) * 1e3:.0f}-{max(row['runs_s']) * 1e3:.0f} ms, "
+                f"{row['voxel_updates'] / 1e6:.1f} M voxel updates)"
+            )
     for row in updates:
         print(f"update_poses re-applying {row['reapplied']:4d}: {row['seconds'] * 1e3:8.1f} ms")
     for row in queries:
-        print(f"100k rays, {row['submaps']:4d} submaps: global {row['global_s'] * 1e3:7.1f} ms, "
-              f"virtual {row['virtual_s'] * 1e3:8.1f} ms")
+        print(
+            f"100k rays, {row['submaps']:4d} submaps: global {row['global_s'] * 1e3:7.1f} ms, "
+            f"virtual {row['virtual_s'] * 1e3:8.1f} ms"
+        )
     print(f"wrote {args.out / name}.json and .png")
 
 
@@ -207,8 +240,7 @@ def _plot(result: dict, path: Path) -> None:
     n = [r["submaps"] for r in queries]
     axes[2].plot(n, [r["global_s"] for r in queries], "o-", label="global map")
     axes[2].plot(n, [r["virtual_s"] for r in queries], "s-", label="virtual map")
-    axes[2].set(xlabel="submaps", ylabel="seconds", title=f"{result['rays'] // 1000}k-ray query",
-                yscale="log")
+    axes[2].set(xlabel="submaps", ylabel="seconds", title=f"{result['rays'] // 1000}k-ray query", yscale="log")
     axes[2].legend()
     for ax in axes:
         ax.grid(alpha=0.3)

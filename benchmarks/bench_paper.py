@@ -55,10 +55,12 @@ class Recorder(Mapper):
     def _sample(self) -> dict:
         centres, _ = self.standard_map.voxels()
         standard = self.standard_map.state(centres)
-        sample = {"submaps": len(self.submaps),
-                  "misclassified_virtual": misclassified(standard, self.vog.state(centres))["misclassified"] / len(centres),
-                  "misclassified_merged": misclassified(standard, self.global_map.state(centres))["misclassified"]
-                  / len(centres)}
+        sample = {
+            "submaps": len(self.submaps),
+            "misclassified_virtual": misclassified(standard, self.vog.state(centres))["misclassified"] / len(centres),
+            "misclassified_merged": misclassified(standard, self.global_map.state(centres))["misclassified"]
+            / len(centres),
+        }
         # a planning iteration's rays, asked as line queries (a ray cast) or voxel by voxel (points)
         origins, directions = planner_rays(self.global_map, self.rays, rng=len(self.submaps))
         start = time.perf_counter()
@@ -83,8 +85,9 @@ def map_run(path: Path, config: PipelineConfig, sample_every: int, rays: int) ->
     return result, mapper, seconds
 
 
-def replay(steps: list, eps_rot: float, eps_trans: float, eps_move_m: float, corners: np.ndarray,
-           frozen_cov: bool = False) -> tuple:
+def replay(
+    steps: list, eps_rot: float, eps_trans: float, eps_move_m: float, corners: np.ndarray, frozen_cov: bool = False
+) -> tuple:
     """Algorithm 1's choices over a recorded run for other thresholds: re-applied submaps per new
     submap and the poses each submap was last applied at (which is what the online map holds).
     eps_cov is the first ten submaps' largest volume now (as the pipeline's "auto"), or with
@@ -102,8 +105,10 @@ def replay(steps: list, eps_rot: float, eps_trans: float, eps_move_m: float, cor
             ids = np.array(sorted(applied))
             old = np.stack([applied[i] for i in ids])
             angle, shift = pose_deltas(old, poses[ids])
-            moves = np.einsum("nij,nkj->nki", poses[ids, :3, :3] - old[:, :3, :3], corners[ids]) \
+            moves = (
+                np.einsum("nij,nkj->nki", poses[ids, :3, :3] - old[:, :3, :3], corners[ids])
                 + (poses[ids, :3, 3] - old[:, :3, 3])[:, None]
+            )
             displaced = np.linalg.norm(moves, axis=2).max(axis=1) > eps_move_m
             for i in ids[((angle > eps_rot) | (shift > eps_trans)) & displaced]:
                 if max(volumes[i], applied_volume[i]) > threshold:
@@ -125,7 +130,7 @@ def box_corners(vog) -> np.ndarray:
 def last_half_slope(values: np.ndarray) -> float:
     n = len(values)
     x = np.arange(n // 2, n)
-    return float(np.polyfit(x, values[n // 2:], 1)[0]) if n >= 4 else float("nan")
+    return float(np.polyfit(x, values[n // 2 :], 1)[0]) if n >= 4 else float("nan")
 
 
 def evaluate(scene_name: str, path: Path, name: str, config: PipelineConfig, args) -> dict:
@@ -137,14 +142,24 @@ def evaluate(scene_name: str, path: Path, name: str, config: PipelineConfig, arg
     slopes = {key: last_half_slope(np.asarray(fig9[key])) for key in ("online_s", "virtual_s", "full_merge_s")}
     reapplied = np.asarray(fig9["reapplied"])
     thirds = [float(part.mean()) for part in np.array_split(reapplied, 3)]
-    report = {"config": name, "submaps": len(result.submaps), "scans": result.scans,
-              "auc": metrics["auc"], "auc_aligned": metrics["auc_aligned"],
-              "auc_vs_reference": metrics["auc_vs_reference"], "rmse_m": metrics["rmse_m"],
-              **result.metrics, "fig9": fig9, "fig9_last_half_slope_s_per_submap": slopes,
-              "online_slope_over_baseline": slopes["online_s"] / slopes["full_merge_s"],
-              "reapplied_per_submap_by_thirds": thirds, "pipeline_s": seconds,
-              "real_time_factor": result.duration_s / seconds, "probes": list(result.probes),
-              "thesis_fig3_3_3_4": mapper.samples}
+    report = {
+        "config": name,
+        "submaps": len(result.submaps),
+        "scans": result.scans,
+        "auc": metrics["auc"],
+        "auc_aligned": metrics["auc_aligned"],
+        "auc_vs_reference": metrics["auc_vs_reference"],
+        "rmse_m": metrics["rmse_m"],
+        **result.metrics,
+        "fig9": fig9,
+        "fig9_last_half_slope_s_per_submap": slopes,
+        "online_slope_over_baseline": slopes["online_s"] / slopes["full_merge_s"],
+        "reapplied_per_submap_by_thirds": thirds,
+        "pipeline_s": seconds,
+        "real_time_factor": result.duration_s / seconds,
+        "probes": list(result.probes),
+        "thesis_fig3_3_3_4": mapper.samples,
+    }
     report["loop_closures"].pop("errors", None)
     return report, result, mapper
 
@@ -160,17 +175,27 @@ def tradeoff(result, mapper, scene_name: str) -> list:
     auc_virtual = roc(result.vog.probability(centres), occupied).auc
     corners = box_corners(result.vog)
     rows = []
-    rules = [(1e-2, 2e-3, 0.0, False), (3e-2, 6e-3, 0.0, False), (1e-1, 2e-2, 0.0, False)] + \
-        [(1e-2, 2e-3, move, False) for move in (0.01, 0.02, 0.05, 0.1)] + [(1e-2, 2e-3, 0.0, True)]
+    rules = (
+        [(1e-2, 2e-3, 0.0, False), (3e-2, 6e-3, 0.0, False), (1e-1, 2e-2, 0.0, False)]
+        + [(1e-2, 2e-3, move, False) for move in (0.01, 0.02, 0.05, 0.1)]
+        + [(1e-2, 2e-3, 0.0, True)]
+    )
     for eps_rot, eps_trans, eps_move, frozen in rules:
         counts, applied = replay(mapper.steps, eps_rot, eps_trans, eps_move, corners, frozen)
         online = result.vog.view(poses=applied)  # equals the online map at voxel centres (invariant 6)
         auc = roc(online.probability(centres), occupied).auc
-        rows.append({"eps_rot": eps_rot, "eps_trans": eps_trans, "eps_move_m": eps_move,
-                     "eps_cov": "initialisation maximum" if frozen else "first ten now",
-                     "reapplied_total": int(counts.sum()),
-                     "reapplied_per_submap_by_thirds": [float(p.mean()) for p in np.array_split(counts, 3)],
-                     "auc_online": auc, "auc_cost": auc_virtual - auc})
+        rows.append(
+            {
+                "eps_rot": eps_rot,
+                "eps_trans": eps_trans,
+                "eps_move_m": eps_move,
+                "eps_cov": "initialisation maximum" if frozen else "first ten now",
+                "reapplied_total": int(counts.sum()),
+                "reapplied_per_submap_by_thirds": [float(p.mean()) for p in np.array_split(counts, 3)],
+                "auc_online": auc,
+                "auc_cost": auc_virtual - auc,
+            }
+        )
     return rows
 
 
@@ -187,31 +212,54 @@ def plot(scene_name: str, reports: list, tradeoff_rows: list, out: Path) -> None
         axes[0, 1].plot(n, f9["reapplied"], ".", color=colour, ms=3, label=report["config"])
         samples = report["thesis_fig3_3_3_4"]
         sub = [s["submaps"] for s in samples]
-        axes[1, 0].plot(sub, [100 * s["misclassified_virtual"] for s in samples], "o-", color=colour,
-                        label=f"virtual map, sequential query ({report['config']})")
-        axes[1, 0].plot(sub, [100 * s["misclassified_merged"] for s in samples], "x--", color=colour,
-                        label=f"merged (global) map ({report['config']})")
+        axes[1, 0].plot(
+            sub,
+            [100 * s["misclassified_virtual"] for s in samples],
+            "o-",
+            color=colour,
+            label=f"virtual map, sequential query ({report['config']})",
+        )
+        axes[1, 0].plot(
+            sub,
+            [100 * s["misclassified_merged"] for s in samples],
+            "x--",
+            color=colour,
+            label=f"merged (global) map ({report['config']})",
+        )
         if report["config"] == "paper":
             axes[1, 1].plot(sub, [s["point_query_s"] for s in samples], "o-", label="point queries")
             axes[1, 1].plot(sub, [s["line_query_s"] for s in samples], "o-", label="line queries (ray casts)")
             axes[1, 2].plot(n, report["fig4_18_step_s"], color="k", lw=0.8)
-    axes[0, 0].set(yscale="log", xlabel="submaps", ylabel="update time per submap, cumulative average [ms]",
-                   title="Fig. 9")
+    axes[0, 0].set(
+        yscale="log", xlabel="submaps", ylabel="update time per submap, cumulative average [ms]", title="Fig. 9"
+    )
     axes[0, 1].set(xlabel="submaps", ylabel="submaps re-applied per new submap", title="Algorithm 1's work")
     costs = [r["auc_cost"] for r in tradeoff_rows]
     totals = [r["reapplied_total"] for r in tradeoff_rows]
     axes[0, 2].plot(totals, costs, "o")
     for r, x, y in zip(tradeoff_rows, totals, costs):
-        label = f"eps_move {r['eps_move_m']}" if r["eps_move_m"] else f"eps_rot {r['eps_rot']:g}, eps_trans {r['eps_trans']:g}"
+        label = (
+            f"eps_move {r['eps_move_m']}"
+            if r["eps_move_m"]
+            else f"eps_rot {r['eps_rot']:g}, eps_trans {r['eps_trans']:g}"
+        )
         if r["eps_cov"] != "first ten now":
             label += ", eps_cov frozen"
         axes[0, 2].annotate(label, (x, y), fontsize=7)
     axes[0, 2].axhline(0.01, color="grey", ls=":")
-    axes[0, 2].set(xscale="symlog", xlabel="re-applications over the run", ylabel="AUC: virtual minus online",
-                   title="threshold trade-off (replayed)")
+    axes[0, 2].set(
+        xscale="symlog",
+        xlabel="re-applications over the run",
+        ylabel="AUC: virtual minus online",
+        title="threshold trade-off (replayed)",
+    )
     axes[1, 0].set(xlabel="submaps", ylabel="misclassified against the standard map [%]", title="thesis Fig. 3.3")
-    axes[1, 1].set(xlabel="submaps", ylabel="one planning iteration's queries [s]", title="thesis Fig. 3.4 (virtual map)")
-    axes[1, 2].set(xlabel="submaps", ylabel="baseline update time [s]", title="thesis Fig. 4.18: add, re-merge at closures")
+    axes[1, 1].set(
+        xlabel="submaps", ylabel="one planning iteration's queries [s]", title="thesis Fig. 3.4 (virtual map)"
+    )
+    axes[1, 2].set(
+        xlabel="submaps", ylabel="baseline update time [s]", title="thesis Fig. 4.18: add, re-merge at closures"
+    )
     for ax in axes.flat:
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
@@ -247,22 +295,34 @@ def main():
         for name, config in configs.items():
             report, result, mapper = evaluate(scene_name, path, name, config, args)
             f9 = report["fig9"]
-            merge = np.interp(f9["submaps"], [0] + [p["submaps"] for p in report["probes"]],
-                              [0] + [p["full_merge_s"] for p in report["probes"]])
+            merge = np.interp(
+                f9["submaps"],
+                [0] + [p["submaps"] for p in report["probes"]],
+                [0] + [p["full_merge_s"] for p in report["probes"]],
+            )
             closures = np.asarray(result.timings["closures"]) > 0
             report["fig4_18_step_s"] = (np.asarray(result.timings["add"]) + np.where(closures, merge, 0.0)).tolist()
             reports.append(report)
             if name == "literal":  # the replays add eps_move_m to the letter of Algorithm 1
                 rows = tradeoff(result, mapper, scene_name)
-            print(f"{scene_name} {name}: {report['submaps']} submaps, AUC {report['auc']}, "
-                  f"precision {report['loop_closures'].get('precision')} (against rigid truths "
-                  f"{report['loop_closures'].get('precision_rigid')}), base-pose error "
-                  f"{report['trajectory_rmse_m']}, re-applied by thirds {report['reapplied_per_submap_by_thirds']}, "
-                  f"online/baseline slope {report['online_slope_over_baseline']:.3f}, x real time "
-                  f"{report['real_time_factor']:.0f}", flush=True)
+            print(
+                f"{scene_name} {name}: {report['submaps']} submaps, AUC {report['auc']}, "
+                f"precision {report['loop_closures'].get('precision')} (against rigid truths "
+                f"{report['loop_closures'].get('precision_rigid')}), base-pose error "
+                f"{report['trajectory_rmse_m']}, re-applied by thirds {report['reapplied_per_submap_by_thirds']}, "
+                f"online/baseline slope {report['online_slope_over_baseline']:.3f}, x real time "
+                f"{report['real_time_factor']:.0f}",
+                flush=True,
+            )
         plot(scene_name, reports, rows, args.out)
-        document = {"scene": scene_name, "run": str(path), "machine": platform.processor() or platform.machine(),
-                    "python": platform.python_version(), "reports": reports, "tradeoff": rows}
+        document = {
+            "scene": scene_name,
+            "run": str(path),
+            "machine": platform.processor() or platform.machine(),
+            "python": platform.python_version(),
+            "reports": reports,
+            "tradeoff": rows,
+        }
         with open(args.out / f"paper_{scene_name}_cpu.json", "w") as f:
             json.dump(document, f, indent=1, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v))
 

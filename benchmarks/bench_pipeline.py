@@ -26,8 +26,8 @@ from vogjax.config.pipeline import TimingConfig
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import pose_from_xyz_yaw
 from vogjax.io.dataset import Dataset, DatasetWriter
-from vogjax.sensors import ProfilingSonar
 from vogjax.report.timing import planner_rays
+from vogjax.sensors import ProfilingSonar
 
 STEPS = {  # report name -> pipeline timing names (seconds summed over the run)
     "integration": ["integration"],
@@ -57,8 +57,14 @@ def main():
         if args.run is None:  # the lawn-mower survey flown until it has enough scans (about 2000 per lap)
             from vogjax.sim import simulate_run  # MuJoCo only when simulating
 
-            simulate_run("propeller", run_path, laps=scans // 1500 + 1, num_scans=scans,
-                         sensor=SonarConfig(range_noise_m=0.02), progress=False)
+            simulate_run(
+                "propeller",
+                run_path,
+                laps=scans // 1500 + 1,
+                num_scans=scans,
+                sensor=SonarConfig(range_noise_m=0.02),
+                progress=False,
+            )
         else:
             _prefix(args.run, run_path, scans)
         with Dataset(run_path) as run:
@@ -79,27 +85,43 @@ def main():
     survey_s = num_scans / SonarConfig().rate_hz
     ate = result.metrics["trajectory_rmse_m"]
     device = str(result.global_map.device)
-    report = {"machine": {"device": device, "cpu": platform.machine(), "python": platform.python_version()},
-              "scene": "propeller", "scans": num_scans, "submaps": result.vog.num_submaps,
-              "survey_s": survey_s, "seconds": seconds, "scans_per_s": num_scans / seconds,
-              "real_time_factor": survey_s / seconds, "steps_s": steps,
-              "steps_fraction": {k: v / seconds for k, v in steps.items()},
-              "reapplied_submaps": int(np.sum(result.timings["reapplied"])),
-              "loop_closures": {"accepted": len(result.loop_closures), "rejected": len(result.rejected)},
-              "trajectory_rmse_m": ate, "query_rays": args.rays, "query_s": query_s, "planner": planning}
+    report = {
+        "machine": {"device": device, "cpu": platform.machine(), "python": platform.python_version()},
+        "scene": "propeller",
+        "scans": num_scans,
+        "submaps": result.vog.num_submaps,
+        "survey_s": survey_s,
+        "seconds": seconds,
+        "scans_per_s": num_scans / seconds,
+        "real_time_factor": survey_s / seconds,
+        "steps_s": steps,
+        "steps_fraction": {k: v / seconds for k, v in steps.items()},
+        "reapplied_submaps": int(np.sum(result.timings["reapplied"])),
+        "loop_closures": {"accepted": len(result.loop_closures), "rejected": len(result.rejected)},
+        "trajectory_rmse_m": ate,
+        "query_rays": args.rays,
+        "query_s": query_s,
+        "planner": planning,
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     name = f"pipeline_{device.split(':')[0]}.json"
     (args.out / name).write_text(json.dumps(report, indent=2))
-    print(f"{num_scans} scans, {result.vog.num_submaps} submaps on {device}: {seconds:.1f} s, "
-          f"{num_scans / seconds:,.0f} scans/s = {survey_s / seconds:.0f}x real time (5 Hz sonar)")
+    print(
+        f"{num_scans} scans, {result.vog.num_submaps} submaps on {device}: {seconds:.1f} s, "
+        f"{num_scans / seconds:,.0f} scans/s = {survey_s / seconds:.0f}x real time (5 Hz sonar)"
+    )
     for key, value in sorted(steps.items(), key=lambda kv: -kv[1]):
         print(f"  {key:22s} {value:7.2f} s  {value / seconds:5.1%}")
     print(f"  {args.rays:,} planner rays on the final global map: {query_s * 1e3:.1f} ms")
-    print(f"  loop closures {len(result.loop_closures)} accepted, {len(result.rejected)} rejected; "
-          f"trajectory RMSE navigation {ate['navigation']:.2f} m, optimised {ate['optimized']:.2f} m")
+    print(
+        f"  loop closures {len(result.loop_closures)} accepted, {len(result.rejected)} rejected; "
+        f"trajectory RMSE navigation {ate['navigation']:.2f} m, optimised {ate['optimized']:.2f} m"
+    )
     for name_, arm in planning["plans"].items():
-        print(f"  planning iteration on the {name_:28s} median {arm['plan_s_median'] * 1e3:8.1f} ms, "
-              f"{arm['rays_median']:,.0f} gain rays, {arm['nodes_median']:.0f} nodes")
+        print(
+            f"  planning iteration on the {name_:28s} median {arm['plan_s_median'] * 1e3:8.1f} ms, "
+            f"{arm['rays_median']:,.0f} gain rays, {arm['nodes_median']:.0f} nodes"
+        )
     for name_, gain in planning["view_gain"].items():
         print(f"  view_gain on the {name_:7s} map: {gain['rays_per_s']:,.0f} rays/s ({gain['rays']:,} rays)")
     print(f"wrote {args.out / name}")
@@ -112,12 +134,16 @@ def planner_workload(result, poses_nav: np.ndarray, iterations: int = 10) -> dic
     sensor = ProfilingSonar(SonarConfig(range_noise_m=0.02))
     lo, hi = scene.bounds[0] + 1.0, scene.bounds[1] - 1.0
     picks = np.linspace(0, len(poses_nav) - 1, iterations).astype(int)
-    starts = [pose_from_xyz_yaw(*np.clip(poses_nav[i, :3, 3], lo, hi), np.arctan2(poses_nav[i, 1, 0], poses_nav[i, 0, 0]))
-              for i in picks]
+    starts = [
+        pose_from_xyz_yaw(*np.clip(poses_nav[i, :3, 3], lo, hi), np.arctan2(poses_nav[i, 1, 0], poses_nav[i, 0, 0]))
+        for i in picks
+    ]
     maps = {"global": result.global_map, "virtual": result.vog}
-    arms = {"global map": ("global", PlannerConfig(), iterations),
-            "global map, N_max 30": ("global", PlannerConfig(max_nodes=30), iterations),
-            "virtual map": ("virtual", PlannerConfig(), 3)}
+    arms = {
+        "global map": ("global", PlannerConfig(), iterations),
+        "global map, N_max 30": ("global", PlannerConfig(max_nodes=30), iterations),
+        "virtual map": ("virtual", PlannerConfig(), 3),
+    }
     plans = {}
     for name, (kind, config, count) in arms.items():
         nbv = planner.NbvPlanner(config, bounds=scene.bounds, sensor=sensor, region=scene.region())
@@ -126,10 +152,13 @@ def planner_workload(result, poses_nav: np.ndarray, iterations: int = 10) -> dic
         for T in starts[:count]:
             nbv.reset()  # every iteration a fresh tree: the same work for every map
             runs.append(nbv.plan(maps[kind], T))
-        plans[name] = {"iterations": count, "plan_s": [p.seconds for p in runs],
-                       "plan_s_median": float(np.median([p.seconds for p in runs])),
-                       "rays_median": float(np.median([p.rays for p in runs])),
-                       "nodes_median": float(np.median([p.nodes for p in runs]))}
+        plans[name] = {
+            "iterations": count,
+            "plan_s": [p.seconds for p in runs],
+            "plan_s_median": float(np.median([p.seconds for p in runs])),
+            "rays_median": float(np.median([p.rays for p in runs])),
+            "nodes_median": float(np.median([p.nodes for p in runs])),
+        }
     rng = np.random.default_rng(0)
     box = np.stack([scene.bounds[0] + 0.5, scene.bounds[1] - 0.5])
     views = np.array([pose_from_xyz_yaw(*rng.uniform(*box), rng.uniform(-np.pi, np.pi)) for _ in range(200)])
@@ -141,8 +170,12 @@ def planner_workload(result, poses_nav: np.ndarray, iterations: int = 10) -> dic
             start = time.perf_counter()
             gain = planner.view_gain(m, views, sensor, max_range_m=PlannerConfig().gain_range_m, region=scene.region())
             timed.append(time.perf_counter() - start)
-        gains[kind] = {"views": len(views), "rays": int(gain.rays), "seconds": float(np.median(timed)),
-                       "rays_per_s": gain.rays / float(np.median(timed))}
+        gains[kind] = {
+            "views": len(views),
+            "rays": int(gain.rays),
+            "seconds": float(np.median(timed)),
+            "rays_per_s": gain.rays / float(np.median(timed)),
+        }
     return {"plans": plans, "view_gain": gains}
 
 
@@ -151,8 +184,20 @@ def _prefix(path: Path, out: Path, scans: int) -> Path:
     with Dataset(path) as ds:
         batch = ds.read(0, scans)
         with DatasetWriter(out, batch.ranges.shape[1], ds.metadata) as writer:
-            writer.append(**{name: getattr(batch, name) for name in ("time_s", "pose_truth", "pose_nav", "sonar_origin",
-                                                                      "sonar_directions", "ranges", "no_return")})
+            writer.append(
+                **{
+                    name: getattr(batch, name)
+                    for name in (
+                        "time_s",
+                        "pose_truth",
+                        "pose_nav",
+                        "sonar_origin",
+                        "sonar_directions",
+                        "ranges",
+                        "no_return",
+                    )
+                }
+            )
     return out
 
 

@@ -46,8 +46,9 @@ def use_tree(root: Path) -> None:
         @classmethod
         def find_spec(cls, name, path=None, target=None):
             if name in mapping:
-                return importlib.util.spec_from_file_location(name, mapping[name] / "__init__.py",
-                                                              submodule_search_locations=[str(mapping[name])])
+                return importlib.util.spec_from_file_location(
+                    name, mapping[name] / "__init__.py", submodule_search_locations=[str(mapping[name])]
+                )
             return None
 
     sys.meta_path.insert(0, Finder)
@@ -118,15 +119,24 @@ class Profile:
             kernels.append({k: tuple(v) for k, v in self.kernels.items()})
             host.append({k: tuple(v) for k, v in self.host.items()})
         # process CPU time (all threads): the work done, whatever else shares the machine
-        return {"wall_s": float(np.median(walls)), "wall_runs_s": walls, "cpu_s": float(np.median(cpus)),
-                "kernels": _medians(kernels, "cpu_s" if not self.device.is_cuda else "device_s"),
-                "host": _medians(host, "wall_s")}
+        return {
+            "wall_s": float(np.median(walls)),
+            "wall_runs_s": walls,
+            "cpu_s": float(np.median(cpus)),
+            "kernels": _medians(kernels, "cpu_s" if not self.device.is_cuda else "device_s"),
+            "host": _medians(host, "wall_s"),
+        }
 
 
 def _medians(runs: list, field: str) -> dict:
     names = sorted({k for r in runs for k in r})
-    return {k: {"calls": int(np.median([r.get(k, (0, 0.0))[0] for r in runs])),
-                field: float(np.median([r.get(k, (0, 0.0))[1] for r in runs]))} for k in names}
+    return {
+        k: {
+            "calls": int(np.median([r.get(k, (0, 0.0))[0] for r in runs])),
+            field: float(np.median([r.get(k, (0, 0.0))[1] for r in runs])),
+        }
+        for k in names
+    }
 
 
 def copy_bandwidth() -> float:
@@ -152,6 +162,7 @@ def one_thread(parallel):
             yield
         finally:
             parallel.MIN_ITEMS_PER_PART = old
+
     return scope()
 
 
@@ -172,8 +183,10 @@ def profile(args) -> dict:
     prof = Profile(wp, device)
     sweep = analytic.orbit_sweep(analytic.pier(), args.scans)
     rays = sweep.points.shape[0]
-    store_hooks = [(blocks.BlockStore, "ensure_blocks", "BlockStore.ensure_blocks"),
-                   (blocks.BlockStore, "find", "BlockStore.find")]
+    store_hooks = [
+        (blocks.BlockStore, "ensure_blocks", "BlockStore.ensure_blocks"),
+        (blocks.BlockStore, "find", "BlockStore.find"),
+    ]
 
     def integrate():
         vmap = vj.VoxelMap(cfg, device=device)
@@ -181,27 +194,50 @@ def profile(args) -> dict:
         return vmap
 
     vmap = integrate()  # compiles and loads the kernels
-    hooks = [(integrator, "beams", "upload beams"), (integrator, "_boxes", "pass boxes"),
-             (integrator, "_mark", "mark (launch, threads)"), (integrator, "_apply", "apply (blocks, launch)"),
-             *store_hooks]
+    hooks = [
+        (integrator, "beams", "upload beams"),
+        (integrator, "_boxes", "pass boxes"),
+        (integrator, "_mark", "mark (launch, threads)"),
+        (integrator, "_apply", "apply (blocks, launch)"),
+        *store_hooks,
+    ]
     result = {"device": str(device), "integration": prof.run(integrate, args.repeats, hooks)}
     counts = wp.empty(rays, dtype=wp.int32, device=device)
     batch = integrator.beams(device, sweep.origins, sweep.points, sweep.scan_index.astype(np.int32))
 
     def walk():
-        wp.launch(integration.count_beam_voxels, dim=rays,
-                  inputs=[batch.origins, batch.points, batch.ray_scan, np.float64(cfg.max_range),
-                          np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)],
-                  outputs=[counts], device=device)
+        wp.launch(
+            integration.count_beam_voxels,
+            dim=rays,
+            inputs=[
+                batch.origins,
+                batch.points,
+                batch.ray_scan,
+                np.float64(cfg.max_range),
+                np.float64(cfg.voxel_size),
+                np.float64(1.0 / cfg.voxel_size),
+            ],
+            outputs=[counts],
+            device=device,
+        )
 
     walk()
     walks = [prof.run(walk, 1, []) for _ in range(args.repeats)]
-    walk_s = min(w["kernels"]["count_beam_voxels"].get("cpu_s", w["wall_s"]) if not device.is_cuda
-                 else w["wall_s"] for w in walks)
+    walk_s = min(
+        w["kernels"]["count_beam_voxels"].get("cpu_s", w["wall_s"]) if not device.is_cuda else w["wall_s"]
+        for w in walks
+    )
     steps = int(counts.numpy().astype(np.int64).sum())
     it = result["integration"]
-    it.update({"rays": rays, "voxel_steps": steps, "voxel_steps_per_s": steps / it["wall_s"],
-               "walk_only_s": walk_s, "walk_only_ns_per_step": walk_s / steps * 1e9})
+    it.update(
+        {
+            "rays": rays,
+            "voxel_steps": steps,
+            "voxel_steps_per_s": steps / it["wall_s"],
+            "walk_only_s": walk_s,
+            "walk_only_ns_per_step": walk_s / steps * 1e9,
+        }
+    )
     if not device.is_cuda:
         with one_thread(parallel):
             it["one_thread_wall_s"] = prof.run(integrate, args.repeats, [])["wall_s"]
@@ -212,25 +248,38 @@ def profile(args) -> dict:
     cast = lambda: vmap.raycast(origins, directions, 4.0)  # noqa: E731
     r = cast()
     ray_steps = int((r.num_free.astype(np.int64) + r.num_unknown + r.hit).sum())
-    hooks = [(blockmap, "ray_arguments", "ray_arguments (validate, normalise)"),
-             (blocks.BlockStore, "grid", "BlockStore.grid (cached)")]
+    hooks = [
+        (blockmap, "ray_arguments", "ray_arguments (validate, normalise)"),
+        (blocks.BlockStore, "grid", "BlockStore.grid (cached)"),
+    ]
     result["raycast"] = prof.run(cast, args.repeats, hooks)
-    result["raycast"].update({"rays": args.rays, "max_range_m": 4.0, "voxel_steps": ray_steps,
-                              "voxel_steps_per_s": ray_steps / result["raycast"]["wall_s"]})
+    result["raycast"].update(
+        {
+            "rays": args.rays,
+            "max_range_m": 4.0,
+            "voxel_steps": ray_steps,
+            "voxel_steps_per_s": ray_steps / result["raycast"]["wall_s"],
+        }
+    )
     if not device.is_cuda:
         with one_thread(parallel):
             result["raycast"]["one_thread_wall_s"] = prof.run(cast, args.repeats, [])["wall_s"]
 
-    hooks = [(globalmap, "submap_views", "submap views"), (parallel, "disjoint_order", "thread phases (host)"),
-             (globalmap.GlobalMap, "_contribute", "GlobalMap._contribute"),
-             (globalmap.GlobalMap, "_refresh", "GlobalMap._refresh"), *store_hooks]
+    hooks = [
+        (globalmap, "submap_views", "submap views"),
+        (parallel, "disjoint_order", "thread phases (host)"),
+        (globalmap.GlobalMap, "_contribute", "GlobalMap._contribute"),
+        (globalmap.GlobalMap, "_refresh", "GlobalMap._refresh"),
+        *store_hooks,
+    ]
     for world, build in (("merge_pier", build_vog), ("merge_dense", build_dense_vog)):
         vog = build(args.submaps, device)
         merge = lambda: vj.GlobalMap(cfg, device=device).merge(vog)  # noqa: E731
         pulls = merge()
         result[world] = prof.run(merge, args.repeats, hooks)
-        result[world].update({"submaps": args.submaps, "voxel_updates": pulls,
-                              "voxel_updates_per_s": pulls / result[world]["wall_s"]})
+        result[world].update(
+            {"submaps": args.submaps, "voxel_updates": pulls, "voxel_updates_per_s": pulls / result[world]["wall_s"]}
+        )
         if not device.is_cuda:
             with one_thread(parallel):
                 result[world]["one_thread_wall_s"] = prof.run(merge, args.repeats, [])["wall_s"]
@@ -260,13 +309,22 @@ def planning(prof: Profile, global_map, vog, repeats: int) -> dict:
             planner_.reset()
             plans.append(planner_.plan(global_map, T))
 
-    hooks = [(nbv, "clear_edges", "collision checks"), (nbv, "edge_counts", "edge gains"),
-             (seen, "_launch", "gain pass (sets, launch, read-back)"), (source.Source, "candidates", "view candidates"),
-             (source, "submap_views", "submap views")]
+    hooks = [
+        (nbv, "clear_edges", "collision checks"),
+        (nbv, "edge_counts", "edge gains"),
+        (seen, "_launch", "gain pass (sets, launch, read-back)"),
+        (source.Source, "candidates", "view candidates"),
+        (source, "submap_views", "submap views"),
+    ]
     out = prof.run(plan_all, repeats, hooks)
-    out.update({"iterations_per_run": len(starts), "rays_median": float(np.median([p.rays for p in plans])),
-                "nodes_median": float(np.median([p.nodes for p in plans])),
-                "plan_s_median": float(np.median([p.seconds for p in plans]))})
+    out.update(
+        {
+            "iterations_per_run": len(starts),
+            "rays_median": float(np.median([p.rays for p in plans])),
+            "nodes_median": float(np.median([p.nodes for p in plans])),
+            "plan_s_median": float(np.median([p.seconds for p in plans])),
+        }
+    )
     return out
 
 
@@ -301,10 +359,19 @@ def pass_sweep(args) -> dict:
                 integrate()
                 times.append(time.perf_counter() - start)
             scratch = sum(s.memory_bytes() for free in integrator._pool.values() for s in free)
-            rows.append({"scans_per_pass": per_pass, "seconds": float(np.median(times)),
-                         "rays_per_s": sweep.points.shape[0] / float(np.median(times)), "scratch_bytes": scratch})
-            print(f"  {per_pass:6d} scans per pass: {rows[-1]['seconds'] * 1e3:8.1f} ms, "
-                  f"{rows[-1]['rays_per_s'] / 1e6:6.1f} M rays/s, scratch {scratch / 2**20:7.1f} MiB", flush=True)
+            rows.append(
+                {
+                    "scans_per_pass": per_pass,
+                    "seconds": float(np.median(times)),
+                    "rays_per_s": sweep.points.shape[0] / float(np.median(times)),
+                    "scratch_bytes": scratch,
+                }
+            )
+            print(
+                f"  {per_pass:6d} scans per pass: {rows[-1]['seconds'] * 1e3:8.1f} ms, "
+                f"{rows[-1]['rays_per_s'] / 1e6:6.1f} M rays/s, scratch {scratch / 2**20:7.1f} MiB",
+                flush=True,
+            )
     finally:
         setattr(voxelmap, name, saved[0])
         setattr(voxelmap, budget, saved[1])
@@ -347,8 +414,11 @@ def totals(args) -> dict:
     origins = free[rng.integers(0, len(free), args.rays)]
     directions = rng.normal(size=origins.shape)
     vog = build_vog(args.submaps, args.device)
-    calls = {"integration_s": integrate, "raycast_s": lambda: vmap.raycast(origins, directions, 4.0),
-             "merge_pier_s": lambda: vj.GlobalMap(cfg, device=args.device).merge(vog)}
+    calls = {
+        "integration_s": integrate,
+        "raycast_s": lambda: vmap.raycast(origins, directions, 4.0),
+        "merge_pier_s": lambda: vj.GlobalMap(cfg, device=args.device).merge(vog),
+    }
     result = {name: timed(call) for name, call in calls.items()}
     from vogjax.maps import parallel  # both revisions split CPU launches there
 
@@ -360,23 +430,43 @@ def totals(args) -> dict:
 def baseline(args) -> dict:
     """This tree against revision args.baseline: totals() in alternating subprocesses."""
     with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.baseline], check=True,
-                                 capture_output=True).stdout
+        archive = subprocess.run(
+            ["git", "-C", str(ROOT), "archive", args.baseline], check=True, capture_output=True
+        ).stdout
         subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        command = [sys.executable, str(Path(__file__).resolve()), "--totals", "--scans", str(args.scans),
-                   "--submaps", str(args.submaps), "--rays", str(args.rays), "--repeats", str(args.repeats)]
+        command = [
+            sys.executable,
+            str(Path(__file__).resolve()),
+            "--totals",
+            "--scans",
+            str(args.scans),
+            "--submaps",
+            str(args.submaps),
+            "--rays",
+            str(args.rays),
+            "--repeats",
+            str(args.repeats),
+        ]
         runs = {"old": [], "new": []}
         for _ in range(args.rounds):
             for side, tree in (("old", tmp), ("new", str(ROOT))):
-                out = subprocess.run([*command, "--tree", tree], check=True, capture_output=True, text=True,
-                                     env={**os.environ, "TQDM_DISABLE": "1"}).stdout
+                out = subprocess.run(
+                    [*command, "--tree", tree],
+                    check=True,
+                    capture_output=True,
+                    text=True,
+                    env={**os.environ, "TQDM_DISABLE": "1"},
+                ).stdout
                 runs[side].append(json.loads(out.strip().splitlines()[-1]))
     keys = runs["new"][0].keys()
-    return {"revision": args.baseline, "rounds": args.rounds,
-            "old_s": {k: float(np.median([r[k] for r in runs["old"]])) for k in keys},
-            "new_s": {k: float(np.median([r[k] for r in runs["new"]])) for k in keys},
-            "speedup": {k: float(np.median([o[k] / n[k] for o, n in zip(runs["old"], runs["new"])])) for k in keys},
-            "runs": runs}
+    return {
+        "revision": args.baseline,
+        "rounds": args.rounds,
+        "old_s": {k: float(np.median([r[k] for r in runs["old"]])) for k in keys},
+        "new_s": {k: float(np.median([r[k] for r in runs["new"]])) for k in keys},
+        "speedup": {k: float(np.median([o[k] / n[k] for o, n in zip(runs["old"], runs["new"])])) for k in keys},
+        "runs": runs,
+    }
 
 
 def main():
@@ -389,8 +479,11 @@ def main():
     parser.add_argument("--rounds", type=int, default=3, help="alternations with --baseline")
     parser.add_argument("--baseline", default=None, help="git revision to compare with")
     parser.add_argument("--device", default=None)
-    parser.add_argument("--pass-sweep", default=None,
-                        help="comma-separated scans per pass: time integration with each (writes pass_sweep_DEVICE.json)")
+    parser.add_argument(
+        "--pass-sweep",
+        default=None,
+        help="comma-separated scans per pass: time integration with each (writes pass_sweep_DEVICE.json)",
+    )
     parser.add_argument("--totals", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--tree", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -410,11 +503,20 @@ def main():
 
     result = profile(args)
     device = result.pop("device")
-    result = {"machine": {"device": device, "cpu": platform.processor() or platform.machine(),
-                          "cores": os.cpu_count(), "warp": wp.__version__,
-                          "copy_bandwidth_bytes_per_s": copy_bandwidth(),
-                          "load_average": list(os.getloadavg())},
-              "scans": args.scans, "submaps": args.submaps, "repeats": args.repeats, **result}
+    result = {
+        "machine": {
+            "device": device,
+            "cpu": platform.processor() or platform.machine(),
+            "cores": os.cpu_count(),
+            "warp": wp.__version__,
+            "copy_bandwidth_bytes_per_s": copy_bandwidth(),
+            "load_average": list(os.getloadavg()),
+        },
+        "scans": args.scans,
+        "submaps": args.submaps,
+        "repeats": args.repeats,
+        **result,
+    }
     if args.baseline:
         result["baseline"] = baseline(args)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -426,8 +528,10 @@ def main():
 
 def _print(result: dict) -> None:
     m = result["machine"]
-    print(f"{m['device']}, {m['cores']} cores, copy bandwidth {m['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s, "
-          f"load {m['load_average'][0]:.1f}")
+    print(
+        f"{m['device']}, {m['cores']} cores, copy bandwidth {m['copy_bandwidth_bytes_per_s'] / 1e9:.1f} GB/s, "
+        f"load {m['load_average'][0]:.1f}"
+    )
     for section in ("integration", "raycast", "merge_pier", "merge_dense", "planning"):
         s = result[section]
         one = f", one thread {s['one_thread_wall_s'] * 1e3:.1f} ms" if "one_thread_wall_s" in s else ""
@@ -437,17 +541,23 @@ def _print(result: dict) -> None:
         for name, h in sorted(s["host"].items(), key=lambda kv: -kv[1]["wall_s"]):
             print(f"    host   {name:28s} {h['wall_s'] * 1e3:9.2f} ms  ({h['calls']} calls)")
     p = result["planning"]
-    print(f"planning: {p['plan_s_median'] * 1e3:.1f} ms per iteration (median), {p['rays_median']:,.0f} gain rays, "
-          f"{p['nodes_median']:.0f} nodes")
+    print(
+        f"planning: {p['plan_s_median'] * 1e3:.1f} ms per iteration (median), {p['rays_median']:,.0f} gain rays, "
+        f"{p['nodes_median']:.0f} nodes"
+    )
     it = result["integration"]
     mark = f", mark_beams {it['mark_ns_per_step']:.2f} ns/step (CPU)" if "mark_ns_per_step" in it else ""
-    print(f"integration: {it['voxel_steps'] / 1e6:.1f} M voxel steps, {it['voxel_steps_per_s'] / 1e6:.0f} M/s; "
-          f"plain walk alone {it['walk_only_ns_per_step']:.2f} ns/step{mark}")
+    print(
+        f"integration: {it['voxel_steps'] / 1e6:.1f} M voxel steps, {it['voxel_steps_per_s'] / 1e6:.0f} M/s; "
+        f"plain walk alone {it['walk_only_ns_per_step']:.2f} ns/step{mark}"
+    )
     if "baseline" in result:
         b = result["baseline"]
         for k, v in b["speedup"].items():
-            print(f"vs {b['revision']}: {k} old {b['old_s'][k] * 1e3:.1f} ms new {b['new_s'][k] * 1e3:.1f} ms "
-                  f"speedup {v:.2f}x")
+            print(
+                f"vs {b['revision']}: {k} old {b['old_s'][k] * 1e3:.1f} ms new {b['new_s'][k] * 1e3:.1f} ms "
+                f"speedup {v:.2f}x"
+            )
 
 
 if __name__ == "__main__":

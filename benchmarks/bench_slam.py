@@ -60,15 +60,22 @@ def loop_closure_timings(num_submaps: int, closures: int, rng) -> dict:
         pg.marginals(moved)
         times.append((time.perf_counter() - start, len(moved)))
     seconds = np.array([t for t, _ in times])
-    return {"submaps": num_submaps, "loop_closures": closures, "median_s": float(np.median(seconds)),
-            "max_s": float(seconds.max()), "mean_moved": float(np.mean([m for _, m in times]))}
+    return {
+        "submaps": num_submaps,
+        "loop_closures": closures,
+        "median_s": float(np.median(seconds)),
+        "max_s": float(seconds.max()),
+        "mean_moved": float(np.mean([m for _, m in times])),
+    }
 
 
 def icp_timings(rng, points=5000, repeats=5) -> dict:
-    walls = [np.c_[rng.uniform(0, 8, points // 4), rng.uniform(0, 6, points // 4), np.zeros(points // 4)],
-             np.c_[np.zeros(points // 4), rng.uniform(0, 6, points // 4), rng.uniform(0, 3, points // 4)],
-             np.c_[rng.uniform(0, 8, points // 4), np.zeros(points // 4), rng.uniform(0, 3, points // 4)],
-             np.c_[rng.uniform(3, 5, points // 4), rng.uniform(2, 4, points // 4), np.full(points // 4, 1.5)]]
+    walls = [
+        np.c_[rng.uniform(0, 8, points // 4), rng.uniform(0, 6, points // 4), np.zeros(points // 4)],
+        np.c_[np.zeros(points // 4), rng.uniform(0, 6, points // 4), rng.uniform(0, 3, points // 4)],
+        np.c_[rng.uniform(0, 8, points // 4), np.zeros(points // 4), rng.uniform(0, 3, points // 4)],
+        np.c_[rng.uniform(3, 5, points // 4), rng.uniform(2, 4, points // 4), np.full(points // 4, 1.5)],
+    ]
     target = np.concatenate(walls)
     motion = np.eye(4)
     motion[:3, 3] = [0.2, -0.1, 0.05]
@@ -80,8 +87,11 @@ def icp_timings(rng, points=5000, repeats=5) -> dict:
             start = time.perf_counter()
             result = slam.icp(source, target, np.eye(4), method=method)
             seconds.append(time.perf_counter() - start)
-        out[method] = {"median_s": float(np.median(seconds)), "iterations": result.iterations,
-                       "converged": result.converged}
+        out[method] = {
+            "median_s": float(np.median(seconds)),
+            "iterations": result.iterations,
+            "converged": result.converged,
+        }
     return out
 
 
@@ -89,8 +99,11 @@ def swath_cloud(rng, points: int) -> np.ndarray:
     """One point per occupied 0.1 m voxel of a seabed with posts, a submap's cloud in kind."""
     x, y = rng.uniform(0, 4, points), rng.uniform(0, 3, points)
     seabed = np.c_[x, y, 0.3 * np.sin(1.7 * x) + 0.2 * np.cos(2.3 * y)]
-    posts = np.c_[rng.integers(0, 4, points // 3) + rng.normal(0, 0.1, points // 3),
-                  rng.integers(0, 3, points // 3) + rng.normal(0, 0.1, points // 3), rng.uniform(0, 2, points // 3)]
+    posts = np.c_[
+        rng.integers(0, 4, points // 3) + rng.normal(0, 0.1, points // 3),
+        rng.integers(0, 3, points // 3) + rng.normal(0, 0.1, points // 3),
+        rng.uniform(0, 2, points // 3),
+    ]
     return np.unique(np.floor(np.concatenate([seabed, posts]) / 0.1), axis=0) * 0.1 + 0.05
 
 
@@ -123,8 +136,10 @@ def front_end_timings(device: str, batches: int = 8, candidates: int = 5, repeat
     (the same pose, or no ICP at all)."""
     rng = np.random.default_rng(1)
     out = {"device": device, "batches": batches, "candidates": candidates}
-    for name, config in (("translation", slam.LoopClosureConfig()),
-                         ("six_dof", slam.LoopClosureConfig(icp=slam.IcpConfig(free="all")))):
+    for name, config in (
+        ("translation", slam.LoopClosureConfig()),
+        ("six_dof", slam.LoopClosureConfig(icp=slam.IcpConfig(free="all"))),
+    ):
         work = front_end_batches(rng, batches, candidates, 0.0 if name == "translation" else 0.02)
         seconds = {None: [], device: []}
         alignments = {}
@@ -135,15 +150,24 @@ def front_end_timings(device: str, batches: int = 8, candidates: int = 5, repeat
                 alignments[where] = [loop_closure.correlative_then_icp(pairs, config, phases, where) for pairs in work]
                 if repeat:
                     seconds[where].append((time.perf_counter() - start, phases))
-        same = sum((a.icp is None and b.icp is None) or (a.icp is not None and b.icp is not None and
-                                                          np.array_equal(a.icp.T_target_source, b.icp.T_target_source))
-                   for host, dev in zip(alignments[None], alignments[device]) for a, b in zip(host, dev))
+        same = sum(
+            (a.icp is None and b.icp is None)
+            or (
+                a.icp is not None and b.icp is not None and np.array_equal(a.icp.T_target_source, b.icp.T_target_source)
+            )
+            for host, dev in zip(alignments[None], alignments[device])
+            for a, b in zip(host, dev)
+        )
         summary = {}
         for where, label in ((None, "host"), (device, "device")):
             total = [t for t, _ in seconds[where]]
-            summary[label] = {"median_s_per_batch": float(np.median(total)) / batches,
-                              **{f"{phase}_s_per_batch": float(np.median([p[phase] for _, p in seconds[where]])) / batches
-                                 for phase in ("correlative_search", "icp")}}
+            summary[label] = {
+                "median_s_per_batch": float(np.median(total)) / batches,
+                **{
+                    f"{phase}_s_per_batch": float(np.median([p[phase] for _, p in seconds[where]])) / batches
+                    for phase in ("correlative_search", "icp")
+                },
+            }
         summary["same_icp_results"] = f"{same} of {batches * candidates}"
         summary["host_over_device"] = summary["host"]["median_s_per_batch"] / summary["device"]["median_s_per_batch"]
         out[name] = summary
@@ -161,23 +185,33 @@ def main():
     path = args.out / f"slam_{'cuda' if device.startswith('cuda') else 'cpu'}.json"
     rng = np.random.default_rng(0)
     graphs = [loop_closure_timings(n, args.closures, rng) for n in (100, 300, 1000)]
-    result = {"machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": device},
-              "loop_closure_update": graphs, "icp": icp_timings(rng), "front_end": front_end_timings(device)}
+    result = {
+        "machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": device},
+        "loop_closure_update": graphs,
+        "icp": icp_timings(rng),
+        "front_end": front_end_timings(device),
+    }
     path.write_text(json.dumps(result, indent=2))
     for g in graphs:
-        print(f"{g['submaps']:5d} submaps: update + marginals of {g['mean_moved']:.0f} moved submaps "
-              f"per loop closure: median {g['median_s'] * 1e3:.1f} ms, max {g['max_s'] * 1e3:.1f} ms")
+        print(
+            f"{g['submaps']:5d} submaps: update + marginals of {g['mean_moved']:.0f} moved submaps "
+            f"per loop closure: median {g['median_s'] * 1e3:.1f} ms, max {g['max_s'] * 1e3:.1f} ms"
+        )
     for method in ("point_to_plane", "point_to_point_xyh"):
         print(f"ICP {method}, two 5k-point clouds: {result['icp'][method]['median_s'] * 1e3:.1f} ms")
     front = result["front_end"]
     for name in ("translation", "six_dof"):
         part = front[name]
-        print(f"front end ({name}), {front['candidates']} candidates per submap: host "
-              f"{part['host']['median_s_per_batch'] * 1e3:.1f} ms, {device} {part['device']['median_s_per_batch'] * 1e3:.1f} ms "
-              f"(search {part['host']['correlative_search_s_per_batch'] * 1e3:.1f} / "
-              f"{part['device']['correlative_search_s_per_batch'] * 1e3:.1f} ms, ICP {part['host']['icp_s_per_batch'] * 1e3:.1f} / "
-              f"{part['device']['icp_s_per_batch'] * 1e3:.1f} ms), host / device {part['host_over_device']:.2f}x, "
-              f"same ICP results {part['same_icp_results']}")
+        print(
+            f"front end ({name}), {front['candidates']} candidates per submap: host "
+            f"{part['host']['median_s_per_batch'] * 1e3:.1f} ms, {device} "
+            f"{part['device']['median_s_per_batch'] * 1e3:.1f} ms "
+            f"(search {part['host']['correlative_search_s_per_batch'] * 1e3:.1f} / "
+            f"{part['device']['correlative_search_s_per_batch'] * 1e3:.1f} ms, ICP "
+            f"{part['host']['icp_s_per_batch'] * 1e3:.1f} / "
+            f"{part['device']['icp_s_per_batch'] * 1e3:.1f} ms), host / device {part['host_over_device']:.2f}x, "
+            f"same ICP results {part['same_icp_results']}"
+        )
     print(f"wrote {path}")
 
 

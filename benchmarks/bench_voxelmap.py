@@ -57,16 +57,25 @@ def paired(repeats: int, ours, theirs) -> dict:
     runs = [(seconds(ours), seconds(ours), seconds(theirs), seconds(theirs)) for _ in range(repeats)]
     first_a, a, first_b, b = np.array(runs).T
     ratio, first_ratio = b / a, first_b / first_a
-    return {"vogjax_s": float(np.median(a)), "octomap_s": float(np.median(b)),
-            "vogjax_runs_s": a.tolist(), "octomap_runs_s": b.tolist(),
-            "speedup": float(np.median(ratio)), "speedup_range": [float(ratio.min()), float(ratio.max())],
-            "first_call": {"vogjax_runs_s": first_a.tolist(), "octomap_runs_s": first_b.tolist(),
-                           "speedup": float(np.median(first_ratio)),
-                           "speedup_range": [float(first_ratio.min()), float(first_ratio.max())]}}
+    return {
+        "vogjax_s": float(np.median(a)),
+        "octomap_s": float(np.median(b)),
+        "vogjax_runs_s": a.tolist(),
+        "octomap_runs_s": b.tolist(),
+        "speedup": float(np.median(ratio)),
+        "speedup_range": [float(ratio.min()), float(ratio.max())],
+        "first_call": {
+            "vogjax_runs_s": first_a.tolist(),
+            "octomap_runs_s": first_b.tolist(),
+            "speedup": float(np.median(first_ratio)),
+            "speedup_range": [float(first_ratio.min()), float(first_ratio.max())],
+        },
+    }
 
 
 def one_thread(fn):
     """fn with every launch on one CPU thread (the per-core figure)."""
+
     def run():
         old = parallel.MIN_ITEMS_PER_PART
         parallel.MIN_ITEMS_PER_PART = 1 << 62
@@ -74,6 +83,7 @@ def one_thread(fn):
             fn()
         finally:
             parallel.MIN_ITEMS_PER_PART = old
+
     return run
 
 
@@ -120,8 +130,11 @@ def main():
         for o, d in zip(origins, directions):
             tree.castRay(o, d, end, ignoreUnknownCells=True, maxRange=length)
 
-    raycast = {"rays": args.rays, "max_range_m": length,
-               **paired(args.repeats, lambda: vmap.raycast(origins, directions, length), octo_rays)}
+    raycast = {
+        "rays": args.rays,
+        "max_range_m": length,
+        **paired(args.repeats, lambda: vmap.raycast(origins, directions, length), octo_rays),
+    }
     # the same rays kept on the device (a planner in JAX or Warp): checks in a kernel, no transfers
     d_origins = wp.array(origins, dtype=wp.float64, device=vmap.device)
     d_directions = wp.array(directions, dtype=wp.float64, device=vmap.device)
@@ -129,43 +142,67 @@ def main():
     raycast["on_device"] = paired(args.repeats, lambda: vmap.raycast(d_origins, d_directions, length), octo_rays)
     if not vmap.device.is_cuda:  # per core: both sides on one thread
         integration["one_thread"] = paired(max(1, args.repeats // 2), one_thread(vog_integrate), octo_integrate)
-        raycast["one_thread"] = paired(max(1, args.repeats // 2),
-                                       one_thread(lambda: vmap.raycast(origins, directions, length)), octo_rays)
+        raycast["one_thread"] = paired(
+            max(1, args.repeats // 2), one_thread(lambda: vmap.raycast(origins, directions, length)), octo_rays
+        )
 
     result = {
-        "machine": {"device": str(vmap.device), "cpu": platform.processor() or platform.machine(),
-                    "cores": os.cpu_count(), "python": platform.python_version(), "warp": wp.__version__,
-                    "load_average": list(os.getloadavg())},  # a shared machine: how busy it was
-        "scene": "analytic pier, orbit sweep", "scans": args.scans, "beams_per_scan": 96,
-        "repeats": args.repeats, "integration": integration, "raycast": raycast,
+        "machine": {
+            "device": str(vmap.device),
+            "cpu": platform.processor() or platform.machine(),
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "warp": wp.__version__,
+            "load_average": list(os.getloadavg()),
+        },  # a shared machine: how busy it was
+        "scene": "analytic pier, orbit sweep",
+        "scans": args.scans,
+        "beams_per_scan": 96,
+        "repeats": args.repeats,
+        "integration": integration,
+        "raycast": raycast,
         "memory": {
-            "vogjax_bytes": vmap.memory_bytes(), "octomap_bytes": int(tree.memoryUsage()),
+            "vogjax_bytes": vmap.memory_bytes(),
+            "octomap_bytes": int(tree.memoryUsage()),
             "ratio": vmap.memory_bytes() / tree.memoryUsage(),
-            "observed_voxels": int(vmap.voxels()[0].shape[0]), "blocks": vmap.num_blocks,
+            "observed_voxels": int(vmap.voxels()[0].shape[0]),
+            "blocks": vmap.num_blocks,
         },
     }
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"voxelmap_{vmap.device.alias.split(':')[0]}.json"
     path.write_text(json.dumps(result, indent=2))
     i, r, m = result["integration"], result["raycast"], result["memory"]
-    print(f"device {vmap.device}: {args.scans} scans x 96 beams, {args.repeats} paired repeats (medians of "
-          "each side's second call; first calls in brackets)")
-    print(f"integration  vogjax {i['vogjax_rays_per_s']:12,.0f} rays/s  octomap "
-          f"{i['octomap_rays_per_s']:10,.0f} rays/s  speedup {i['speedup']:.1f}x "
-          f"({i['speedup_range'][0]:.1f}-{i['speedup_range'][1]:.1f}) [{i['first_call']['speedup']:.1f}x]")
-    print(f"100k rays    vogjax {r['vogjax_s'] * 1e3:9.1f} ms       octomap {r['octomap_s'] * 1e3:9.1f} ms"
-          f"       speedup {r['speedup']:.1f}x ({r['speedup_range'][0]:.1f}-{r['speedup_range'][1]:.1f}) "
-          f"[{r['first_call']['speedup']:.1f}x]")
+    print(
+        f"device {vmap.device}: {args.scans} scans x 96 beams, {args.repeats} paired repeats (medians of "
+        "each side's second call; first calls in brackets)"
+    )
+    print(
+        f"integration  vogjax {i['vogjax_rays_per_s']:12,.0f} rays/s  octomap "
+        f"{i['octomap_rays_per_s']:10,.0f} rays/s  speedup {i['speedup']:.1f}x "
+        f"({i['speedup_range'][0]:.1f}-{i['speedup_range'][1]:.1f}) [{i['first_call']['speedup']:.1f}x]"
+    )
+    print(
+        f"100k rays    vogjax {r['vogjax_s'] * 1e3:9.1f} ms       octomap {r['octomap_s'] * 1e3:9.1f} ms"
+        f"       speedup {r['speedup']:.1f}x ({r['speedup_range'][0]:.1f}-{r['speedup_range'][1]:.1f}) "
+        f"[{r['first_call']['speedup']:.1f}x]"
+    )
     d = r["on_device"]
-    print(f"  on device  vogjax {d['vogjax_s'] * 1e3:9.2f} ms       octomap {d['octomap_s'] * 1e3:9.1f} ms"
-          f"       speedup {d['speedup']:.1f}x ({d['speedup_range'][0]:.1f}-{d['speedup_range'][1]:.1f}) "
-          f"[{d['first_call']['speedup']:.1f}x]")
+    print(
+        f"  on device  vogjax {d['vogjax_s'] * 1e3:9.2f} ms       octomap {d['octomap_s'] * 1e3:9.1f} ms"
+        f"       speedup {d['speedup']:.1f}x ({d['speedup_range'][0]:.1f}-{d['speedup_range'][1]:.1f}) "
+        f"[{d['first_call']['speedup']:.1f}x]"
+    )
     for name, part in (("integration", i), ("100k rays", r)):
         if "one_thread" in part:
-            print(f"{name:12s} one thread: speedup {part['one_thread']['speedup']:.1f}x "
-                  f"[{part['one_thread']['first_call']['speedup']:.1f}x]")
-    print(f"memory       vogjax {m['vogjax_bytes'] / 2**20:9.1f} MiB      octomap "
-          f"{m['octomap_bytes'] / 2**20:9.1f} MiB      ratio {m['ratio']:.2f}")
+            print(
+                f"{name:12s} one thread: speedup {part['one_thread']['speedup']:.1f}x "
+                f"[{part['one_thread']['first_call']['speedup']:.1f}x]"
+            )
+    print(
+        f"memory       vogjax {m['vogjax_bytes'] / 2**20:9.1f} MiB      octomap "
+        f"{m['octomap_bytes'] / 2**20:9.1f} MiB      ratio {m['ratio']:.2f}"
+    )
     print(f"wrote {path}")
 
 

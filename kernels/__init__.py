@@ -15,8 +15,21 @@ own the arrays and launch them. The planner's three modules are imported on firs
 (`vogjax.kernels.view_gain`, or `vogjax.planner`), the others with this package.
 """
 
-from . import (accumulation, confidence, confidence_queries, fixed_point, ground_truth, hashing, integration, queries,
-               ranging, registration, submap_view, traversal, virtual)
+from . import (
+    accumulation,
+    confidence,
+    confidence_queries,
+    fixed_point,
+    ground_truth,
+    hashing,
+    integration,
+    queries,
+    ranging,
+    registration,
+    submap_view,
+    traversal,
+    virtual,
+)
 
 _LAZY = ("planner_collision", "planner_maps", "view_gain")
 
@@ -29,6 +42,21 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["accumulation", "confidence", "confidence_queries", "fixed_point", "ground_truth", "hashing", "integration",
-           "planner_collision", "planner_maps", "queries", "ranging", "registration", "submap_view", "traversal",
-           "view_gain", "virtual"]
+__all__ = [
+    "accumulation",
+    "confidence",
+    "confidence_queries",
+    "fixed_point",
+    "ground_truth",
+    "hashing",
+    "integration",
+    "planner_collision",
+    "planner_maps",
+    "queries",
+    "ranging",
+    "registration",
+    "submap_view",
+    "traversal",
+    "view_gain",
+    "virtual",
+]

@@ -38,8 +38,14 @@ def block_box(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d, resol
     """First and last global voxel index per axis whose centre may lie in the block's
     transformed box, with a voxel of margin against round-off."""
     half_edge = wp.float64(4.0) * resolution
-    centre = rotation * (wp.vec3d(wp.float64(block[0] * 8 + 4), wp.float64(block[1] * 8 + 4),
-                                  wp.float64(block[2] * 8 + 4)) * resolution) + translation
+    centre = (
+        rotation
+        * (
+            wp.vec3d(wp.float64(block[0] * 8 + 4), wp.float64(block[1] * 8 + 4), wp.float64(block[2] * 8 + 4))
+            * resolution
+        )
+        + translation
+    )
     half = wp.float64(0.5)
     first = wp.vec3i(0, 0, 0)
     last = wp.vec3i(0, 0, 0)
@@ -47,8 +53,7 @@ def block_box(block: wp.vec3i, rotation: wp.mat33d, translation: wp.vec3d, resol
         extent = (wp.abs(rotation[axis, 0]) + wp.abs(rotation[axis, 1]) + wp.abs(rotation[axis, 2])) * half_edge
         # centre (k + 0.5) s in [lo, hi]  <=>  lo / s - 0.5 <= k <= hi / s - 0.5
         first[axis] = int(wp.floor((centre[axis] - extent) / resolution - half)) - 1
-        last[axis] = wp.min(int(wp.floor((centre[axis] + extent) / resolution - half)) + 1,
-                            first[axis] + SPAN - 1)
+        last[axis] = wp.min(int(wp.floor((centre[axis] + extent) / resolution - half)) + 1, first[axis] + SPAN - 1)
     return first, last
 
 
@@ -67,13 +72,16 @@ class Columns:
 
 
 @wp.func
-def columns_at(i: int, j: int, block: wp.vec3i, rotation_t: wp.mat33d, translation: wp.vec3d,
-               resolution: wp.float64) -> Columns:
+def columns_at(
+    i: int, j: int, block: wp.vec3i, rotation_t: wp.mat33d, translation: wp.vec3d, resolution: wp.float64
+) -> Columns:
     c = Columns()
     half = wp.float64(0.5)
     margin = wp.float64(1e-6) * resolution
-    c.base = rotation_t * (wp.vec3d((wp.float64(i) + half) * resolution,
-                                    (wp.float64(j) + half) * resolution, wp.float64(0.0)) - translation)
+    c.base = rotation_t * (
+        wp.vec3d((wp.float64(i) + half) * resolution, (wp.float64(j) + half) * resolution, wp.float64(0.0))
+        - translation
+    )
     c.step = wp.vec3d(rotation_t[0, 1], rotation_t[1, 1], rotation_t[2, 1]) * resolution
     for axis in range(3):
         c.lo[axis] = wp.float64(block[axis] * 8) * resolution - margin
@@ -118,9 +126,16 @@ def box_offset(g: wp.vec3i, first_block: wp.vec3i) -> int:
 
 
 @wp.func
-def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
-                 translation: wp.vec3d, resolution: wp.float64, inv_resolution: wp.float64,
-                 local_log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
+def pulled_value(
+    g: wp.vec3i,
+    block: wp.vec3i,
+    slot: int,
+    rotation_t: wp.mat33d,
+    translation: wp.vec3d,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    local_log_odds: wp.array(dtype=wp.float32),
+) -> wp.float32:
     """Value global voxel g pulls from submap block `block` (NaN: not from it, or unobserved)."""
     local = pull_voxel(voxel_centre(g, resolution), rotation_t, translation, inv_resolution)
     if not same_voxel(block_of(local), block):
@@ -129,12 +144,17 @@ def pulled_value(g: wp.vec3i, block: wp.vec3i, slot: int, rotation_t: wp.mat33d,
 
 
 @wp.func
-def row_block(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
-              row_slot: wp.array(dtype=wp.int32), row: int) -> wp.vec3i:
+def row_block(
+    sources: wp.array(dtype=SubmapView),
+    row_source: wp.array(dtype=wp.int32),
+    row_slot: wp.array(dtype=wp.int32),
+    row: int,
+) -> wp.vec3i:
     """The submap block of a row (its slot's key unpacked); x = -2^30 for a released slot."""
     source_index = row_source[row]
-    local_slot_keys = wp.array(ptr=sources[source_index].slot_keys, shape=(sources[source_index].block_capacity,),
-                               dtype=wp.int64)
+    local_slot_keys = wp.array(
+        ptr=sources[source_index].slot_keys, shape=(sources[source_index].block_capacity,), dtype=wp.int64
+    )
     key = local_slot_keys[row_slot[row]]
     if key == EMPTY_KEY:
         return wp.vec3i(-(1 << 30), 0, 0)
@@ -147,9 +167,15 @@ def row_block(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp
 
 
 @wp.kernel
-def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
-                        row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
-                        inv_resolution: wp.float64, row_masks: wp.array(dtype=wp.uint64)):
+def collect_pull_blocks(
+    sources: wp.array(dtype=SubmapView),
+    row_source: wp.array(dtype=wp.int32),
+    row_slot: wp.array(dtype=wp.int32),
+    first_row: int,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    row_masks: wp.array(dtype=wp.uint64),
+):
     """row_masks[row] |= the global blocks a row's submap block contributes to: bit `offset`
     (box_offset) of each among the 4x4x4 blocks of the row's box."""
     b, u = wp.tid()
@@ -177,16 +203,22 @@ def collect_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.arra
             offset = box_offset(g, first_block)
             bit = wp.uint64(1) << wp.uint64(offset)
             if (written & bit) == wp.uint64(0):
-                if observed(pulled_value(g, block, slot, rotation_t, translation, resolution,
-                                             inv_resolution, local_log_odds)):
+                if observed(
+                    pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution, local_log_odds)
+                ):
                     written = written | bit
     if written != wp.uint64(0):
         wp.atomic_or(row_masks, row, written)
 
 
 @wp.kernel
-def row_spans(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
-              row_slot: wp.array(dtype=wp.int32), resolution: wp.float64, spans: wp.array(dtype=wp.vec4i)):
+def row_spans(
+    sources: wp.array(dtype=SubmapView),
+    row_source: wp.array(dtype=wp.int32),
+    row_slot: wp.array(dtype=wp.int32),
+    resolution: wp.float64,
+    spans: wp.array(dtype=wp.vec4i),
+):
     """The global blocks a row may write to, as x and y block ranges (lowest, highest)."""
     row = wp.tid()
     block = row_block(sources, row_source, row_slot, row)
@@ -199,10 +231,15 @@ def row_spans(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp
 
 
 @wp.kernel
-def list_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
-                     row_slot: wp.array(dtype=wp.int32), resolution: wp.float64,
-                     row_masks: wp.array(dtype=wp.uint64), row_start: wp.array(dtype=wp.int32),
-                     keys: wp.array(dtype=wp.int64)):
+def list_pull_blocks(
+    sources: wp.array(dtype=SubmapView),
+    row_source: wp.array(dtype=wp.int32),
+    row_slot: wp.array(dtype=wp.int32),
+    resolution: wp.float64,
+    row_masks: wp.array(dtype=wp.uint64),
+    row_start: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int64),
+):
     """The packed keys of every row's global blocks, row after row, by offset within a row: the
     block of bit b of row r is keys[row_start[r] + (set bits of row_masks[r] below b)]."""
     row = wp.tid()
@@ -221,12 +258,22 @@ def list_pull_blocks(sources: wp.array(dtype=SubmapView), row_source: wp.array(d
 
 
 @wp.kernel
-def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(dtype=wp.int32),
-                     row_slot: wp.array(dtype=wp.int32), first_row: int, resolution: wp.float64,
-                     inv_resolution: wp.float64, sign: int, row_masks: wp.array(dtype=wp.uint64),
-                     row_start: wp.array(dtype=wp.int32), global_slots: wp.array(dtype=wp.int32), part: int,
-                     sums: wp.array(dtype=wp.int64), counts: wp.array(dtype=wp.int32),
-                     pulls: wp.array(dtype=wp.int32)):
+def accumulate_pulls(
+    sources: wp.array(dtype=SubmapView),
+    row_source: wp.array(dtype=wp.int32),
+    row_slot: wp.array(dtype=wp.int32),
+    first_row: int,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    sign: int,
+    row_masks: wp.array(dtype=wp.uint64),
+    row_start: wp.array(dtype=wp.int32),
+    global_slots: wp.array(dtype=wp.int32),
+    part: int,
+    sums: wp.array(dtype=wp.int64),
+    counts: wp.array(dtype=wp.int32),
+    pulls: wp.array(dtype=wp.int32),
+):
     """Add (sign +1) or remove (sign -1) a row's submap block values at every voxel pulling them.
     global_slots: the map slot of each key of list_pull_blocks."""
     b, u = wp.tid()
@@ -253,8 +300,7 @@ def accumulate_pulls(sources: wp.array(dtype=SubmapView), row_source: wp.array(d
         base = base + columns.step
         for k in range(ks[0], ks[1] + 1):
             g = wp.vec3i(i, j, k)
-            value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution,
-                                 local_log_odds)
+            value = pulled_value(g, block, slot, rotation_t, translation, resolution, inv_resolution, local_log_odds)
             if observed(value):
                 below = mask & ((wp.uint64(1) << wp.uint64(box_offset(g, first_block))) - wp.uint64(1))
                 global_slot = global_slots[first_key + wp.bit_count(below)]
@@ -277,9 +323,14 @@ def flag_slots(slots: wp.array(dtype=wp.int32), flags: wp.array(dtype=wp.int32))
 
 
 @wp.kernel
-def refresh_log_odds(slots: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.int64),
-                     counts: wp.array(dtype=wp.int32), clamp_min: wp.float32, clamp_max: wp.float32,
-                     log_odds: wp.array(dtype=wp.float32)):
+def refresh_log_odds(
+    slots: wp.array(dtype=wp.int32),
+    sums: wp.array(dtype=wp.int64),
+    counts: wp.array(dtype=wp.int32),
+    clamp_min: wp.float32,
+    clamp_max: wp.float32,
+    log_odds: wp.array(dtype=wp.float32),
+):
     """The queryable log-odds layer of the given global blocks, from their sums and counts."""
     tid = wp.tid()
     index = slots[tid // BLOCK_VOXELS] * BLOCK_VOXELS + tid % BLOCK_VOXELS
@@ -287,8 +338,9 @@ def refresh_log_odds(slots: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def flag_unused_blocks(slots: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
-                       unused: wp.array(dtype=wp.int32)):
+def flag_unused_blocks(
+    slots: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32), unused: wp.array(dtype=wp.int32)
+):
     tid = wp.tid()
     base = slots[tid] * BLOCK_VOXELS
     flag = int(1)

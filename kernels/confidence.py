@@ -50,8 +50,7 @@ import types
 import numpy as np
 import warp as wp
 
-from .hashing import (BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, hash_key, index_in_block, observed,
-                      pack_block)
+from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, find_voxel_slot, hash_key, index_in_block, observed, pack_block
 from .traversal import FAR, first_boundary, holds_chord, ray_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -102,8 +101,14 @@ def density(u: wp.float64, sigma: wp.float64) -> wp.float64:
 
 
 @wp.func
-def chord_likelihood(u_in: wp.float64, tail_in: wp.float64, u_out: wp.float64, tail_out: wp.float64,
-                     length: wp.float64, sigma: wp.float64) -> wp.float64:
+def chord_likelihood(
+    u_in: wp.float64,
+    tail_in: wp.float64,
+    u_out: wp.float64,
+    tail_out: wp.float64,
+    length: wp.float64,
+    sigma: wp.float64,
+) -> wp.float64:
     """L_c of a return with the bounce anywhere on the chord: the noise density averaged over
     it, u = (z - t) / sigma at its ends (u_out < u_in)."""
     if length < SHORT_CHORD_SIGMAS * sigma:
@@ -123,9 +128,11 @@ def no_return_likelihood(t_cause: wp.float64, sigma: wp.float64, max_range: wp.f
 @wp.func
 def centre_distance(voxel: wp.vec3i, origin: wp.vec3d, resolution: wp.float64) -> wp.float64:
     half = wp.float64(0.5)
-    c = wp.vec3d((wp.float64(voxel[0]) + half) * resolution - origin[0],
-                 (wp.float64(voxel[1]) + half) * resolution - origin[1],
-                 (wp.float64(voxel[2]) + half) * resolution - origin[2])
+    c = wp.vec3d(
+        (wp.float64(voxel[0]) + half) * resolution - origin[0],
+        (wp.float64(voxel[1]) + half) * resolution - origin[1],
+        (wp.float64(voxel[2]) + half) * resolution - origin[2],
+    )
     return wp.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
 
 
@@ -142,11 +149,17 @@ def planes_after(t: wp.float64, delta: wp.float64, planes: int, length: wp.float
 
 
 @wp.kernel
-def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                     lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
-                     inv_resolution: wp.float64, recent: wp.array(dtype=wp.int64),
-                     block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32),
-                     step_bounds: wp.array(dtype=wp.int32)):
+def list_cone_blocks(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    lengths: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    recent: wp.array(dtype=wp.int64),
+    block_keys: wp.array2d(dtype=wp.int64),
+    block_counts: wp.array(dtype=wp.int32),
+    step_bounds: wp.array(dtype=wp.int32),
+):
     """Per beam: the blocks its cone's voxels lie in, in walk order, and a bound on how many
     voxels the cone has (exact unless two axes cross voxel planes at the same distance).
     block_keys[tid, n] holds the n-th block, or EMPTY_KEY where `recent` (a small table of
@@ -213,14 +226,25 @@ def list_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dty
 
 
 @wp.kernel
-def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                    lengths: wp.array(dtype=wp.float64), ranges: wp.array(dtype=wp.float64),
-                    returned: wp.array(dtype=wp.int32), first_step: wp.array(dtype=wp.int32),
-                    resolution: wp.float64, inv_resolution: wp.float64, sigma: wp.float64,
-                    max_range: wp.float64, at_centre: int, table_keys: wp.array(dtype=wp.int64),
-                    table_slots: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                    step_likelihood: wp.array(dtype=wp.float64), filled: wp.array(dtype=wp.int32),
-                    band_start: wp.array(dtype=wp.int32)):
+def fill_cone_steps(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    lengths: wp.array(dtype=wp.float64),
+    ranges: wp.array(dtype=wp.float64),
+    returned: wp.array(dtype=wp.int32),
+    first_step: wp.array(dtype=wp.int32),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    sigma: wp.float64,
+    max_range: wp.float64,
+    at_centre: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    step_voxel: wp.array(dtype=wp.int32),
+    step_likelihood: wp.array(dtype=wp.float64),
+    filled: wp.array(dtype=wp.int32),
+    band_start: wp.array(dtype=wp.int32),
+):
     """Per beam, its cone's blocks listed by `list_cone_blocks`: each cone voxel's index in the
     voxel pool and its likelihood L_c, at the beam's steps [first_step[tid], first_step[tid + 1])
     (room for list_cone_blocks' bound); `filled` counts those written, `band_start` those before
@@ -296,10 +320,15 @@ def fill_cone_steps(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtyp
 
 
 @wp.kernel
-def compact_cone_steps(first_step: wp.array(dtype=wp.int32), filled: wp.array(dtype=wp.int32),
-                       new_first_step: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                       step_likelihood: wp.array(dtype=wp.float64), out_voxel: wp.array(dtype=wp.int32),
-                       out_likelihood: wp.array(dtype=wp.float64)):
+def compact_cone_steps(
+    first_step: wp.array(dtype=wp.int32),
+    filled: wp.array(dtype=wp.int32),
+    new_first_step: wp.array(dtype=wp.int32),
+    step_voxel: wp.array(dtype=wp.int32),
+    step_likelihood: wp.array(dtype=wp.float64),
+    out_voxel: wp.array(dtype=wp.int32),
+    out_likelihood: wp.array(dtype=wp.float64),
+):
     """Per beam: its filled steps moved back to back, from first_step[tid] to new_first_step[tid]."""
     tid = wp.tid()
     source = first_step[tid]
@@ -319,10 +348,18 @@ def mean_or_prior(mean: wp.array(dtype=wp.float32), voxel: int, prior_mean: wp.f
 
 
 @wp.func
-def beam_tails(lo: int, hi: int, tail: wp.float64, step_voxel: wp.array(dtype=wp.int32),
-               step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
-               prior_mean: wp.float32, base: int, step_mean: wp.array(dtype=wp.float32),
-               step_tail: wp.array(dtype=wp.float64)) -> wp.float64:
+def beam_tails(
+    lo: int,
+    hi: int,
+    tail: wp.float64,
+    step_voxel: wp.array(dtype=wp.int32),
+    step_likelihood: wp.array(dtype=wp.float64),
+    mean: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    base: int,
+    step_mean: wp.array(dtype=wp.float32),
+    step_tail: wp.array(dtype=wp.float64),
+) -> wp.float64:
     """Backward over steps [lo, hi) of a beam's cone, `tail` the likelihood of the reading caused
     beyond step hi - 1: each voxel's mean before the scan and S_i, the likelihood of the reading
     caused beyond it, at scratch index i - base. Returns S_{lo - 1}."""
@@ -353,8 +390,14 @@ def spurious_term(hit: bool, spurious: wp.float64, spurious_likelihood: wp.float
 
 
 @wp.func
-def cause_factor(likelihood: wp.float64, tail: wp.float64, before: wp.float64, reach: wp.float64,
-                 keep: wp.float64, floor_term: wp.float64) -> wp.vec2f:
+def cause_factor(
+    likelihood: wp.float64,
+    tail: wp.float64,
+    before: wp.float64,
+    reach: wp.float64,
+    keep: wp.float64,
+    floor_term: wp.float64,
+) -> wp.vec2f:
     """(r0, r1): the reading's likelihood if the voxel were empty, full, over the larger one."""
     f0 = keep * (before + reach * tail) + floor_term
     f1 = keep * (before + reach * likelihood) + floor_term
@@ -370,12 +413,20 @@ def cause_factor(likelihood: wp.float64, tail: wp.float64, before: wp.float64, r
 
 
 @wp.kernel
-def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int32),
-                         returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                         step_likelihood: wp.array(dtype=wp.float64), mean: wp.array(dtype=wp.float32),
-                         prior_mean: wp.float32, spurious: wp.float64, spurious_likelihood: wp.float64,
-                         step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
-                         step_factor: wp.array(dtype=wp.vec2f)):
+def compute_beam_factors(
+    first_beam: int,
+    beam_first_step: wp.array(dtype=wp.int32),
+    returned: wp.array(dtype=wp.int32),
+    step_voxel: wp.array(dtype=wp.int32),
+    step_likelihood: wp.array(dtype=wp.float64),
+    mean: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    spurious: wp.float64,
+    spurious_likelihood: wp.float64,
+    step_mean: wp.array(dtype=wp.float32),
+    step_tail: wp.array(dtype=wp.float64),
+    step_factor: wp.array(dtype=wp.vec2f),
+):
     """The factors of beams first_beam + tid (one scan's beams: they all read the means before it)."""
     tid = wp.tid()
     beam = first_beam + tid
@@ -396,17 +447,24 @@ def compute_beam_factors(first_beam: int, beam_first_step: wp.array(dtype=wp.int
 
 
 @wp.kernel
-def sort_keys_of_steps(step_voxel: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
-                       order: wp.array(dtype=wp.int32)):
+def sort_keys_of_steps(
+    step_voxel: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32)
+):
     tid = wp.tid()
     keys[tid] = step_voxel[tid]
     order[tid] = tid
 
 
 @wp.kernel
-def flag_scan_groups(keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
-                     step_scan: wp.array(dtype=wp.int32), no_group: int, group_scan: wp.array(dtype=wp.int32),
-                     group_entry: wp.array(dtype=wp.int32), scan_groups: wp.array(dtype=wp.int32)):
+def flag_scan_groups(
+    keys: wp.array(dtype=wp.int32),
+    order: wp.array(dtype=wp.int32),
+    step_scan: wp.array(dtype=wp.int32),
+    no_group: int,
+    group_scan: wp.array(dtype=wp.int32),
+    group_entry: wp.array(dtype=wp.int32),
+    scan_groups: wp.array(dtype=wp.int32),
+):
     """A pass's steps sorted (stably) by voxel: the first entry of each (voxel, scan) run starts a
     group, keyed by its scan (no_group for the other entries, which sort after every scan);
     scan_groups counts each scan's groups."""
@@ -548,9 +606,17 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         return wp.vec2f(mean, bin_sum(wp.cw_mul(b, wp.cw_mul(d, d))))
 
     @wp.func
-    def finish_scan(bins: wp.array(dtype=Bins), voxel: int, free_powers: wp.array(dtype=Bins64), free: int,
-                    floor: wp.float32, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
-                    with_variance: int, resets: wp.array(dtype=wp.int32)):
+    def finish_scan(
+        bins: wp.array(dtype=Bins),
+        voxel: int,
+        free_powers: wp.array(dtype=Bins64),
+        free: int,
+        floor: wp.float32,
+        mean: wp.array(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+        with_variance: int,
+        resets: wp.array(dtype=wp.int32),
+    ):
         """End of a scan for a voxel it reached: its `free` passes not yet applied, then bins to
         sum 1, none below `floor`, sum 1 again; the new mean (the next scan's beams read it),
         and the new variance if `with_variance` (else variance_of_blocks computes it from the
@@ -575,16 +641,29 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             mean[voxel] = mean_of(b)
 
     @wp.kernel(module=module)
-    def integrate_in_order(scan_end_beam: wp.array(dtype=wp.int32), beam_first_step: wp.array(dtype=wp.int32),
-                           beam_filled: wp.array(dtype=wp.int32), beam_band: wp.array(dtype=wp.int32),
-                           returned: wp.array(dtype=wp.int32), step_voxel: wp.array(dtype=wp.int32),
-                           step_likelihood: wp.array(dtype=wp.float64), prior_mean: wp.float32,
-                           spurious: wp.float64, spurious_likelihood: wp.float64, floor: wp.float32,
-                           step_mean: wp.array(dtype=wp.float32), step_tail: wp.array(dtype=wp.float64),
-                           touched: wp.array(dtype=wp.int32), free_powers: wp.array(dtype=Bins64),
-                           with_variance: int, bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                           variance: wp.array(dtype=wp.float32), pending: wp.array(dtype=wp.uint8),
-                           resets: wp.array(dtype=wp.int32)):
+    def integrate_in_order(
+        scan_end_beam: wp.array(dtype=wp.int32),
+        beam_first_step: wp.array(dtype=wp.int32),
+        beam_filled: wp.array(dtype=wp.int32),
+        beam_band: wp.array(dtype=wp.int32),
+        returned: wp.array(dtype=wp.int32),
+        step_voxel: wp.array(dtype=wp.int32),
+        step_likelihood: wp.array(dtype=wp.float64),
+        prior_mean: wp.float32,
+        spurious: wp.float64,
+        spurious_likelihood: wp.float64,
+        floor: wp.float32,
+        step_mean: wp.array(dtype=wp.float32),
+        step_tail: wp.array(dtype=wp.float64),
+        touched: wp.array(dtype=wp.int32),
+        free_powers: wp.array(dtype=Bins64),
+        with_variance: int,
+        bins: wp.array(dtype=Bins),
+        mean: wp.array(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+        pending: wp.array(dtype=wp.uint8),
+        resets: wp.array(dtype=wp.int32),
+    ):
         """A pass of scans, one after the other, in one thread (the CPU path): the arithmetic of
         compute_beam_factors and apply_scan_groups, in the same order per voxel. A beam's cone is
         its first beam_filled steps from beam_first_step (its room may hold more). pending[v] is 0
@@ -609,8 +688,18 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 # uncounted in the rare case the bounds fail.
                 band = lo + beam_band[beam]
                 # one beam's scratch at a time, so it stays in the cache
-                tail = beam_tails(band, hi, tail_beyond_cone(hit), step_voxel, step_likelihood, mean, prior_mean,
-                                  lo, step_mean, step_tail)
+                tail = beam_tails(
+                    band,
+                    hi,
+                    tail_beyond_cone(hit),
+                    step_voxel,
+                    step_likelihood,
+                    mean,
+                    prior_mean,
+                    lo,
+                    step_mean,
+                    step_tail,
+                )
                 reach = wp.float64(1.0)  # T_i
                 for i in range(lo, band):
                     v = step_voxel[i]
@@ -629,8 +718,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                     pending[v] = wp.uint8(p + 1)
                 first = band  # the first step whose factor is computed
                 s = keep * tail
-                if not (floor_term == wp.float64(0.0) and reach >= wp.float64(1.0e-200) and s >= wp.float64(1.0e-80)
-                        and s <= wp.float64(1.0e299)):
+                if not (
+                    floor_term == wp.float64(0.0)
+                    and reach >= wp.float64(1.0e-200)
+                    and s >= wp.float64(1.0e-80)
+                    and s <= wp.float64(1.0e299)
+                ):
                     # near underflow, or spurious readings: every step's factor as it comes
                     for i in range(lo, band):
                         v = step_voxel[i]
@@ -684,12 +777,23 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
                 step_mean[0] = early
 
     @wp.kernel(module=module)
-    def apply_scan_groups(scan: int, first_group: wp.array(dtype=wp.int32), group_entry: wp.array(dtype=wp.int32),
-                          keys: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
-                          step_scan: wp.array(dtype=wp.int32), count: int, step_factor: wp.array(dtype=wp.vec2f),
-                          floor: wp.float32, free_powers: wp.array(dtype=Bins64), with_variance: int,
-                          bins: wp.array(dtype=Bins), mean: wp.array(dtype=wp.float32),
-                          variance: wp.array(dtype=wp.float32), resets: wp.array(dtype=wp.int32)):
+    def apply_scan_groups(
+        scan: int,
+        first_group: wp.array(dtype=wp.int32),
+        group_entry: wp.array(dtype=wp.int32),
+        keys: wp.array(dtype=wp.int32),
+        order: wp.array(dtype=wp.int32),
+        step_scan: wp.array(dtype=wp.int32),
+        count: int,
+        step_factor: wp.array(dtype=wp.vec2f),
+        floor: wp.float32,
+        free_powers: wp.array(dtype=Bins64),
+        with_variance: int,
+        bins: wp.array(dtype=Bins),
+        mean: wp.array(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+        resets: wp.array(dtype=wp.int32),
+    ):
         """One scan's groups of a pass sorted once (the parallel path), [first_group[scan],
         first_group[scan + 1]) of group_entry: each applies its voxel's factors of the scan in
         beam order (the sort is stable), then renormalises. Launched over the scan's steps, an
@@ -717,8 +821,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         finish_scan(bins, v, free_powers, free, floor, mean, variance, with_variance, resets)
 
     @wp.kernel(module=module)
-    def variance_of_blocks(slots: wp.array(dtype=wp.int32), bins: wp.array(dtype=Bins),
-                           mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+    def variance_of_blocks(
+        slots: wp.array(dtype=wp.int32),
+        bins: wp.array(dtype=Bins),
+        mean: wp.array(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+    ):
         """The variance of every observed voxel of the blocks in `slots` (the end of a batch)."""
         tid = wp.tid()
         slot = slots[tid // BLOCK_VOXELS]
@@ -729,8 +837,12 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
             variance[v] = moments(bins[v])[1]
 
     @wp.kernel(module=module)
-    def compute_moments(observed: wp.array(dtype=wp.uint8), bins: wp.array(dtype=Bins),
-                        mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32)):
+    def compute_moments(
+        observed: wp.array(dtype=wp.uint8),
+        bins: wp.array(dtype=Bins),
+        mean: wp.array(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+    ):
         """Mean and variance of observed voxels (a loaded map), NaN elsewhere."""
         tid = wp.tid()
         if observed[tid] == wp.uint8(0):
@@ -742,9 +854,15 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         variance[tid] = mv[1]
 
     @wp.kernel(module=module)
-    def lookup_bins(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
-                    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                    bins: wp.array(dtype=Bins), prior: Bins, values: wp.array(dtype=Bins)):
+    def lookup_bins(
+        points: wp.array(dtype=wp.vec3f),
+        inv_resolution: wp.float64,
+        table_keys: wp.array(dtype=wp.int64),
+        table_slots: wp.array(dtype=wp.int32),
+        bins: wp.array(dtype=Bins),
+        prior: Bins,
+        values: wp.array(dtype=Bins),
+    ):
         tid = wp.tid()
         voxel = voxel_key(points[tid], inv_resolution)
         slot = find_voxel_slot(table_keys, table_slots, voxel)
@@ -753,7 +871,13 @@ def for_bins(num_bins: int) -> types.SimpleNamespace:
         else:
             values[tid] = bins[slot * BLOCK_VOXELS + index_in_block(voxel)]
 
-    return types.SimpleNamespace(Bins=Bins, Bins64=Bins64, free_powers=free_powers, integrate_in_order=integrate_in_order,
-                                 variance_of_blocks=variance_of_blocks,
-                                 apply_scan_groups=apply_scan_groups, compute_moments=compute_moments,
-                                 lookup_bins=lookup_bins)
+    return types.SimpleNamespace(
+        Bins=Bins,
+        Bins64=Bins64,
+        free_powers=free_powers,
+        integrate_in_order=integrate_in_order,
+        variance_of_blocks=variance_of_blocks,
+        apply_scan_groups=apply_scan_groups,
+        compute_moments=compute_moments,
+        lookup_bins=lookup_bins,
+    )

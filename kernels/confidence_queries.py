@@ -20,10 +20,16 @@ def stored(slot: int, voxel: wp.vec3i, layer: wp.array(dtype=wp.float32)) -> wp.
 
 
 @wp.kernel
-def lookup_moments(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
-                   table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                   mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
-                   out_mean: wp.array(dtype=wp.float32), out_variance: wp.array(dtype=wp.float32)):
+def lookup_moments(
+    points: wp.array(dtype=wp.vec3f),
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    mean: wp.array(dtype=wp.float32),
+    variance: wp.array(dtype=wp.float32),
+    out_mean: wp.array(dtype=wp.float32),
+    out_variance: wp.array(dtype=wp.float32),
+):
     """Stored mean and variance of the voxel holding each point; NaN where never observed."""
     tid = wp.tid()
     voxel = voxel_key(points[tid], inv_resolution)
@@ -33,16 +39,28 @@ def lookup_moments(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
 
 
 @wp.kernel
-def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                         max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
-                         inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
-                         table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
-                         variance: wp.array(dtype=wp.float32), prior_mean: wp.float32,
-                         prior_variance: wp.float32, occupied_threshold: wp.float32,
-                         free_threshold: wp.float32, hit: wp.array(dtype=wp.bool),
-                         distance: wp.array(dtype=wp.float32), num_unknown: wp.array(dtype=wp.int32),
-                         num_free: wp.array(dtype=wp.int32), variance_sum: wp.array(dtype=wp.float32),
-                         variance_max: wp.array(dtype=wp.float32), reach: wp.array(dtype=wp.float32)):
+def cast_confidence_rays(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    mean: wp.array(dtype=wp.float32),
+    variance: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    prior_variance: wp.float32,
+    occupied_threshold: wp.float32,
+    free_threshold: wp.float32,
+    hit: wp.array(dtype=wp.bool),
+    distance: wp.array(dtype=wp.float32),
+    num_unknown: wp.array(dtype=wp.int32),
+    num_free: wp.array(dtype=wp.int32),
+    variance_sum: wp.array(dtype=wp.float32),
+    variance_max: wp.array(dtype=wp.float32),
+    reach: wp.array(dtype=wp.float32),
+):
     """First voxel whose mean reaches occupied_threshold within the range; over the voxels
     before it: how many are unknown or free, the sum and maximum of their variances, and the
     probability that a beam passes them all without bouncing (prod of 1 - mean). Voxels the ray
@@ -94,11 +112,18 @@ def cast_confidence_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array
 
 
 @wp.kernel
-def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                       max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
-                       inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
-                       table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
-                       prior_mean: wp.float32, ranges: wp.array(dtype=wp.float64)):
+def find_likely_causes(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    mean: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    ranges: wp.array(dtype=wp.float64),
+):
     """The most probable cause of a reading along each ray (Eqs. 14-16: bounce times reach,
     the cause at infinity included): the middle of its chord, or -1 for "no return"."""
     tid = wp.tid()
@@ -132,8 +157,14 @@ def find_likely_causes(origins: wp.array(dtype=wp.vec3d), directions: wp.array(d
 
 
 @wp.func
-def voxel_cost(slot: int, voxel: wp.vec3i, mean: wp.array(dtype=wp.float32), variance: wp.array(dtype=wp.float32),
-               prior_mean: wp.float32, prior_variance: wp.float32) -> wp.float64:
+def voxel_cost(
+    slot: int,
+    voxel: wp.vec3i,
+    mean: wp.array(dtype=wp.float32),
+    variance: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    prior_variance: wp.float32,
+) -> wp.float64:
     """mean + variance of a voxel, the prior's where never observed."""
     m = stored(slot, voxel, mean)
     v = stored(slot, voxel, variance)
@@ -144,12 +175,20 @@ def voxel_cost(slot: int, voxel: wp.vec3i, mean: wp.array(dtype=wp.float32), var
 
 
 @wp.kernel
-def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64,
-                      inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
-                      table_slots: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.float32),
-                      variance: wp.array(dtype=wp.float32), prior_mean: wp.float32,
-                      prior_variance: wp.float32, costs: wp.array(dtype=wp.float64)):
+def sum_segment_costs(
+    starts: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    lengths: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    mean: wp.array(dtype=wp.float32),
+    variance: wp.array(dtype=wp.float32),
+    prior_mean: wp.float32,
+    prior_variance: wp.float32,
+    costs: wp.array(dtype=wp.float64),
+):
     """Sum of mean + variance (Eq. 34) over every voxel a segment passes (holds_chord). A segment
     that passes none (a point, or one too short to hold a chord on either side of a plane) costs
     the voxel it starts in."""
@@ -172,6 +211,7 @@ def sum_segment_costs(starts: wp.array(dtype=wp.vec3d), directions: wp.array(dty
         voxel, t_max, t_in, new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         steps += 1
     if passed == 0:
-        total = voxel_cost(find_voxel_slot(table_keys, table_slots, w.voxel), w.voxel, mean, variance, prior_mean,
-                           prior_variance)
+        total = voxel_cost(
+            find_voxel_slot(table_keys, table_slots, w.voxel), w.voxel, mean, variance, prior_mean, prior_variance
+        )
     costs[tid] = total

@@ -16,8 +16,7 @@ def to_fixed_point(value: wp.float32) -> wp.int64:
 
 
 @wp.func
-def from_fixed_point(total: wp.int64, count: wp.int32, clamp_min: wp.float32,
-                     clamp_max: wp.float32) -> wp.float32:
+def from_fixed_point(total: wp.int64, count: wp.int32, clamp_min: wp.float32, clamp_max: wp.float32) -> wp.float32:
     """Clamped log-odds of a fixed-point sum; NaN where no submap contributes."""
     if count == 0:
         return wp.nan

@@ -43,8 +43,14 @@ def index_in_block(voxel: wp.vec3i) -> int:
 @wp.func
 def voxel_key_in_range(voxel: wp.vec3i) -> bool:
     lim = VOXEL_KEY_LIMIT_C
-    return (voxel[0] >= -lim and voxel[0] < lim and voxel[1] >= -lim and voxel[1] < lim
-            and voxel[2] >= -lim and voxel[2] < lim)
+    return (
+        voxel[0] >= -lim
+        and voxel[0] < lim
+        and voxel[1] >= -lim
+        and voxel[1] < lim
+        and voxel[2] >= -lim
+        and voxel[2] < lim
+    )
 
 
 @wp.func
@@ -57,9 +63,11 @@ def pack_block(block: wp.vec3i) -> wp.int64:
 
 @wp.func
 def unpack_block(key: wp.int64) -> wp.vec3i:
-    return wp.vec3i(int((key >> wp.int64(42)) & FIELD_MASK) - BLOCK_BIAS,
-                    int((key >> wp.int64(21)) & FIELD_MASK) - BLOCK_BIAS,
-                    int(key & FIELD_MASK) - BLOCK_BIAS)
+    return wp.vec3i(
+        int((key >> wp.int64(42)) & FIELD_MASK) - BLOCK_BIAS,
+        int((key >> wp.int64(21)) & FIELD_MASK) - BLOCK_BIAS,
+        int(key & FIELD_MASK) - BLOCK_BIAS,
+    )
 
 
 @wp.func
@@ -84,8 +92,7 @@ def first_probe(key: wp.int64, capacity: int) -> int:
 
 
 @wp.func
-def find_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-              key: wp.int64) -> int:
+def find_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32), key: wp.int64) -> int:
     """Slot of the block with packed coordinates `key`, or -1 if the table lacks it."""
     capacity = table_keys.shape[0]
     i = first_probe(key, capacity)
@@ -100,8 +107,9 @@ def find_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=
 
 
 @wp.func
-def find_voxel_slot(table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                    voxel: wp.vec3i) -> int:
+def find_voxel_slot(
+    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32), voxel: wp.vec3i
+) -> int:
     if not voxel_key_in_range(voxel):
         return -1
     return find_slot(table_keys, table_slots, pack_block(block_of(voxel)))
@@ -112,8 +120,12 @@ MAX_INSERT_PROBES = wp.constant(128)
 
 
 @wp.kernel
-def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
-                new_positions: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
+def insert_keys(
+    keys: wp.array(dtype=wp.int64),
+    table_keys: wp.array(dtype=wp.int64),
+    new_positions: wp.array(dtype=wp.int32),
+    counters: wp.array(dtype=wp.int32),
+):
     """Insert packed keys; list where new ones landed (counters[0]); counters[1] += failures.
     Once an insertion has failed (the table is too full), the rest fail at once: the host grows
     the table and inserts again, rather than every key probing a full table."""
@@ -142,9 +154,14 @@ def insert_keys(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.in
 
 
 @wp.kernel
-def assign_slots(new_positions: wp.array(dtype=wp.int32), reused: wp.array(dtype=wp.int32), fresh_from: int,
-                 table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                 slot_keys: wp.array(dtype=wp.int64)):
+def assign_slots(
+    new_positions: wp.array(dtype=wp.int32),
+    reused: wp.array(dtype=wp.int32),
+    fresh_from: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    slot_keys: wp.array(dtype=wp.int64),
+):
     """Give the tid-th new key slot reused[tid], or past them fresh_from + (tid - len(reused))."""
     tid = wp.tid()
     position = new_positions[tid]
@@ -158,8 +175,9 @@ def assign_slots(new_positions: wp.array(dtype=wp.int32), reused: wp.array(dtype
 
 
 @wp.kernel
-def reinsert_slots(slot_keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
-                   table_slots: wp.array(dtype=wp.int32)):
+def reinsert_slots(
+    slot_keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32)
+):
     tid = wp.tid()
     key = slot_keys[tid]
     if key == EMPTY_KEY:
@@ -174,8 +192,12 @@ def reinsert_slots(slot_keys: wp.array(dtype=wp.int64), table_keys: wp.array(dty
 
 
 @wp.kernel
-def resolve_slots(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.int64),
-                  table_slots: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32)):
+def resolve_slots(
+    keys: wp.array(dtype=wp.int64),
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    slots: wp.array(dtype=wp.int32),
+):
     tid = wp.tid()
     key = keys[tid]
     slots[tid] = -1
@@ -184,8 +206,12 @@ def resolve_slots(keys: wp.array(dtype=wp.int64), table_keys: wp.array(dtype=wp.
 
 
 @wp.kernel
-def remove_slots(slots: wp.array(dtype=wp.int32), table_keys: wp.array(dtype=wp.int64),
-                 table_slots: wp.array(dtype=wp.int32), slot_keys: wp.array(dtype=wp.int64)):
+def remove_slots(
+    slots: wp.array(dtype=wp.int32),
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    slot_keys: wp.array(dtype=wp.int64),
+):
     tid = wp.tid()
     slot = slots[tid]
     key = slot_keys[slot]
@@ -201,8 +227,7 @@ def remove_slots(slots: wp.array(dtype=wp.int32), table_keys: wp.array(dtype=wp.
 
 
 @wp.kernel
-def fill_block_grid(slot_keys: wp.array(dtype=wp.int64), lo: wp.vec3i, dims: wp.vec3i,
-                    grid: wp.array(dtype=wp.int32)):
+def fill_block_grid(slot_keys: wp.array(dtype=wp.int64), lo: wp.vec3i, dims: wp.vec3i, grid: wp.array(dtype=wp.int32)):
     """grid[cell of block b in the box lo + [0, dims)] = the slot holding b (query accelerator:
     a block look-up in one load, no probing)."""
     slot = wp.tid()

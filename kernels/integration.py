@@ -60,8 +60,7 @@ def beam_end(origin: wp.vec3f, point: wp.vec3f, max_range: wp.float64) -> wp.vec
 
 
 @wp.func
-def walk_of_beam(origin: wp.vec3f, end: wp.vec4f, resolution: wp.float64,
-                 inv_resolution: wp.float64) -> VoxelWalk:
+def walk_of_beam(origin: wp.vec3f, end: wp.vec4f, resolution: wp.float64, inv_resolution: wp.float64) -> VoxelWalk:
     return segment_walk_begin(origin, wp.vec3f(end[0], end[1], end[2]), resolution, inv_resolution)
 
 
@@ -78,9 +77,15 @@ def published_number(table_index: wp.array(dtype=wp.int32), i: int, wait_unclaim
 
 
 @wp.func
-def number_block(block: wp.vec3i, i: int, capacity: int, table_index: wp.array(dtype=wp.int32),
-                 table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-                 counters: wp.array(dtype=wp.int32)) -> int:
+def number_block(
+    block: wp.vec3i,
+    i: int,
+    capacity: int,
+    table_index: wp.array(dtype=wp.int32),
+    table_position: wp.array(dtype=wp.int32),
+    block_keys: wp.array(dtype=wp.int64),
+    counters: wp.array(dtype=wp.int32),
+) -> int:
     """Give the block at table entry i the pass's next number and publish it (FULL beyond
     `capacity`; counters[0] still counts it, so the host knows how much room to make)."""
     c = wp.atomic_add(counters, 0, 1)
@@ -94,9 +99,15 @@ def number_block(block: wp.vec3i, i: int, capacity: int, table_index: wp.array(d
 
 
 @wp.func
-def dense_block(block: wp.vec3i, cell: int, capacity: int, table_index: wp.array(dtype=wp.int32),
-                table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-                counters: wp.array(dtype=wp.int32)) -> int:
+def dense_block(
+    block: wp.vec3i,
+    cell: int,
+    capacity: int,
+    table_index: wp.array(dtype=wp.int32),
+    table_position: wp.array(dtype=wp.int32),
+    block_keys: wp.array(dtype=wp.int64),
+    counters: wp.array(dtype=wp.int32),
+) -> int:
     """Number of the block in box cell `cell` (its table entry), numbering it if new; -1 if full."""
     if wp.atomic_cas(table_index, cell, UNCLAIMED, NUMBERING) == UNCLAIMED:
         return number_block(block, cell, capacity, table_index, table_position, block_keys, counters)
@@ -115,9 +126,15 @@ def box_cell(voxel: wp.vec3i, box_lo: wp.vec3i, box_dims: wp.vec3i) -> int:
 
 
 @wp.func
-def hashed_block(block: wp.vec3i, capacity: int, table_keys: wp.array(dtype=wp.int64),
-                 table_index: wp.array(dtype=wp.int32), table_position: wp.array(dtype=wp.int32),
-                 block_keys: wp.array(dtype=wp.int64), counters: wp.array(dtype=wp.int32)) -> int:
+def hashed_block(
+    block: wp.vec3i,
+    capacity: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_index: wp.array(dtype=wp.int32),
+    table_position: wp.array(dtype=wp.int32),
+    block_keys: wp.array(dtype=wp.int64),
+    counters: wp.array(dtype=wp.int32),
+) -> int:
     """Number of `block` in the hashed scratch table, numbering it if new; -1 when the scratch
     is full (counters[0] above the capacity, or counters[1] > 0: no free table entry)."""
     key = pack_block(block)
@@ -137,10 +154,20 @@ def hashed_block(block: wp.vec3i, capacity: int, table_keys: wp.array(dtype=wp.i
 
 
 @wp.func
-def block_base(x: int, y: int, z: int, box_lo: wp.vec3i, box_dims: wp.vec3i, plane: int, capacity: int,
-               table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
-               table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-               counters: wp.array(dtype=wp.int32)) -> int:
+def block_base(
+    x: int,
+    y: int,
+    z: int,
+    box_lo: wp.vec3i,
+    box_dims: wp.vec3i,
+    plane: int,
+    capacity: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_index: wp.array(dtype=wp.int32),
+    table_position: wp.array(dtype=wp.int32),
+    block_keys: wp.array(dtype=wp.int64),
+    counters: wp.array(dtype=wp.int32),
+) -> int:
     """Marks index of voxel 0 of the block of voxel (x, y, z) in the scan's word plane; -1 when
     it has no number (scratch full, or outside the dense box: counters[1] then tells the host)."""
     v = wp.vec3i(x, y, z)
@@ -159,12 +186,24 @@ def block_base(x: int, y: int, z: int, box_lo: wp.vec3i, box_dims: wp.vec3i, pla
 
 
 @wp.kernel
-def mark_beams(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-               ray_scan: wp.array(dtype=wp.int32), first_scan: int, max_range: wp.float64,
-               resolution: wp.float64, inv_resolution: wp.float64, box_lo: wp.vec3i, box_dims: wp.vec3i,
-               capacity: int, table_keys: wp.array(dtype=wp.int64), table_index: wp.array(dtype=wp.int32),
-               table_position: wp.array(dtype=wp.int32), block_keys: wp.array(dtype=wp.int64),
-               counters: wp.array(dtype=wp.int32), marks: wp.array(dtype=wp.uint64)):
+def mark_beams(
+    origins: wp.array(dtype=wp.vec3f),
+    points: wp.array(dtype=wp.vec3f),
+    ray_scan: wp.array(dtype=wp.int32),
+    first_scan: int,
+    max_range: wp.float64,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    box_lo: wp.vec3i,
+    box_dims: wp.vec3i,
+    capacity: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_index: wp.array(dtype=wp.int32),
+    table_position: wp.array(dtype=wp.int32),
+    block_keys: wp.array(dtype=wp.int64),
+    counters: wp.array(dtype=wp.int32),
+    marks: wp.array(dtype=wp.uint64),
+):
     """Per beam: a free bit for every voxel it crosses and a hit bit for its endpoint voxel.
 
     Blocks are numbered through the box cell table when box_dims > 0 (a voxel outside the box,
@@ -191,8 +230,9 @@ def mark_beams(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3
     steps = int(0)
     base = int(-1)
     if active:
-        base = block_base(x, y, z, box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
-                          block_keys, counters)
+        base = block_base(
+            x, y, z, box_lo, box_dims, plane, capacity, table_keys, table_index, table_position, block_keys, counters
+        )
     while active:
         if base >= 0:
             wp.atomic_or(marks, base + (((x & 7) << 6) | ((y & 7) << 3) | (z & 7)), free_bit)
@@ -211,23 +251,56 @@ def mark_beams(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3
             tz += dz
             crossed = (z & 7) == ez
         steps += 1
-        active = ((x != w.last[0] or y != w.last[1] or z != w.last[2])
-                  and wp.min(wp.min(tx, ty), tz) <= w.length and steps <= w.max_steps)
+        active = (
+            (x != w.last[0] or y != w.last[1] or z != w.last[2])
+            and wp.min(wp.min(tx, ty), tz) <= w.length
+            and steps <= w.max_steps
+        )
         if active and crossed:
-            base = block_base(x, y, z, box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
-                              block_keys, counters)
+            base = block_base(
+                x,
+                y,
+                z,
+                box_lo,
+                box_dims,
+                plane,
+                capacity,
+                table_keys,
+                table_index,
+                table_position,
+                block_keys,
+                counters,
+            )
     if end[3] > 0.0:
         v = voxel_key(wp.vec3f(end[0], end[1], end[2]), inv_resolution)
-        b = block_base(v[0], v[1], v[2], box_lo, box_dims, plane, capacity, table_keys, table_index, table_position,
-                       block_keys, counters)
+        b = block_base(
+            v[0],
+            v[1],
+            v[2],
+            box_lo,
+            box_dims,
+            plane,
+            capacity,
+            table_keys,
+            table_index,
+            table_position,
+            block_keys,
+            counters,
+        )
         if b >= 0:
             wp.atomic_or(marks, b + index_in_block(v), free_bit << wp.uint64(1))
 
 
 @wp.kernel
-def count_beam_voxels(origins: wp.array(dtype=wp.vec3f), points: wp.array(dtype=wp.vec3f),
-                      ray_scan: wp.array(dtype=wp.int32), max_range: wp.float64, resolution: wp.float64,
-                      inv_resolution: wp.float64, counts: wp.array(dtype=wp.int32)):
+def count_beam_voxels(
+    origins: wp.array(dtype=wp.vec3f),
+    points: wp.array(dtype=wp.vec3f),
+    ray_scan: wp.array(dtype=wp.int32),
+    max_range: wp.float64,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    counts: wp.array(dtype=wp.int32),
+):
     """Voxels each beam marks (the free ones it crosses, plus its endpoint if a hit), by the
     plain walk of traversal.py: the work integration cannot avoid, for profiles."""
     tid = wp.tid()
@@ -249,8 +322,14 @@ def lowest_bit(x: wp.uint64) -> wp.uint64:
 
 
 @wp.func
-def replay_word(value: wp.float32, m: wp.uint64, log_hit: wp.float32, log_miss: wp.float32,
-                clamp_min: wp.float32, clamp_max: wp.float32) -> wp.float32:
+def replay_word(
+    value: wp.float32,
+    m: wp.uint64,
+    log_hit: wp.float32,
+    log_miss: wp.float32,
+    clamp_min: wp.float32,
+    clamp_max: wp.float32,
+) -> wp.float32:
     """`value` after the scans marked in word `m` (two bits per scan, free then occupied), in
     order, with OctoMap's clamped update."""
     touched = (m | (m >> wp.uint64(1))) & PAIR_MASK  # one bit per marked scan, in order
@@ -281,8 +360,13 @@ def value_before(slot: int, log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
 
 
 @wp.func
-def release_entries(u: int, part_blocks: wp.array2d(dtype=wp.int32), table_keys: wp.array2d(dtype=wp.int64),
-                    table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32)):
+def release_entries(
+    u: int,
+    part_blocks: wp.array2d(dtype=wp.int32),
+    table_keys: wp.array2d(dtype=wp.int64),
+    table_index: wp.array2d(dtype=wp.int32),
+    table_position: wp.array2d(dtype=wp.int32),
+):
     """Empty the scratch table entries of touched block u, in every part that numbered it."""
     for part in range(part_blocks.shape[1]):
         c = part_blocks[u, part]
@@ -293,12 +377,22 @@ def release_entries(u: int, part_blocks: wp.array2d(dtype=wp.int32), table_keys:
 
 
 @wp.kernel
-def apply_marks(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(dtype=wp.int32),
-                first: int, words_per_voxel: int, capacity: int, log_hit: wp.float32,
-                log_miss: wp.float32, clamp_min: wp.float32, clamp_max: wp.float32,
-                marks: wp.array2d(dtype=wp.uint64), table_keys: wp.array2d(dtype=wp.int64),
-                table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
-                log_odds: wp.array(dtype=wp.float32)):
+def apply_marks(
+    block_slots: wp.array(dtype=wp.int32),
+    part_blocks: wp.array2d(dtype=wp.int32),
+    first: int,
+    words_per_voxel: int,
+    capacity: int,
+    log_hit: wp.float32,
+    log_miss: wp.float32,
+    clamp_min: wp.float32,
+    clamp_max: wp.float32,
+    marks: wp.array2d(dtype=wp.uint64),
+    table_keys: wp.array2d(dtype=wp.int64),
+    table_index: wp.array2d(dtype=wp.int32),
+    table_position: wp.array2d(dtype=wp.int32),
+    log_odds: wp.array(dtype=wp.float32),
+):
     """Per voxel of the touched blocks (block u = map slot block_slots[u], numbered
     part_blocks[u, p] in scratch part p, -1 where that part did not touch it): replay the marked
     scans in order, then clear the marks read (and, once per block, its table entries)."""
@@ -336,12 +430,22 @@ few_words = wp.types.vector(length=FEW_WORDS, dtype=wp.uint64)
 
 
 @wp.kernel
-def apply_marks_few_words(block_slots: wp.array(dtype=wp.int32), part_blocks: wp.array2d(dtype=wp.int32),
-                          first: int, words_per_voxel: int, capacity: int, log_hit: wp.float32,
-                          log_miss: wp.float32, clamp_min: wp.float32, clamp_max: wp.float32,
-                          marks: wp.array2d(dtype=wp.uint64), table_keys: wp.array2d(dtype=wp.int64),
-                          table_index: wp.array2d(dtype=wp.int32), table_position: wp.array2d(dtype=wp.int32),
-                          log_odds: wp.array(dtype=wp.float32)):
+def apply_marks_few_words(
+    block_slots: wp.array(dtype=wp.int32),
+    part_blocks: wp.array2d(dtype=wp.int32),
+    first: int,
+    words_per_voxel: int,
+    capacity: int,
+    log_hit: wp.float32,
+    log_miss: wp.float32,
+    clamp_min: wp.float32,
+    clamp_max: wp.float32,
+    marks: wp.array2d(dtype=wp.uint64),
+    table_keys: wp.array2d(dtype=wp.int64),
+    table_index: wp.array2d(dtype=wp.int32),
+    table_position: wp.array2d(dtype=wp.int32),
+    log_odds: wp.array(dtype=wp.float32),
+):
     """apply_marks for passes of at most FEW_WORDS words per voxel: each part's block number is
     read once and its words gathered into registers (loops unrolled), then replayed in order.
     Most voxels of a touched block carry no mark, so the gathering is most of the work (a CPU

@@ -40,13 +40,27 @@ def segment_meets_box(start: wp.vec3d, end: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d
 
 @wp.func
 def boxes_meet(lo_a: wp.vec3d, hi_a: wp.vec3d, lo_b: wp.vec3d, hi_b: wp.vec3d) -> bool:
-    return (lo_a[0] <= hi_b[0] and lo_b[0] <= hi_a[0] and lo_a[1] <= hi_b[1] and lo_b[1] <= hi_a[1]
-            and lo_a[2] <= hi_b[2] and lo_b[2] <= hi_a[2])
+    return (
+        lo_a[0] <= hi_b[0]
+        and lo_b[0] <= hi_a[0]
+        and lo_a[1] <= hi_b[1]
+        and lo_b[1] <= hi_a[1]
+        and lo_a[2] <= hi_b[2]
+        and lo_b[2] <= hi_a[2]
+    )
 
 
 @wp.func
-def centre_layer_free(m: MapAccess, start: wp.vec3d, end: wp.vec3d, voxel: wp.vec3i, centre: wp.vec3d,
-                      candidates: wp.array(dtype=wp.int32), first: int, last: int) -> bool:
+def centre_layer_free(
+    m: MapAccess,
+    start: wp.vec3d,
+    end: wp.vec3d,
+    voxel: wp.vec3i,
+    centre: wp.vec3d,
+    candidates: wp.array(dtype=wp.int32),
+    first: int,
+    last: int,
+) -> bool:
     """Is the voxel of `voxel`'s column at the height of the edge's centre line FREE? The
     height is the line's where it passes nearest the voxel's centre in x-y (none for an edge
     without x-y motion, nor when that voxel is `voxel` itself)."""
@@ -55,8 +69,7 @@ def centre_layer_free(m: MapAccess, start: wp.vec3d, end: wp.vec3d, voxel: wp.ve
     flat = dx * dx + dy * dy
     if flat == wp.float64(0.0):
         return False
-    t = wp.clamp(((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0),
-                 wp.float64(1.0))
+    t = wp.clamp(((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0), wp.float64(1.0))
     layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * (end[2] - start[2])) * m.inv_resolution)))
     if layer[2] == voxel[2]:
         return False
@@ -65,11 +78,20 @@ def centre_layer_free(m: MapAccess, start: wp.vec3d, end: wp.vec3d, voxel: wp.ve
 
 
 @wp.kernel
-def count_unsafe_voxels(first_edge: int, starts: wp.array(dtype=wp.vec3d), ends: wp.array(dtype=wp.vec3d),
-                        half: wp.vec3d, first_voxels: wp.array(dtype=wp.vec3i), sizes: wp.array(dtype=wp.vec3i),
-                        m: MapAccess, candidate_offsets: wp.array(dtype=wp.int32),
-                        candidates: wp.array(dtype=wp.int32), vehicle: wp.vec3d, clearance: wp.float64,
-                        unsafe: wp.array(dtype=wp.int32)):
+def count_unsafe_voxels(
+    first_edge: int,
+    starts: wp.array(dtype=wp.vec3d),
+    ends: wp.array(dtype=wp.vec3d),
+    half: wp.vec3d,
+    first_voxels: wp.array(dtype=wp.vec3i),
+    sizes: wp.array(dtype=wp.vec3i),
+    m: MapAccess,
+    candidate_offsets: wp.array(dtype=wp.int32),
+    candidates: wp.array(dtype=wp.int32),
+    vehicle: wp.vec3d,
+    clearance: wp.float64,
+    unsafe: wp.array(dtype=wp.int32),
+):
     """unsafe[edge] > 0 when the box swept along the edge holds an unsafe voxel. sizes[edge]:
     voxels per axis of the edge's bounding box, from first_voxels[edge]."""
     e, column = wp.tid()
@@ -105,7 +127,9 @@ def count_unsafe_voxels(first_edge: int, starts: wp.array(dtype=wp.vec3d), ends:
             return
         if state == UNKNOWN:
             centre = voxel_centre(voxel, s)
-            if not (wp.length(centre - vehicle) <= clearance
-                    or centre_layer_free(m, start, end, voxel, centre, candidates, first, last)):
+            if not (
+                wp.length(centre - vehicle) <= clearance
+                or centre_layer_free(m, start, end, voxel, centre, candidates, first, last)
+            ):
                 wp.atomic_add(unsafe, e, 1)
                 return

@@ -51,8 +51,9 @@ def store_slot(m: MapAccess, voxel: wp.vec3i) -> int:
 
 
 @wp.func
-def voxel_value(m: MapAccess, voxel: wp.vec3i, slot: int, candidates: wp.array(dtype=wp.int32),
-                first: int, last: int) -> wp.float32:
+def voxel_value(
+    m: MapAccess, voxel: wp.vec3i, slot: int, candidates: wp.array(dtype=wp.int32), first: int, last: int
+) -> wp.float32:
     """Log-odds of `voxel` (NaN: unobserved); `slot`: its block's slot in the store (-1: none);
     candidates[first:last]: the views that may hold it."""
     if m.kind == LOG_ODDS_STORE:

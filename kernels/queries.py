@@ -5,12 +5,33 @@ Unobserved voxels hold NaN in the voxel pool; look-ups outside the table answer 
 
 import warp as wp
 
-from .hashing import (BLOCK_VOXELS, EMPTY_KEY, VOXEL_KEY_LIMIT_C, find_voxel_slot, grid_slot, index_in_block, observed,
-                      unpack_block)
+from .hashing import (
+    BLOCK_VOXELS,
+    EMPTY_KEY,
+    VOXEL_KEY_LIMIT_C,
+    find_voxel_slot,
+    grid_slot,
+    index_in_block,
+    observed,
+    unpack_block,
+)
 from .integration import walk_of_beam
-from .traversal import (FAR, VoxelWalk, l1_distance, ray_box_span, ray_entry, ray_key_range, ray_voxel_at,
-                        ray_voxels_until, ray_walk_begin, ray_walk_resume, segment_continues, unit_direction, voxel_key,
-                        walk_step)
+from .traversal import (
+    FAR,
+    VoxelWalk,
+    l1_distance,
+    ray_box_span,
+    ray_entry,
+    ray_key_range,
+    ray_voxel_at,
+    ray_voxels_until,
+    ray_walk_begin,
+    ray_walk_resume,
+    segment_continues,
+    unit_direction,
+    voxel_key,
+    walk_step,
+)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -33,8 +54,12 @@ def voxel_state(value: wp.float32, log_occupied: wp.float32, log_free: wp.float3
 
 
 @wp.kernel
-def classify_blocks(log_odds: wp.array(dtype=wp.float32), log_occupied: wp.float32, log_free: wp.float32,
-                    states: wp.array(dtype=wp.uint32)):
+def classify_blocks(
+    log_odds: wp.array(dtype=wp.float32),
+    log_occupied: wp.float32,
+    log_free: wp.float32,
+    states: wp.array(dtype=wp.uint32),
+):
     """states[slot * 32 + w]: the states of voxels 16 w .. 16 w + 15 of block `slot`, two bits
     each (0 unknown, 1 free, 2 occupied): what a ray cast needs, in an eighth of the bytes."""
     tid = wp.tid()
@@ -58,9 +83,14 @@ def known_or_zero(value: wp.float32) -> wp.float32:
 
 
 @wp.kernel
-def lookup_log_odds(points: wp.array(dtype=wp.vec3f), inv_resolution: wp.float64,
-                    table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                    log_odds: wp.array(dtype=wp.float32), values: wp.array(dtype=wp.float32)):
+def lookup_log_odds(
+    points: wp.array(dtype=wp.vec3f),
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    log_odds: wp.array(dtype=wp.float32),
+    values: wp.array(dtype=wp.float32),
+):
     tid = wp.tid()
     voxel = voxel_key(points[tid], inv_resolution)
     values[tid] = value_in_slot(find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds)
@@ -78,9 +108,14 @@ def finite3(v: wp.vec3d) -> bool:
 
 
 @wp.kernel
-def check_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-               max_ranges: wp.array(dtype=wp.float64), voxel_size: wp.float64, key_limit: wp.float64,
-               first_bad: wp.array(dtype=wp.int32)):
+def check_rays(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    voxel_size: wp.float64,
+    key_limit: wp.float64,
+    first_bad: wp.array(dtype=wp.int32),
+):
     """The host checks of `BlockMap.raycast` for rays already on the device: first_bad[k], set
     to the ray count beforehand, ends as the index of the first ray with fault k (BAD_*).
     max_ranges holds one range per ray, or one for all. An origin is out of range as
@@ -118,8 +153,15 @@ class RayCastStart:
 
 
 @wp.func
-def ray_cast_start(origin: wp.vec3d, direction: wp.vec3d, max_range: wp.float64, resolution: wp.float64,
-                   inv_resolution: wp.float64, grid_lo: wp.vec3i, grid_hi: wp.vec3i) -> RayCastStart:
+def ray_cast_start(
+    origin: wp.vec3d,
+    direction: wp.vec3d,
+    max_range: wp.float64,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    grid_lo: wp.vec3i,
+    grid_hi: wp.vec3i,
+) -> RayCastStart:
     """The start of a ray cast along unit `direction` over a map whose blocks lie in
     [grid_lo, grid_hi] (block coordinates; hi < lo: no blocks). Every voxel outside that box is
     unknown, so a stretch of more than SKIP_VOXELS voxels before it is skipped and counted."""
@@ -151,13 +193,24 @@ def ray_cast_start(origin: wp.vec3d, direction: wp.vec3d, max_range: wp.float64,
 
 
 @wp.kernel
-def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-              max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64,
-              inv_resolution: wp.float64, table_keys: wp.array(dtype=wp.int64),
-              table_slots: wp.array(dtype=wp.int32), grid_lo: wp.vec3i, grid_hi: wp.vec3i,
-              grid_dims: wp.vec3i, grid: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
-              hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
-              num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+def cast_rays(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    grid_lo: wp.vec3i,
+    grid_hi: wp.vec3i,
+    grid_dims: wp.vec3i,
+    grid: wp.array(dtype=wp.int32),
+    states: wp.array(dtype=wp.uint32),
+    hit: wp.array(dtype=wp.bool),
+    distance: wp.array(dtype=wp.float32),
+    num_unknown: wp.array(dtype=wp.int32),
+    num_free: wp.array(dtype=wp.int32),
+):
     """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range
     (max_ranges: one per ray, or one for all), and the FREE and UNKNOWN voxels passed before it.
 
@@ -235,8 +288,13 @@ def cast_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.v
 
 
 @wp.kernel
-def fill_ray_bases(grid: wp.array(dtype=wp.int32), grid_dims: wp.vec3i, padded_dims: wp.vec3i,
-                   empty_base: int, bases: wp.array(dtype=wp.int32)):
+def fill_ray_bases(
+    grid: wp.array(dtype=wp.int32),
+    grid_dims: wp.vec3i,
+    padded_dims: wp.vec3i,
+    empty_base: int,
+    bases: wp.array(dtype=wp.int32),
+):
     """bases[cell] for cast_rays_on_grid: the first states word of the block in each cell of the
     block grid (fill_block_grid) padded by one cell on every side; `empty_base` (a block of
     unknown voxels) in the padding and where no block is."""
@@ -253,9 +311,15 @@ def fill_ray_bases(grid: wp.array(dtype=wp.int32), grid_dims: wp.vec3i, padded_d
 
 
 @wp.kernel
-def fill_dense_states(log_odds: wp.array(dtype=wp.float32), slot_keys: wp.array(dtype=wp.int64),
-                      log_occupied: wp.float32, log_free: wp.float32, corner: wp.vec3i, dims: wp.vec3i,
-                      columns: wp.array(dtype=wp.uint16)):
+def fill_dense_states(
+    log_odds: wp.array(dtype=wp.float32),
+    slot_keys: wp.array(dtype=wp.int64),
+    log_occupied: wp.float32,
+    log_free: wp.float32,
+    corner: wp.vec3i,
+    dims: wp.vec3i,
+    columns: wp.array(dtype=wp.uint16),
+):
     """The states (two bits a voxel, 0 unknown, 1 free, 2 occupied) of every voxel of a box, for
     cast_rays_dense: columns[((x dims[1] + y) dims[2] + z) / 8] holds voxels z .. z + 7 of
     column (x, y), counted from the box's `corner` voxel (a multiple of 8), as `columns` was
@@ -295,12 +359,23 @@ def _cast_rays_for_cpu(dense: bool):
     """
 
     @wp.kernel(name="cast_rays_dense" if dense else "cast_rays_on_grid")
-    def cast(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-             max_ranges: wp.array(dtype=wp.float64), resolution: wp.float64, inv_resolution: wp.float64,
-             grid_lo: wp.vec3i, grid_hi: wp.vec3i, padded_dims: wp.vec3i, columns: wp.array(dtype=wp.uint16),
-             bases: wp.array(dtype=wp.int32), states: wp.array(dtype=wp.uint32),
-             hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
-             num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+    def cast(
+        origins: wp.array(dtype=wp.vec3d),
+        directions: wp.array(dtype=wp.vec3d),
+        max_ranges: wp.array(dtype=wp.float64),
+        resolution: wp.float64,
+        inv_resolution: wp.float64,
+        grid_lo: wp.vec3i,
+        grid_hi: wp.vec3i,
+        padded_dims: wp.vec3i,
+        columns: wp.array(dtype=wp.uint16),
+        bases: wp.array(dtype=wp.int32),
+        states: wp.array(dtype=wp.uint32),
+        hit: wp.array(dtype=wp.bool),
+        distance: wp.array(dtype=wp.float32),
+        num_unknown: wp.array(dtype=wp.int32),
+        num_free: wp.array(dtype=wp.int32),
+    ):
         tid = wp.tid()
         origin, direction = origins[tid], unit_direction(directions[tid])
         max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
@@ -313,12 +388,20 @@ def _cast_rays_for_cpu(dense: bool):
         sx, sy, sz = step[0], step[1], step[2]
         if wp.static(dense):  # voxels per axis; the index in 64 bits: outside the box, where it
             # is not read, it may leave int32's range
-            size_x, size_y, size_z = wp.uint32(padded_dims[0] * 8), wp.uint32(padded_dims[1] * 8), wp.uint32(padded_dims[2] * 8)
+            size_x, size_y, size_z = (
+                wp.uint32(padded_dims[0] * 8),
+                wp.uint32(padded_dims[1] * 8),
+                wp.uint32(padded_dims[2] * 8),
+            )
             dim_y, dim_z = padded_dims[1] * 8, padded_dims[2] * 8
             stride_x, stride_y, stride_z = wp.int64(sx * dim_y * dim_z), wp.int64(sy * dim_z), wp.int64(sz)
             index = (wp.int64(x) * wp.int64(dim_y) + wp.int64(y)) * wp.int64(dim_z) + wp.int64(z)
         else:  # the padded grid's last cell per axis
-            top_x, top_y, top_z = wp.uint32(padded_dims[0] - 1), wp.uint32(padded_dims[1] - 1), wp.uint32(padded_dims[2] - 1)
+            top_x, top_y, top_z = (
+                wp.uint32(padded_dims[0] - 1),
+                wp.uint32(padded_dims[1] - 1),
+                wp.uint32(padded_dims[2] - 1),
+            )
             dim_y, dim_z = padded_dims[1], padded_dims[2]
         t_entry, t_end, t_after = wp.float64(s.t_entry), wp.float64(s.t_end), wp.float64(s.t_after)
         max_steps = int(s.max_steps)
@@ -384,16 +467,19 @@ cast_rays_on_grid = _cast_rays_for_cpu(dense=False)
 
 
 @wp.func
-def segment_walk_of(start: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
-                    inv_resolution: wp.float64) -> VoxelWalk:
+def segment_walk_of(start: wp.vec3f, end: wp.vec3f, resolution: wp.float64, inv_resolution: wp.float64) -> VoxelWalk:
     # A line query visits the voxels a beam from start to end would: free ones plus the end voxel.
     return walk_of_beam(start, wp.vec4f(end[0], end[1], end[2], 1.0), resolution, inv_resolution)
 
 
 @wp.kernel
-def count_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
-                      resolution: wp.float64, inv_resolution: wp.float64,
-                      counts: wp.array(dtype=wp.int32)):
+def count_line_voxels(
+    starts: wp.array(dtype=wp.vec3f),
+    ends: wp.array(dtype=wp.vec3f),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    counts: wp.array(dtype=wp.int32),
+):
     tid = wp.tid()
     w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
     n = int(1)
@@ -407,18 +493,23 @@ def count_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.
 
 
 @wp.kernel
-def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
-                     resolution: wp.float64, inv_resolution: wp.float64,
-                     table_keys: wp.array(dtype=wp.int64), table_slots: wp.array(dtype=wp.int32),
-                     log_odds: wp.array(dtype=wp.float32), values: wp.array2d(dtype=wp.float32)):
+def fill_line_values(
+    starts: wp.array(dtype=wp.vec3f),
+    ends: wp.array(dtype=wp.vec3f),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    log_odds: wp.array(dtype=wp.float32),
+    values: wp.array2d(dtype=wp.float32),
+):
     tid = wp.tid()
     w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
     n = int(0)
     voxel, t_max = wp.vec3i(w.voxel), wp.vec3d(w.t_max)
     active = bool(w.active)
     while active:
-        values[tid, n] = known_or_zero(value_in_slot(
-            find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds))
+        values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, voxel), voxel, log_odds))
         n += 1
         voxel, t_max, _t, _new_block = walk_step(voxel, w.step, t_max, w.t_delta)
         active = segment_continues(voxel, t_max, w, n)
@@ -426,11 +517,14 @@ def fill_line_values(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.v
     values[tid, n] = known_or_zero(value_in_slot(find_voxel_slot(table_keys, table_slots, last), last, log_odds))
 
 
-
 @wp.kernel
-def fill_line_voxels(starts: wp.array(dtype=wp.vec3f), ends: wp.array(dtype=wp.vec3f),
-                     resolution: wp.float64, inv_resolution: wp.float64,
-                     voxels: wp.array2d(dtype=wp.vec3i)):
+def fill_line_voxels(
+    starts: wp.array(dtype=wp.vec3f),
+    ends: wp.array(dtype=wp.vec3f),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    voxels: wp.array2d(dtype=wp.vec3i),
+):
     tid = wp.tid()
     w = segment_walk_of(starts[tid], ends[tid], resolution, inv_resolution)
     n = int(0)

@@ -6,9 +6,15 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def cast_sensor_beams(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3), rotations: wp.array(dtype=wp.mat33),
-                     beam_directions: wp.array2d(dtype=wp.vec3), min_range: float, max_range: float,
-                     ranges: wp.array2d(dtype=float)):
+def cast_sensor_beams(
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3),
+    rotations: wp.array(dtype=wp.mat33),
+    beam_directions: wp.array2d(dtype=wp.vec3),
+    min_range: float,
+    max_range: float,
+    ranges: wp.array2d(dtype=float),
+):
     """ranges[scan, beam]: nearest return over the beam's sub-rays (its elevation aperture);
     -1 where none lies within [min_range, max_range]."""
     scan, beam = wp.tid()

@@ -15,11 +15,18 @@ wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 
 
 @wp.kernel
-def correlate_shifted_cells(field: wp.array(dtype=wp.float32), search_field_start: wp.array(dtype=wp.int32),
-                            search_dims: wp.array(dtype=wp.vec3i), search_shift: wp.array(dtype=wp.int32),
-                            slot_search: wp.array(dtype=wp.int32), slot_cell_start: wp.array(dtype=wp.int32),
-                            slot_cell_count: wp.array(dtype=wp.int32), slot_window_start: wp.array(dtype=wp.int32),
-                            cells: wp.array(dtype=wp.vec3i), windows: wp.array(dtype=wp.float64)):
+def correlate_shifted_cells(
+    field: wp.array(dtype=wp.float32),
+    search_field_start: wp.array(dtype=wp.int32),
+    search_dims: wp.array(dtype=wp.vec3i),
+    search_shift: wp.array(dtype=wp.int32),
+    slot_search: wp.array(dtype=wp.int32),
+    slot_cell_start: wp.array(dtype=wp.int32),
+    slot_cell_count: wp.array(dtype=wp.int32),
+    slot_window_start: wp.array(dtype=wp.int32),
+    cells: wp.array(dtype=wp.vec3i),
+    windows: wp.array(dtype=wp.float64),
+):
     """One thread per score: windows[slot](i, j) = sum over the slot's cells c of
     field[c + (i - shift, j - shift, 0)]. A slot is one (search, yaw), its window (2 shift + 1)^2
     scores from slot_window_start[slot] (one more entry: the total); its field is the search's
@@ -57,9 +64,14 @@ def correlate_shifted_cells(field: wp.array(dtype=wp.float32), search_field_star
 
 
 @wp.kernel
-def find_nearest_points(grid: wp.uint64, points: wp.array(dtype=wp.vec3d), queries: wp.array(dtype=wp.vec3d),
-                        query_group: wp.array(dtype=wp.int32), max_distance: wp.float64,
-                        nearest: wp.array(dtype=wp.int32)):
+def find_nearest_points(
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3d),
+    queries: wp.array(dtype=wp.vec3d),
+    query_group: wp.array(dtype=wp.int32),
+    max_distance: wp.float64,
+    nearest: wp.array(dtype=wp.int32),
+):
     """nearest[q]: the index of the point of group query_group[q] closest to queries[q] and
     strictly within max_distance (ties: the lowest index); -1 when there is none."""
     tid = wp.tid()

@@ -28,21 +28,24 @@ class SubmapView:
 
 
 @wp.func
-def pull_voxel(centre: wp.vec3d, rotation_t: wp.mat33d, translation: wp.vec3d,
-               inv_resolution: wp.float64) -> wp.vec3i:
+def pull_voxel(centre: wp.vec3d, rotation_t: wp.mat33d, translation: wp.vec3d, inv_resolution: wp.float64) -> wp.vec3i:
     """The submap voxel containing a world point: floor(R^T (x - t) / s)."""
     local = rotation_t * (centre - translation)
-    return wp.vec3i(int(wp.floor(local[0] * inv_resolution)),
-                    int(wp.floor(local[1] * inv_resolution)),
-                    int(wp.floor(local[2] * inv_resolution)))
+    return wp.vec3i(
+        int(wp.floor(local[0] * inv_resolution)),
+        int(wp.floor(local[1] * inv_resolution)),
+        int(wp.floor(local[2] * inv_resolution)),
+    )
 
 
 @wp.func
 def voxel_centre(voxel: wp.vec3i, resolution: wp.float64) -> wp.vec3d:
     half = wp.float64(0.5)
-    return wp.vec3d((wp.float64(voxel[0]) + half) * resolution,
-                    (wp.float64(voxel[1]) + half) * resolution,
-                    (wp.float64(voxel[2]) + half) * resolution)
+    return wp.vec3d(
+        (wp.float64(voxel[0]) + half) * resolution,
+        (wp.float64(voxel[1]) + half) * resolution,
+        (wp.float64(voxel[2]) + half) * resolution,
+    )
 
 
 @wp.func

@@ -53,16 +53,18 @@ class VoxelWalk:
 @wp.func
 def voxel_key(p: wp.vec3f, inv_resolution: wp.float64) -> wp.vec3i:
     # OctoMap: floor(coordinate * (1 / resolution)) in double precision.
-    return wp.vec3i(int(wp.floor(wp.float64(p[0]) * inv_resolution)),
-                    int(wp.floor(wp.float64(p[1]) * inv_resolution)),
-                    int(wp.floor(wp.float64(p[2]) * inv_resolution)))
+    return wp.vec3i(
+        int(wp.floor(wp.float64(p[0]) * inv_resolution)),
+        int(wp.floor(wp.float64(p[1]) * inv_resolution)),
+        int(wp.floor(wp.float64(p[2]) * inv_resolution)),
+    )
 
 
 @wp.func
 def voxel_key_d(p: wp.vec3d, inv_resolution: wp.float64) -> wp.vec3i:
-    return wp.vec3i(int(wp.floor(p[0] * inv_resolution)),
-                    int(wp.floor(p[1] * inv_resolution)),
-                    int(wp.floor(p[2] * inv_resolution)))
+    return wp.vec3i(
+        int(wp.floor(p[0] * inv_resolution)), int(wp.floor(p[1] * inv_resolution)), int(wp.floor(p[2] * inv_resolution))
+    )
 
 
 @wp.func
@@ -87,8 +89,9 @@ def l1_distance(a: wp.vec3i, b: wp.vec3i) -> int:
 
 
 @wp.func
-def segment_walk_begin(origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
-                       inv_resolution: wp.float64) -> VoxelWalk:
+def segment_walk_begin(
+    origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64, inv_resolution: wp.float64
+) -> VoxelWalk:
     w = VoxelWalk()
     w.voxel = voxel_key(origin, inv_resolution)
     w.last = voxel_key(end, inv_resolution)
@@ -119,8 +122,9 @@ def segment_walk_begin(origin: wp.vec3f, end: wp.vec3f, resolution: wp.float64,
 
 
 @wp.func
-def ray_walk_begin(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64,
-                   inv_resolution: wp.float64, max_range: wp.float64) -> VoxelWalk:
+def ray_walk_begin(
+    origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64, inv_resolution: wp.float64, max_range: wp.float64
+) -> VoxelWalk:
     w = VoxelWalk()
     w.voxel = voxel_key_d(origin, inv_resolution)
     w.last = w.voxel
@@ -156,8 +160,9 @@ def unit_direction(d: wp.vec3d) -> wp.vec3d:
 
 
 @wp.func
-def ray_walk_resume(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
-                    resolution: wp.float64) -> wp.vec3d:
+def ray_walk_resume(
+    origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i, resolution: wp.float64
+) -> wp.vec3d:
     """t_max of a ray walk (from `origin` along unit `direction`) that has reached `voxel`:
     the distance to the voxel's far boundary per axis, as ray_walk_begin computes it."""
     t_max = wp.vec3d(FAR, FAR, FAR)
@@ -170,8 +175,9 @@ def ray_walk_resume(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step
 
 
 @wp.func
-def ray_voxel_at(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
-                 inv_resolution: wp.float64, t: wp.float64) -> wp.vec3i:
+def ray_voxel_at(
+    origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i, inv_resolution: wp.float64, t: wp.float64
+) -> wp.vec3i:
     """The voxel holding the ray's point at distance t, for a walk now in `voxel` (a walk is
     monotone per axis, so round-off never puts it behind that voxel)."""
     v = voxel_key_d(origin + direction * t, inv_resolution)
@@ -182,8 +188,9 @@ def ray_voxel_at(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: w
 
 
 @wp.func
-def ray_entry(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, target: wp.vec3i, step: wp.vec3i,
-              resolution: wp.float64) -> wp.float64:
+def ray_entry(
+    origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, target: wp.vec3i, step: wp.vec3i, resolution: wp.float64
+) -> wp.float64:
     """Distance at which a walk now in `voxel` enters `target` further on: the latest of the
     entry faces of `target` on the axes it moves along (-FAR when target is voxel)."""
     t = -FAR
@@ -195,8 +202,15 @@ def ray_entry(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, target: wp
 
 
 @wp.func
-def ray_voxels_until(origin: wp.vec3d, direction: wp.vec3d, voxel: wp.vec3i, step: wp.vec3i,
-                     resolution: wp.float64, inv_resolution: wp.float64, t_end: wp.float64) -> int:
+def ray_voxels_until(
+    origin: wp.vec3d,
+    direction: wp.vec3d,
+    voxel: wp.vec3i,
+    step: wp.vec3i,
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    t_end: wp.float64,
+) -> int:
     """Voxels a ray walk now in `voxel` visits from it on, it included, entering each before
     t_end. Each step moves one axis by one, so that is the L1 distance to the voxel holding the
     point at t_end, plus one, less that voxel if the walk enters it at t_end or later."""
@@ -252,15 +266,27 @@ def walk_step(voxel: wp.vec3i, step: wp.vec3i, t_max: wp.vec3d, t_delta: wp.vec3
     """
     if t_max[0] < t_max[1] and t_max[0] < t_max[2]:
         x = voxel[0] + step[0]
-        return (wp.vec3i(x, voxel[1], voxel[2]), wp.vec3d(t_max[0] + t_delta[0], t_max[1], t_max[2]),
-                t_max[0], entered_new_block(x, step[0]))
+        return (
+            wp.vec3i(x, voxel[1], voxel[2]),
+            wp.vec3d(t_max[0] + t_delta[0], t_max[1], t_max[2]),
+            t_max[0],
+            entered_new_block(x, step[0]),
+        )
     if t_max[1] < t_max[2] and not t_max[0] < t_max[1]:
         y = voxel[1] + step[1]
-        return (wp.vec3i(voxel[0], y, voxel[2]), wp.vec3d(t_max[0], t_max[1] + t_delta[1], t_max[2]),
-                t_max[1], entered_new_block(y, step[1]))
+        return (
+            wp.vec3i(voxel[0], y, voxel[2]),
+            wp.vec3d(t_max[0], t_max[1] + t_delta[1], t_max[2]),
+            t_max[1],
+            entered_new_block(y, step[1]),
+        )
     z = voxel[2] + step[2]
-    return (wp.vec3i(voxel[0], voxel[1], z), wp.vec3d(t_max[0], t_max[1], t_max[2] + t_delta[2]),
-            t_max[2], entered_new_block(z, step[2]))
+    return (
+        wp.vec3i(voxel[0], voxel[1], z),
+        wp.vec3d(t_max[0], t_max[1], t_max[2] + t_delta[2]),
+        t_max[2],
+        entered_new_block(z, step[2]),
+    )
 
 
 @wp.func
@@ -285,6 +311,8 @@ def holds_chord(t_in: wp.float64, t_out: wp.float64, resolution: wp.float64) -> 
 @wp.func
 def segment_continues(voxel: wp.vec3i, t_max: wp.vec3d, w: VoxelWalk, steps: int) -> bool:
     # OctoMap stops on reaching the end voxel, or when round-off carried it past the end.
-    return (not same_voxel(voxel, w.last)
-            and wp.min(wp.min(t_max[0], t_max[1]), t_max[2]) <= w.length
-            and steps <= w.max_steps)
+    return (
+        not same_voxel(voxel, w.last)
+        and wp.min(wp.min(t_max[0], t_max[1]), t_max[2]) <= w.length
+        and steps <= w.max_steps
+    )

@@ -23,8 +23,7 @@ OFFSET_LIMIT = 1 << 20
 
 
 @wp.func
-def insert_voxel(tables: wp.array(dtype=wp.int64), base: int, capacity: int, key: wp.int64,
-                 max_probes: int) -> int:
+def insert_voxel(tables: wp.array(dtype=wp.int64), base: int, capacity: int, key: wp.int64, max_probes: int) -> int:
     """1 if `key` was new to the set in tables[base:base+capacity], 0 if present, -1 if it
     found no place within max_probes probes (-1: any number)."""
     i = int(hash_key(key) & wp.uint32(capacity - 1))
@@ -51,13 +50,27 @@ def inside(p: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d) -> bool:
 
 
 @wp.kernel
-def count_seen_voxels(first_view: int, origins: wp.array(dtype=wp.vec3d), rotations: wp.array(dtype=wp.mat33d),
-                      groups: wp.array(dtype=wp.int32), directions: wp.array(dtype=wp.vec3d),
-                      max_range: wp.float64, min_range: wp.float64, use_region: int, region_lo: wp.vec3d,
-                      region_hi: wp.vec3d, m: MapAccess, candidate_offsets: wp.array(dtype=wp.int32),
-                      candidates: wp.array(dtype=wp.int32), table_offsets: wp.array(dtype=wp.int64),
-                      anchors: wp.array(dtype=wp.vec3i), tables: wp.array(dtype=wp.int64), max_probes: int,
-                      counts: wp.array2d(dtype=wp.int32), overflow: wp.array(dtype=wp.int32)):
+def count_seen_voxels(
+    first_view: int,
+    origins: wp.array(dtype=wp.vec3d),
+    rotations: wp.array(dtype=wp.mat33d),
+    groups: wp.array(dtype=wp.int32),
+    directions: wp.array(dtype=wp.vec3d),
+    max_range: wp.float64,
+    min_range: wp.float64,
+    use_region: int,
+    region_lo: wp.vec3d,
+    region_hi: wp.vec3d,
+    m: MapAccess,
+    candidate_offsets: wp.array(dtype=wp.int32),
+    candidates: wp.array(dtype=wp.int32),
+    table_offsets: wp.array(dtype=wp.int64),
+    anchors: wp.array(dtype=wp.vec3i),
+    tables: wp.array(dtype=wp.int64),
+    max_probes: int,
+    counts: wp.array2d(dtype=wp.int32),
+    overflow: wp.array(dtype=wp.int32),
+):
     """counts[group, state] += the voxels of each state first seen by the group's rays.
 
     A voxel is seen if the ray enters it before max_range and leaves it beyond min_range (the

@@ -9,10 +9,19 @@ virtual map and the global map agree bit for bit.
 import warp as wp
 
 from .fixed_point import from_fixed_point, to_fixed_point
-from .submap_view import SubmapView, submap_value, voxel_centre
 from .hashing import VOXEL_KEY_LIMIT_C, observed
-from .traversal import (FAR, l1_distance, ray_entry, ray_key_range, ray_voxel_at, ray_voxels_until, ray_walk_begin,
-                        ray_walk_resume, walk_step)
+from .submap_view import SubmapView, submap_value, voxel_centre
+from .traversal import (
+    FAR,
+    l1_distance,
+    ray_entry,
+    ray_key_range,
+    ray_voxel_at,
+    ray_voxels_until,
+    ray_walk_begin,
+    ray_walk_resume,
+    walk_step,
+)
 
 # A stretch of unknown voxels longer than this is counted in closed form, not walked.
 SKIP_VOXELS = wp.constant(64)
@@ -21,9 +30,14 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def sum_at_points(points: wp.array(dtype=wp.vec3d), first: int, views: wp.array(dtype=SubmapView),
-                  inv_resolution: wp.float64, sums: wp.array(dtype=wp.int64),
-                  counts: wp.array(dtype=wp.int32)):
+def sum_at_points(
+    points: wp.array(dtype=wp.vec3d),
+    first: int,
+    views: wp.array(dtype=SubmapView),
+    inv_resolution: wp.float64,
+    sums: wp.array(dtype=wp.int64),
+    counts: wp.array(dtype=wp.int32),
+):
     """Over (point, submap) pairs: fixed-point sum and count of the submaps observing each point."""
     q, i = wp.tid()
     q = q + first
@@ -34,8 +48,7 @@ def sum_at_points(points: wp.array(dtype=wp.vec3d), first: int, views: wp.array(
 
 
 @wp.func
-def ray_box_interval(view: SubmapView, origin: wp.vec3d, direction: wp.vec3d,
-                     max_range: wp.float64) -> wp.vec2d:
+def ray_box_interval(view: SubmapView, origin: wp.vec3d, direction: wp.vec3d, max_range: wp.float64) -> wp.vec2d:
     """[t_in, t_out] of the ray inside the submap's box, clipped to [0, max_range] (empty: t_in > t_out)."""
     o = view.rotation_t * (origin - view.translation)
     d = view.rotation_t * direction
@@ -54,9 +67,14 @@ def ray_box_interval(view: SubmapView, origin: wp.vec3d, direction: wp.vec3d,
 
 
 @wp.kernel
-def count_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                         max_ranges: wp.array(dtype=wp.float64), first: int,
-                         views: wp.array(dtype=SubmapView), counts: wp.array(dtype=wp.int32)):
+def count_ray_candidates(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    first: int,
+    views: wp.array(dtype=SubmapView),
+    counts: wp.array(dtype=wp.int32),
+):
     r, i = wp.tid()
     r = r + first
     span = ray_box_interval(views[i], origins[r], directions[r], max_ranges[r])
@@ -65,11 +83,17 @@ def count_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array
 
 
 @wp.kernel
-def list_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                        max_ranges: wp.array(dtype=wp.float64), first: int,
-                        views: wp.array(dtype=SubmapView), offsets: wp.array(dtype=wp.int32),
-                        fill: wp.array(dtype=wp.int32), candidates: wp.array(dtype=wp.int32),
-                        spans: wp.array(dtype=wp.vec2d)):
+def list_ray_candidates(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    first: int,
+    views: wp.array(dtype=SubmapView),
+    offsets: wp.array(dtype=wp.int32),
+    fill: wp.array(dtype=wp.int32),
+    candidates: wp.array(dtype=wp.int32),
+    spans: wp.array(dtype=wp.vec2d),
+):
     r, i = wp.tid()
     r = r + first
     span = ray_box_interval(views[i], origins[r], directions[r], max_ranges[r])
@@ -80,14 +104,26 @@ def list_ray_candidates(origins: wp.array(dtype=wp.vec3d), directions: wp.array(
 
 
 @wp.kernel
-def cast_virtual_rays(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                      max_ranges: wp.array(dtype=wp.float64), first: int,
-                      views: wp.array(dtype=SubmapView), offsets: wp.array(dtype=wp.int32),
-                      candidates: wp.array(dtype=wp.int32), spans: wp.array(dtype=wp.vec2d),
-                      resolution: wp.float64, inv_resolution: wp.float64, clamp_min: wp.float32,
-                      clamp_max: wp.float32, log_occupied: wp.float32, log_free: wp.float32,
-                      hit: wp.array(dtype=wp.bool), distance: wp.array(dtype=wp.float32),
-                      num_unknown: wp.array(dtype=wp.int32), num_free: wp.array(dtype=wp.int32)):
+def cast_virtual_rays(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    max_ranges: wp.array(dtype=wp.float64),
+    first: int,
+    views: wp.array(dtype=SubmapView),
+    offsets: wp.array(dtype=wp.int32),
+    candidates: wp.array(dtype=wp.int32),
+    spans: wp.array(dtype=wp.vec2d),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    clamp_min: wp.float32,
+    clamp_max: wp.float32,
+    log_occupied: wp.float32,
+    log_free: wp.float32,
+    hit: wp.array(dtype=wp.bool),
+    distance: wp.array(dtype=wp.float32),
+    num_unknown: wp.array(dtype=wp.int32),
+    num_free: wp.array(dtype=wp.int32),
+):
     """Walk the world voxel grid; at each voxel centre sum the candidate submaps the ray is in.
 
     Before the first candidate's span and after the last one every voxel is unknown: long

@@ -63,8 +63,12 @@ def _box(o, d, lo, hi):
 def pier() -> AnalyticScene:
     """A 16 x 12 m pier: two rows of slanted-spaced piles and a hull beside them."""
     xs = np.array([-6.0, -3.4, -0.5, 2.2, 5.5])
-    piles = np.concatenate([np.stack([xs, np.full(5, -3.0), np.full(5, 0.35), np.full(5, 5.0)], 1),
-                            np.stack([xs + 0.7, np.full(5, 3.0), np.full(5, 0.3), np.full(5, 5.0)], 1)])
+    piles = np.concatenate(
+        [
+            np.stack([xs, np.full(5, -3.0), np.full(5, 0.35), np.full(5, 5.0)], 1),
+            np.stack([xs + 0.7, np.full(5, 3.0), np.full(5, 0.3), np.full(5, 5.0)], 1),
+        ]
+    )
     boxes = np.array([[-4.0, -1.2, 0.0, 3.5, 1.2, 1.6]])  # a barge hull resting on the seabed
     bounds = np.array([[-9.0, -7.0, 0.0], [9.0, 7.0, 5.0]])
     return AnalyticScene(seabed_z_m=0.0, piles=piles, boxes=boxes, bounds=bounds)
@@ -82,9 +86,18 @@ class SonarSweep:
     hit: np.ndarray
 
 
-def orbit_sweep(scene: AnalyticScene, num_scans: int, beams: int = 96, fov_deg: float = 29.0,
-                max_range_m: float = 11.0, radius_m: float = 8.5, depths_m=(3.5, 2.5),
-                tilt_deg: float = -25.0, range_noise_m: float = 0.0, seed: int = 0) -> SonarSweep:
+def orbit_sweep(
+    scene: AnalyticScene,
+    num_scans: int,
+    beams: int = 96,
+    fov_deg: float = 29.0,
+    max_range_m: float = 11.0,
+    radius_m: float = 8.5,
+    depths_m=(3.5, 2.5),
+    tilt_deg: float = -25.0,
+    range_noise_m: float = 0.0,
+    seed: int = 0,
+) -> SonarSweep:
     """Orbit the scene at a few depths, the sonar's vertical fan looking at the centre."""
     rng = np.random.default_rng(seed)
     k = np.arange(num_scans)
@@ -94,13 +107,16 @@ def orbit_sweep(scene: AnalyticScene, num_scans: int, beams: int = 96, fov_deg: 
     origins = np.stack([radius_m * np.cos(angle), 0.8 * radius_m * np.sin(angle), z], axis=1)
     inward = -origins[:, :2] / np.linalg.norm(origins[:, :2], axis=1, keepdims=True)
     elevation = np.deg2rad(tilt_deg + np.linspace(-fov_deg / 2, fov_deg / 2, beams))
-    directions = np.concatenate([
-        np.repeat(inward, beams, axis=0) * np.tile(np.cos(elevation), num_scans)[:, None],
-        np.tile(np.sin(elevation), num_scans)[:, None]], axis=1)
+    directions = np.concatenate(
+        [
+            np.repeat(inward, beams, axis=0) * np.tile(np.cos(elevation), num_scans)[:, None],
+            np.tile(np.sin(elevation), num_scans)[:, None],
+        ],
+        axis=1,
+    )
     starts = np.repeat(origins, beams, axis=0)
     ranges = scene.cast(starts, directions)
     hit = ranges <= max_range_m
     ranges = np.where(hit, ranges + range_noise_m * rng.standard_normal(ranges.shape), max_range_m + 1.0)
     points = starts + directions * ranges[:, None]
-    return SonarSweep(origins.astype(np.float32), points.astype(np.float32),
-                      np.repeat(k, beams), hit)
+    return SonarSweep(origins.astype(np.float32), points.astype(np.float32), np.repeat(k, beams), hit)

@@ -32,9 +32,11 @@ def propeller() -> Scene:
     """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin. About
     7 x 4 x 6 m as the thesis gives for SS Curtiss's (4.4.2): 7 m from rudder to shaft, blades
     3.2 m long, their disc 6 m tall and pressed to 4 m across (y) like the thesis's model."""
-    parts = [cylinder_between([-0.7, 0, 0], [0.7, 0, 0], 0.55),  # hub
-             cylinder_between([0.7, 0, 0], [3.8, 0, 0], 0.25),  # shaft into the hull
-             box([-3.2, -0.12, -2.6], [-2.2, 0.12, 2.2])]  # rudder aft of the propeller
+    parts = [
+        cylinder_between([-0.7, 0, 0], [0.7, 0, 0], 0.55),  # hub
+        cylinder_between([0.7, 0, 0], [3.8, 0, 0], 0.25),  # shaft into the hull
+        box([-3.2, -0.12, -2.6], [-2.2, 0.12, 2.2]),
+    ]  # rudder aft of the propeller
     for k in range(5):
         blade = trimesh.creation.box(extents=[0.9, 0.08, 2.7])  # chord, thickness, span
         vertices, faces = trimesh.remesh.subdivide_to_size(blade.vertices, blade.faces, max_edge=0.3)
@@ -60,23 +62,33 @@ def pilings() -> Scene:
     for row_y in (-2.5, 2.5):
         for x in xs + rng.uniform(-0.6, 0.6, len(xs)):
             lean = rng.uniform(-0.5, 0.5, 2)  # metres of lean over the height
-            parts.append(cylinder_between([x, row_y, -0.2], [x + lean[0], row_y + lean[1], 6.2],
-                                          rng.uniform(0.25, 0.4)))
+            parts.append(
+                cylinder_between([x, row_y, -0.2], [x + lean[0], row_y + lean[1], 6.2], rng.uniform(0.25, 0.4))
+            )
     bounds = np.array([[-9.0, -6.5, 1.0], [9.0, 6.5, 5.0]])
     (x0, y0, _), (x1, y1, _) = bounds[0] + 0.5, bounds[1] - 0.5
-    corners = [[x0, y0, np.pi / 4], [x1, y0, 3 * np.pi / 4], [x1, y1, -3 * np.pi / 4],
-               [x0, y1, -np.pi / 4], [x0, y0, np.pi / 4]]
+    corners = [
+        [x0, y0, np.pi / 4],
+        [x1, y0, 3 * np.pi / 4],
+        [x1, y1, -3 * np.pi / 4],
+        [x0, y1, -np.pi / 4],
+        [x0, y0, np.pi / 4],
+    ]
     survey = np.asarray([[x, y, z, h] for z in _survey_depths(bounds) for x, y, h in corners])  # around the pier
     return _scene("pilings", parts, bounds, pose(-8.0, -5.5, 3.0, 0.0), survey)
 
 
 def tank() -> Scene:
     """A cylindrical tank 7 m across and 3 m deep, an aluminium box on its floor, a ladder."""
-    parts = [trimesh.creation.annulus(r_min=3.5, r_max=3.7, height=3.2,
-                                      transform=trimesh.transformations.translation_matrix([0, 0, 1.5])),
-             trimesh.creation.cylinder(radius=3.7, height=0.2,
-                                       transform=trimesh.transformations.translation_matrix([0, 0, -0.1])),
-             box([1.0, -1.6, 0.0], [2.2, -0.8, 0.8])]
+    parts = [
+        trimesh.creation.annulus(
+            r_min=3.5, r_max=3.7, height=3.2, transform=trimesh.transformations.translation_matrix([0, 0, 1.5])
+        ),
+        trimesh.creation.cylinder(
+            radius=3.7, height=0.2, transform=trimesh.transformations.translation_matrix([0, 0, -0.1])
+        ),
+        box([1.0, -1.6, 0.0], [2.2, -0.8, 0.8]),
+    ]
     for y in (-0.25, 0.25):  # ladder rails against the wall
         parts.append(cylinder_between([-3.35, y, 0.0], [-3.35, y, 3.0], 0.03, sections=8))
     for z in np.arange(0.3, 3.0, 0.3):
@@ -88,8 +100,12 @@ def tank() -> Scene:
 
 def boxes() -> Scene:
     """Three boxes on a floor: a small scene for fast tests."""
-    parts = [box([-4, -4, -0.2], [4, 4, 0.0]), box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),
-             box([0.6, 0.5, 0.0], [1.8, 1.4, 0.7]), box([0.4, -1.8, 0.0], [1.0, -1.2, 1.6])]
+    parts = [
+        box([-4, -4, -0.2], [4, 4, 0.0]),
+        box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),
+        box([0.6, 0.5, 0.0], [1.8, 1.4, 0.7]),
+        box([0.4, -1.8, 0.0], [1.0, -1.2, 1.6]),
+    ]
     bounds = np.array([[-3.0, -3.0, 0.5], [3.0, 3.0, 2.0]])
     survey = orbit((0.0, 0.0), 2.5, _survey_depths(bounds))
     return _scene("boxes", parts, bounds, pose(-2.5, -2.5, 1.2, np.pi / 4), survey)

@@ -64,8 +64,9 @@ class Scene:
 
     def region(self) -> np.ndarray:
         """(2,3) box holding the mesh and the exploration box."""
-        return np.stack([np.minimum(self.mesh.bounds[0], self.bounds[0]),
-                         np.maximum(self.mesh.bounds[1], self.bounds[1])])
+        return np.stack(
+            [np.minimum(self.mesh.bounds[0], self.bounds[0]), np.maximum(self.mesh.bounds[1], self.bounds[1])]
+        )
 
     def occupancy(self, voxel_size: float) -> GroundTruth:
         """Labels of the voxels of edge `voxel_size` (m) over the region and one voxel around it;
@@ -83,13 +84,13 @@ class Scene:
         for part in self.mesh.split(only_watertight=False):
             lo = np.clip(np.floor(part.bounds[0] / voxel_size).astype(np.int64) - 1 - first, 0, shape)
             hi = np.clip(np.floor(part.bounds[1] / voxel_size).astype(np.int64) + 2 - first, 0, shape)
-            box = labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+            box = labels[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
             if not box.size:
                 continue
             mesh = _warp_mesh(part)
             step = max(1, _INSIDE_CHUNK // (box.shape[1] * box.shape[2]))
             for i in range(0, box.shape[0], step):
-                slab = box[i:i + step]
+                slab = box[i : i + step]
                 grid = np.stack(np.meshgrid(*[np.arange(n) for n in slab.shape], indexing="ij"), -1).reshape(-1, 3)
                 centres = (grid + (first + lo + [i, 0, 0]) + 0.5) * voxel_size
                 slab[_inside(mesh, centres).reshape(slab.shape)] = INSIDE
@@ -106,9 +107,11 @@ class Scene:
         with np.errstate(over="ignore", invalid="ignore"):  # tiny voxels: inf or NaN, refused below
             cells = float(np.prod(np.floor(region[1] / voxel_size) - np.floor(region[0] / voxel_size) + 3))
         if not cells <= MAX_GROUND_TRUTH_CELLS:
-            raise ValueError(f"voxel_size {voxel_size:g} m gives {cells:.3g} ground-truth voxels over scene "
-                             f"{self.name!r}, more than the limit of {MAX_GROUND_TRUTH_CELLS} "
-                             f"(use a larger voxel_size)")
+            raise ValueError(
+                f"voxel_size {voxel_size:g} m gives {cells:.3g} ground-truth voxels over scene "
+                f"{self.name!r}, more than the limit of {MAX_GROUND_TRUTH_CELLS} "
+                f"(use a larger voxel_size)"
+            )
 
     def surface_points(self, count: int, seed: int = 0) -> np.ndarray:
         """(count,3) points spread evenly over the surface (for reconstruction RMSE); count: 1
@@ -136,14 +139,21 @@ def _warp_mesh(mesh: trimesh.Trimesh) -> wp.Mesh:
     from vogjax import devices
 
     devices.init()
-    return wp.Mesh(points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
-                   indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
+    return wp.Mesh(
+        points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
+        indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"),
+    )
 
 
 def _inside(mesh: wp.Mesh, points: np.ndarray) -> np.ndarray:
     out = wp.zeros(len(points), dtype=wp.int32, device="cpu")
-    wp.launch(ground_truth.flag_points_inside, dim=len(points), inputs=[mesh.id, wp.array(points, dtype=wp.vec3, device="cpu")],
-              outputs=[out], device="cpu")
+    wp.launch(
+        ground_truth.flag_points_inside,
+        dim=len(points),
+        inputs=[mesh.id, wp.array(points, dtype=wp.vec3, device="cpu")],
+        outputs=[out],
+        device="cpu",
+    )
     return out.numpy().astype(bool)
 
 

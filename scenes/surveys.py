@@ -24,6 +24,6 @@ def lawnmower(bounds: np.ndarray, heading: float, depths_m, lanes: int = 3) -> n
     for z in depths_m:
         for lane, y in enumerate(ys):
             xs = (bounds[0, 0] + 0.5, bounds[1, 0] - 0.5)
-            for x in (xs if lane % 2 == 0 else xs[::-1]):
+            for x in xs if lane % 2 == 0 else xs[::-1]:
                 rows.append([x, y, z, heading])
     return np.asarray(rows)

@@ -75,8 +75,9 @@ def reference_merge(vog):
         if box is None:
             continue
         pose = vog.pose(i)
-        corners = np.array([[x, y, z] for x in (box[0][0], box[1][0])
-                            for y in (box[0][1], box[1][1]) for z in (box[0][2], box[1][2])])
+        corners = np.array(
+            [[x, y, z] for x in (box[0][0], box[1][0]) for y in (box[0][1], box[1][1]) for z in (box[0][2], box[1][2])]
+        )
         world = corners @ pose[:3, :3].T + pose[:3, 3]
         lo = np.floor(world.min(axis=0) / s).astype(int) - 1
         hi = np.floor(world.max(axis=0) / s).astype(int) + 1

@@ -76,15 +76,25 @@ def test_explore_config_takes_the_tables_its_help_names(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.main(["explore", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
-    tables = ["[planner]", "[map]", "[nav_noise]", "[loop_closure]", "[loop_closure.icp]",
-              "[loop_closure.correlative]", "[timing]", "[pipeline]"]
+    tables = [
+        "[planner]",
+        "[map]",
+        "[nav_noise]",
+        "[loop_closure]",
+        "[loop_closure.icp]",
+        "[loop_closure.correlative]",
+        "[timing]",
+        "[pipeline]",
+    ]
     for table in tables:
         assert table in help_text
     assert "not [report]" in help_text
     settings = tmp_path / "s.toml"
-    settings.write_text("[planner]\nedge_length_m = 1.5\n[map]\nvoxel_size = 0.2\n[nav_noise]\n"
-                        "[loop_closure.icp]\nmax_iterations = 7\n[loop_closure.correlative]\nresolution_m = 0.3\n"
-                        "[timing]\nevery_submaps = 0\n[pipeline]\nscans_per_submap = 50\n")
+    settings.write_text(
+        "[planner]\nedge_length_m = 1.5\n[map]\nvoxel_size = 0.2\n[nav_noise]\n"
+        "[loop_closure.icp]\nmax_iterations = 7\n[loop_closure.correlative]\nresolution_m = 0.3\n"
+        "[timing]\nevery_submaps = 0\n[pipeline]\nscans_per_submap = 50\n"
+    )
     planner, pipeline = load_settings(settings, "boxes", 0)
     assert planner.edge_length_m == 1.5 and pipeline.map.voxel_size == 0.2
     assert pipeline.loop_closure.icp.max_iterations == 7 and pipeline.loop_closure.correlative.resolution_m == 0.3

@@ -24,8 +24,9 @@ def keys_of(centres, cfg):
     return [tuple(k) for k in np.floor(centres / cfg.voxel_size).astype(int)]
 
 
-@pytest.mark.parametrize("changes", [{}, {"spurious_probability": 0.02}, {"cause_range": "centre"},
-                                     {"cone_sigmas": 6.0, "bin_floor": 1e-3}])
+@pytest.mark.parametrize(
+    "changes", [{}, {"spurious_probability": 0.02}, {"cause_range": "centre"}, {"cone_sigmas": 6.0, "bin_floor": 1e-3}]
+)
 def test_matches_brute_force_reference(changes):
     cfg = SMALL.replace(**changes)
     rng = np.random.default_rng(3)
@@ -201,9 +202,16 @@ def _raycast_reference(crm, origin, direction, max_range):
         centres.append(((np.array(key) + 0.5) * cfg.voxel_size, t_in))
     mean, variance = crm.mean(np.array([c for c, _ in centres])), crm.variance(np.array([c for c, _ in centres]))
     seen = crm.observed(np.array([c for c, _ in centres]))
-    out = {"hit": False, "distance": max_range, "num_unknown": 0, "num_free": 0, "variance_sum": 0.0,
-           "variance_max": 0.0, "reach_probability": 1.0}
-    for (centre, t_in), m, v, s in zip(centres, mean, variance, seen):
+    out = {
+        "hit": False,
+        "distance": max_range,
+        "num_unknown": 0,
+        "num_free": 0,
+        "variance_sum": 0.0,
+        "variance_max": 0.0,
+        "reach_probability": 1.0,
+    }
+    for (_centre, t_in), m, v, s in zip(centres, mean, variance, seen):
         if s and m >= cfg.occupied_threshold:
             out.update(hit=True, distance=t_in)
             break
@@ -248,15 +256,18 @@ def test_a_voxel_whose_bins_underflow_within_a_scan_is_reset_and_reported():
     cfg = SMALL.replace(range_sigma_m=0.02, num_bins=3)
     origin = np.array([0.1, 0.12, 0.12])
     rng = np.random.default_rng(1)
-    points = np.concatenate([[1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (200, 3)),
-                             [[1.9, 0.12, 0.12]]]).astype(np.float32)
+    points = np.concatenate([[1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (200, 3)), [[1.9, 0.12, 0.12]]]).astype(
+        np.float32
+    )
     for sorted_path in (False, True):
         crm = ConfidenceMap(cfg, "cpu")
         crm._sorted_path = sorted_path
         with pytest.warns(RuntimeWarning, match="fell back to the prior"):
             crm.integrate_scan(origin, points)
         assert crm.prior_resets == 1
-        np.testing.assert_array_equal(crm.distribution(np.array([[1.12, 0.12, 0.12]]))[0], np.full(3, np.float32(1 / 3)))
+        np.testing.assert_array_equal(
+            crm.distribution(np.array([[1.12, 0.12, 0.12]]))[0], np.full(3, np.float32(1 / 3))
+        )
     fine = ConfidenceMap(cfg, "cpu")  # a scan with a tenth of the readings keeps its evidence
     fine.integrate_scan(origin, points[180:])
     assert fine.prior_resets == 0

@@ -30,17 +30,20 @@ def unchanged(m, before):
 GOOD_POINTS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
-@pytest.mark.parametrize("origin, points, name", [
-    (np.array([np.nan, 0, 0]), GOOD_POINTS, "origin"),
-    (np.zeros(3), np.array([[np.inf, 0, 0]]), "points"),
-    (np.zeros(2), GOOD_POINTS, "origin"),
-    (np.zeros(3), np.zeros((2, 2)), "points"),
-    (np.zeros(3), np.array([["a", "b", "c"]]), "points"),
-    (np.zeros(3), np.array([[True, False, True]]), "points"),
-    (np.zeros(3), np.array([[1.0, 0, 0], [0.0, 0.0, 0.0]]), "points"),  # a beam without direction
-    (np.array([1e7, 0, 0]), GOOD_POINTS, "origin"),
-    (np.zeros(3), np.array([[0.0, 0.0, 3e6]]), "points"),  # its cone leaves the key range
-])
+@pytest.mark.parametrize(
+    "origin, points, name",
+    [
+        (np.array([np.nan, 0, 0]), GOOD_POINTS, "origin"),
+        (np.zeros(3), np.array([[np.inf, 0, 0]]), "points"),
+        (np.zeros(2), GOOD_POINTS, "origin"),
+        (np.zeros(3), np.zeros((2, 2)), "points"),
+        (np.zeros(3), np.array([["a", "b", "c"]]), "points"),
+        (np.zeros(3), np.array([[True, False, True]]), "points"),
+        (np.zeros(3), np.array([[1.0, 0, 0], [0.0, 0.0, 0.0]]), "points"),  # a beam without direction
+        (np.array([1e7, 0, 0]), GOOD_POINTS, "origin"),
+        (np.zeros(3), np.array([[0.0, 0.0, 3e6]]), "points"),  # its cone leaves the key range
+    ],
+)
 def test_integrate_scan_rejects(crm, origin, points, name):
     before = snapshot(crm)
     with pytest.raises(ValueError, match=name):
@@ -48,14 +51,17 @@ def test_integrate_scan_rejects(crm, origin, points, name):
     unchanged(crm, before)
 
 
-@pytest.mark.parametrize("origins, points, index, name", [
-    (np.zeros((2, 3)), GOOD_POINTS, np.array([0, 2]), "scan_index"),
-    (np.zeros((2, 3)), GOOD_POINTS, np.array([0, -1]), "scan_index"),
-    (np.zeros((2, 3)), GOOD_POINTS, np.array([0.0, 1.0]), "scan_index"),
-    (np.zeros((2, 3)), GOOD_POINTS, np.array([0]), "scan_index"),
-    (np.full((2, 3), np.nan), GOOD_POINTS, np.array([0, 1]), "origins"),
-    (np.zeros((2, 3)), np.array([[1.0, 0, 0], [0.0, 0.0, 0.0]]), np.array([0, 1]), "points"),
-])
+@pytest.mark.parametrize(
+    "origins, points, index, name",
+    [
+        (np.zeros((2, 3)), GOOD_POINTS, np.array([0, 2]), "scan_index"),
+        (np.zeros((2, 3)), GOOD_POINTS, np.array([0, -1]), "scan_index"),
+        (np.zeros((2, 3)), GOOD_POINTS, np.array([0.0, 1.0]), "scan_index"),
+        (np.zeros((2, 3)), GOOD_POINTS, np.array([0]), "scan_index"),
+        (np.full((2, 3), np.nan), GOOD_POINTS, np.array([0, 1]), "origins"),
+        (np.zeros((2, 3)), np.array([[1.0, 0, 0], [0.0, 0.0, 0.0]]), np.array([0, 1]), "points"),
+    ],
+)
 def test_integrate_scans_rejects(crm, origins, points, index, name):
     before = snapshot(crm)
     with pytest.raises(ValueError, match=name):
@@ -63,28 +69,39 @@ def test_integrate_scans_rejects(crm, origins, points, index, name):
     unchanged(crm, before)
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda m: m.mean(np.array([[np.nan, 0, 0]])), "points"),
-    (lambda m: m.variance(np.zeros((3, 2))), "points"),
-    (lambda m: m.state(np.array([0, 0, 0])), "points"),
-    (lambda m: m.distribution(np.array([[np.inf, 0, 0]])), "points"),
-    (lambda m: m.raycast(np.zeros((1, 3)), np.zeros((1, 3)), 1.0), "directions"),
-    (lambda m: m.raycast(np.zeros((1, 3)), np.ones((1, 3)), -1.0), "max_range"),
-    (lambda m: m.raycast(np.zeros((1, 3)), np.ones((2, 3)), 1.0), "directions"),
-    (lambda m: m.raycast(np.zeros((1, 3)), np.ones((1, 3)), 1e7), "max_range"),
-])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda m: m.mean(np.array([[np.nan, 0, 0]])), "points"),
+        (lambda m: m.variance(np.zeros((3, 2))), "points"),
+        (lambda m: m.state(np.array([0, 0, 0])), "points"),
+        (lambda m: m.distribution(np.array([[np.inf, 0, 0]])), "points"),
+        (lambda m: m.raycast(np.zeros((1, 3)), np.zeros((1, 3)), 1.0), "directions"),
+        (lambda m: m.raycast(np.zeros((1, 3)), np.ones((1, 3)), -1.0), "max_range"),
+        (lambda m: m.raycast(np.zeros((1, 3)), np.ones((2, 3)), 1.0), "directions"),
+        (lambda m: m.raycast(np.zeros((1, 3)), np.ones((1, 3)), 1e7), "max_range"),
+    ],
+)
 def test_queries_reject(crm, call, name):
     with pytest.raises(ValueError, match=name):
         call(crm)
 
 
-@pytest.mark.parametrize("changes, name", [
-    ({"num_bins": 1}, "num_bins"), ({"num_bins": 65}, "num_bins"), ({"num_bins": 8.0}, "num_bins"),
-    ({"range_sigma_m": 0.0}, "range_sigma_m"), ({"spurious_probability": 1.0}, "spurious_probability"),
-    ({"free_threshold": 0.8}, "free_threshold"), ({"bin_floor": 0.0}, "bin_floor"),
-    ({"bin_floor": 0.009, "num_bins": 64}, "bin_floor"), ({"cause_range": "edge"}, "cause_range"),
-    ({"max_range": float("nan")}, "max_range"),
-])
+@pytest.mark.parametrize(
+    "changes, name",
+    [
+        ({"num_bins": 1}, "num_bins"),
+        ({"num_bins": 65}, "num_bins"),
+        ({"num_bins": 8.0}, "num_bins"),
+        ({"range_sigma_m": 0.0}, "range_sigma_m"),
+        ({"spurious_probability": 1.0}, "spurious_probability"),
+        ({"free_threshold": 0.8}, "free_threshold"),
+        ({"bin_floor": 0.0}, "bin_floor"),
+        ({"bin_floor": 0.009, "num_bins": 64}, "bin_floor"),
+        ({"cause_range": "edge"}, "cause_range"),
+        ({"max_range": float("nan")}, "max_range"),
+    ],
+)
 def test_config_rejects(changes, name):
     with pytest.raises(ValueError, match=name):
         CrmConfig(**changes)
@@ -140,9 +157,23 @@ def test_empty_map_round_trip(tmp_path):
     assert len(loaded.voxels()[0]) == 0 and loaded.mean(np.zeros((1, 3)))[0] == CFG.prior_mean
 
 
-@pytest.mark.parametrize("damage", ["duplicate_keys", "keys_dtype", "junk_key", "bins_shape", "bins_negative",
-                                    "bins_nan", "bins_sum", "unobserved_not_prior", "observed_dtype",
-                                    "missing", "config", "bins_for_other_count"])
+@pytest.mark.parametrize(
+    "damage",
+    [
+        "duplicate_keys",
+        "keys_dtype",
+        "junk_key",
+        "bins_shape",
+        "bins_negative",
+        "bins_nan",
+        "bins_sum",
+        "unobserved_not_prior",
+        "observed_dtype",
+        "missing",
+        "config",
+        "bins_for_other_count",
+    ],
+)
 def test_load_rejects_damaged_contents(tmp_path, crm, damage):
     path, metadata, arrays = _saved(tmp_path, crm)
     keys, bins, observed = arrays["block_keys"], arrays["bins"].copy(), arrays["observed"]

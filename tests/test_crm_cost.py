@@ -7,8 +7,14 @@ from tests.crm_reference import cone
 from vogjax.config import SonarConfig
 from vogjax.config.crm import CrmConfig
 from vogjax.maps.confidence import ConfidenceMap
-from vogjax.maps.confidence_cost import (choose_path, collision_risk, edge_risk, inconsistency, most_likely_ranges,
-                                        path_cost)
+from vogjax.maps.confidence_cost import (
+    choose_path,
+    collision_risk,
+    edge_risk,
+    inconsistency,
+    most_likely_ranges,
+    path_cost,
+)
 
 CFG = CrmConfig(voxel_size=0.1, max_range=4.0, range_sigma_m=0.03, num_bins=8)
 
@@ -73,7 +79,7 @@ def test_edge_risk_sums_the_voxels_a_segment_passes():
         length = float(np.linalg.norm(ends[i] - starts[i]))
         voxels = cone(starts[i], (ends[i] - starts[i]) / max(length, 1e-300), length, CFG.voxel_size)
         if not voxels:
-            expected = collision_risk(crm, starts[i:i + 1])[0]
+            expected = collision_risk(crm, starts[i : i + 1])[0]
         else:
             centres = np.array([(np.array(k) + 0.5) * CFG.voxel_size for k, _, _ in voxels])
             expected = collision_risk(crm, centres).sum()

@@ -77,10 +77,16 @@ def test_conflicting_beams_through_one_voxel_rescale_alike_on_both_paths(spuriou
 
 
 @wp.kernel
-def _walk_cone_blocks(origins: wp.array(dtype=wp.vec3d), directions: wp.array(dtype=wp.vec3d),
-                      lengths: wp.array(dtype=wp.float64), resolution: wp.float64, inv_resolution: wp.float64,
-                      block_keys: wp.array2d(dtype=wp.int64), block_counts: wp.array(dtype=wp.int32),
-                      voxel_counts: wp.array(dtype=wp.int32)):
+def _walk_cone_blocks(
+    origins: wp.array(dtype=wp.vec3d),
+    directions: wp.array(dtype=wp.vec3d),
+    lengths: wp.array(dtype=wp.float64),
+    resolution: wp.float64,
+    inv_resolution: wp.float64,
+    block_keys: wp.array2d(dtype=wp.int64),
+    block_counts: wp.array(dtype=wp.int32),
+    voxel_counts: wp.array(dtype=wp.int32),
+):
     """Reference: the voxel walk of fill_cone_steps, voxel by voxel, listing the block of every
     voxel it takes into the cone (traversal.holds_chord; each block once on entering it)."""
     tid = wp.tid()
@@ -109,10 +115,21 @@ def _hostile_beams(rng, resolution):
     """Beams from voxel and block corners and plane points along axes and diagonals (planes of
     two or three axes crossed at one distance), and random ones; lengths up to 30 blocks."""
     s = resolution
-    corners = np.array([[0, 0, 0], [8 * s, 8 * s, 8 * s], [-8 * s, 0, 4 * s], [3 * s, -5 * s, 0.5 * s],
-                        [0.5 * s, 0.5 * s, 0.5 * s]])
-    axes = [[1, 0, 0], [0, -1, 0], [0, 0, 1], [1, 1, 0], [1, -1, 1], [-1, -1, -1], [1, 2, 0], [2, 1, 1],
-            [1, 1, 1e-12], [0.6, 0.8, 0]]
+    corners = np.array(
+        [[0, 0, 0], [8 * s, 8 * s, 8 * s], [-8 * s, 0, 4 * s], [3 * s, -5 * s, 0.5 * s], [0.5 * s, 0.5 * s, 0.5 * s]]
+    )
+    axes = [
+        [1, 0, 0],
+        [0, -1, 0],
+        [0, 0, 1],
+        [1, 1, 0],
+        [1, -1, 1],
+        [-1, -1, -1],
+        [1, 2, 0],
+        [2, 1, 1],
+        [1, 1, 1e-12],
+        [0.6, 0.8, 0],
+    ]
     starts, directions = [], []
     for c in corners:
         for d in axes:
@@ -135,7 +152,11 @@ def test_block_listing_is_the_voxel_walks_blocks(resolution):
     rng = np.random.default_rng(8)
     starts, directions, lengths, hostile = _hostile_beams(rng, resolution)
     n, room = len(starts), 512
-    arrays = [wp.array(starts, dtype=wp.vec3d), wp.array(directions, dtype=wp.vec3d), wp.array(lengths, dtype=wp.float64)]
+    arrays = [
+        wp.array(starts, dtype=wp.vec3d),
+        wp.array(directions, dtype=wp.vec3d),
+        wp.array(lengths, dtype=wp.float64),
+    ]
     args = [np.float64(resolution), np.float64(1.0 / resolution)]
 
     def listing(recent_blocks, beams):
@@ -143,14 +164,20 @@ def test_block_listing_is_the_voxel_walks_blocks(resolution):
         counts, bounds = wp.empty(n, dtype=wp.int32), wp.empty(n, dtype=wp.int32)
         for a, b in beams:
             recent = wp.full(recent_blocks, EMPTY_KEY, dtype=wp.int64)
-            wp.launch(confidence_kernels.list_cone_blocks, dim=b - a,
-                      inputs=[arrays[0][a:b], arrays[1][a:b], arrays[2][a:b], *args, recent],
-                      outputs=[keys[a:b], counts[a:b], bounds[a:b]], device="cpu")
+            wp.launch(
+                confidence_kernels.list_cone_blocks,
+                dim=b - a,
+                inputs=[arrays[0][a:b], arrays[1][a:b], arrays[2][a:b], *args, recent],
+                outputs=[keys[a:b], counts[a:b], bounds[a:b]],
+                device="cpu",
+            )
         return keys.numpy(), counts.numpy(), bounds.numpy()
 
     ref_keys, ref_counts = wp.full((n, room), EMPTY_KEY, dtype=wp.int64), wp.empty(n, dtype=wp.int32)
     ref_voxels = wp.empty(n, dtype=wp.int32)
-    wp.launch(_walk_cone_blocks, dim=n, inputs=[*arrays, *args], outputs=[ref_keys, ref_counts, ref_voxels], device="cpu")
+    wp.launch(
+        _walk_cone_blocks, dim=n, inputs=[*arrays, *args], outputs=[ref_keys, ref_counts, ref_voxels], device="cpu"
+    )
     ref_keys, ref_counts, ref_voxels = ref_keys.numpy(), ref_counts.numpy(), ref_voxels.numpy()
     # beam by beam (nothing listed lately): every block, in order
     keys, counts, bounds = listing(2048, [(i, i + 1) for i in range(n)])
@@ -241,8 +268,12 @@ def test_free_passes_after_hundreds_of_readings_keep_the_next_level(hits, passes
     cfg = SMALL.replace(range_sigma_m=0.02, num_bins=16)
     origin = np.array([0.1, 0.12, 0.12])
     rng = np.random.default_rng(1)
-    points = np.concatenate([[1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (hits, 3)),
-                             [1.9, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (passes, 3))]).astype(np.float32)
+    points = np.concatenate(
+        [
+            [1.12, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (hits, 3)),
+            [1.9, 0.12, 0.12] + rng.uniform(-0.01, 0.01, (passes, 3)),
+        ]
+    ).astype(np.float32)
     ref = ReferenceCrm(cfg)
     ref.integrate_scan(origin.astype(np.float32), points)
     voxel = np.array([[1.12, 0.12, 0.12]])

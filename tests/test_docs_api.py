@@ -28,7 +28,7 @@ def test_subpackages_resolve_on_first_use():
     for name in vj._SUBPACKAGES:
         assert getattr(vj, name).__name__ == f"vogjax.{name}"
     with pytest.raises(AttributeError):
-        vj.no_such_thing
+        _ = vj.no_such_thing
 
 
 def test_kernels_all_names_every_module():
@@ -39,7 +39,7 @@ def test_kernels_all_names_every_module():
     for name in kernels.__all__:
         assert getattr(kernels, name).__name__ == f"vogjax.kernels.{name}"
     with pytest.raises(AttributeError):
-        kernels.no_such_module
+        _ = kernels.no_such_module
 
 
 def test_quickstart_runs_as_written(tmp_path, monkeypatch):
@@ -102,6 +102,11 @@ def test_planner_examples_take_the_shapes_they_show():
     # the risk hook as the confidence-rich map section writes it
     scene = scenes.load("boxes")
     crm = vj.ConfidenceMap(vj.CrmConfig(voxel_size=0.2, max_range=6.0, range_sigma_m=0.05), device="cpu")
-    nbv = planner.NbvPlanner(planner.PlannerConfig(risk_weight=1.0), bounds=scene.bounds, sensor=sonar,
-                             region=scene.region(), risk=functools.partial(edge_risk, crm))
+    nbv = planner.NbvPlanner(
+        planner.PlannerConfig(risk_weight=1.0),
+        bounds=scene.bounds,
+        sensor=sonar,
+        region=scene.region(),
+        risk=functools.partial(edge_risk, crm),
+    )
     assert nbv.risk(starts[:, :3], ends[:, :3]).shape == (2,)

@@ -32,9 +32,11 @@ def test_auc_equals_the_pairwise_definition():
 
 def test_rmse_of_a_shifted_noisy_plane_is_its_noise():
     rng = np.random.default_rng(1)
-    walls = [np.c_[rng.uniform(0, 4, 3000), rng.uniform(0, 4, 3000), np.zeros(3000)],
-             np.c_[np.zeros(3000), rng.uniform(0, 4, 3000), rng.uniform(0, 3, 3000)],
-             np.c_[rng.uniform(0, 4, 3000), np.zeros(3000), rng.uniform(0, 3, 3000)]]
+    walls = [
+        np.c_[rng.uniform(0, 4, 3000), rng.uniform(0, 4, 3000), np.zeros(3000)],
+        np.c_[np.zeros(3000), rng.uniform(0, 4, 3000), rng.uniform(0, 3, 3000)],
+        np.c_[rng.uniform(0, 4, 3000), np.zeros(3000), rng.uniform(0, 3, 3000)],
+    ]
     surface = np.concatenate(walls)
     noisy = surface[::3] + rng.normal(0, 0.03, (len(surface[::3]), 3))
     distance, _ = cKDTree(surface).query(noisy)

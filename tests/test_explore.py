@@ -59,8 +59,25 @@ def test_explore_boxes_never_hits_the_scene_and_reprocesses_to_the_same_map(tmp_
     settings = tmp_path / "explore.toml"
     settings.write_text("[pipeline]\nscans_per_submap = 60\n[planner]\nmax_nodes = 10\ntolerance_nodes = 30\n")
     out = tmp_path / "boxes.h5"
-    assert cli.main(["explore", "--scene", "boxes", "--submaps", "6", "--out", str(out), "--seed", "1",
-                     "--config", str(settings), "--quiet"]) == 0
+    assert (
+        cli.main(
+            [
+                "explore",
+                "--scene",
+                "boxes",
+                "--submaps",
+                "6",
+                "--out",
+                str(out),
+                "--seed",
+                "1",
+                "--config",
+                str(settings),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "stopped: submaps" in printed
     with open(tmp_path / "boxes.explore.csv") as f:
@@ -86,7 +103,7 @@ def test_explore_boxes_never_hits_the_scene_and_reprocesses_to_the_same_map(tmp_
     inside = np.all((centres >= lo) & (centres <= hi), axis=1)
     cfg = result.config.map
     known = (values <= cfg.log_free) | (values >= cfg.log_occupied)
-    explored = np.count_nonzero(inside & known) * cfg.voxel_size ** 3
+    explored = np.count_nonzero(inside & known) * cfg.voxel_size**3
     assert f"{explored:.1f} m^3 explored" in printed
 
 

@@ -44,7 +44,7 @@ def covered_voxels(tree, voxel_size):
 
 
 def data(blob: bytes) -> bytes:
-    return blob[blob.index(b"\ndata\n") + 6:]
+    return blob[blob.index(b"\ndata\n") + 6 :]
 
 
 def test_bt_is_read_by_octomap_with_every_observed_voxels_state(voxel_map, tmp_path):
@@ -148,9 +148,11 @@ def test_bad_input_is_a_clear_error(voxel_map, tmp_path, capsys):
     with pytest.raises(ValueError, match="probabilities must lie strictly between 0 and 1"):
         VoxelSet.from_probabilities(np.array([[0.05, 0.05, 0.05]]), [1.0], 0.1)
     (tmp_path / "junk.vog").write_bytes(b"not a map")
-    for argv in (["export", str(tmp_path / "junk.vog"), "--out", str(tmp_path / "x.bt")],
-                 ["export", str(tmp_path / "missing.vog"), "--out", str(tmp_path / "x.bt")],
-                 ["export", str(tmp_path / "junk.vog"), "--out", str(tmp_path / "x.txt")]):
+    for argv in (
+        ["export", str(tmp_path / "junk.vog"), "--out", str(tmp_path / "x.bt")],
+        ["export", str(tmp_path / "missing.vog"), "--out", str(tmp_path / "x.bt")],
+        ["export", str(tmp_path / "junk.vog"), "--out", str(tmp_path / "x.txt")],
+    ):
         with pytest.raises(SystemExit) as exit_info:
             cli.main(argv)
         assert exit_info.value.code == 2
@@ -169,6 +171,7 @@ def test_ply_holds_the_occupied_voxels_coloured_by_height(voxel_map, tmp_path):
     colours = np.asarray(cloud.colors)[:, :3].astype(int)
     order = np.argsort(occupied[:, 2], kind="stable")
     import matplotlib
+
     viridis = np.round(matplotlib.colormaps["viridis"]([0.0, 1.0])[:, :3] * 255).astype(int)
     np.testing.assert_array_equal(colours[order[0]], viridis[0])  # lowest: viridis' purple
     np.testing.assert_array_equal(colours[order[-1]], viridis[1])  # highest: its yellow

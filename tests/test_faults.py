@@ -85,9 +85,11 @@ class Watched:
         appeared; True if it was killed, False if it had finished first."""
         while self.process.poll() is None:
             now = time.perf_counter() - self.start
-            if (seconds is not None and now >= seconds) or \
-                    (after_temporary is not None and self.temporary_at is not None
-                     and now >= self.temporary_at + after_temporary):
+            if (seconds is not None and now >= seconds) or (
+                after_temporary is not None
+                and self.temporary_at is not None
+                and now >= self.temporary_at + after_temporary
+            ):
                 os.kill(self.process.pid, signal.SIGKILL)
                 break
             if now > RUN_LIMIT_S:
@@ -123,20 +125,24 @@ def killed_runs(argv, env, folder, name, reference: Watched, rng) -> list[dict]:
     window (early in it: in runs started together the window shrinks to about half the earlier
     run's), the others at a random time."""
     window = write_window(reference)
-    plans = [{"after_temporary": float(rng.uniform(0.0, 0.3) * window)}] + \
-        [{"seconds": float(rng.uniform(0.15, 1.1) * reference.finished_at)} for _ in range(KILLS - 1)]
+    plans = [{"after_temporary": float(rng.uniform(0.0, 0.3) * window)}] + [
+        {"seconds": float(rng.uniform(0.15, 1.1) * reference.finished_at)} for _ in range(KILLS - 1)
+    ]
     runs = [Watched(argv, env, folder, name) for _ in plans]
     outcomes = [None] * len(runs)
 
     def kill(k):
         outcomes[k] = runs[k].kill_at(**plans[k])
+
     threads = [threading.Thread(target=kill, args=(k,)) for k in range(len(runs))]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    return [{**plan, "killed": killed, "temporary_at": run.temporary_at, "published_at": run.published_at}
-            for plan, killed, run in zip(plans, outcomes, runs)]
+    return [
+        {**plan, "killed": killed, "temporary_at": run.temporary_at, "published_at": run.published_at}
+        for plan, killed, run in zip(plans, outcomes, runs)
+    ]
 
 
 def record(name: str, facts: dict) -> None:
@@ -146,19 +152,23 @@ def record(name: str, facts: dict) -> None:
 
 # ------------------------------------------------------------------------------ vogjax simulate
 
+
 def run_contents(path: Path) -> dict:
     from vogjax.io.dataset import Dataset
 
     with Dataset(path) as run:
         run.validate()
         batch = next(run.batches(10**6))
-        return {"metadata": run.metadata, **{k: getattr(batch, k) for k in
-                                             ("time_s", "pose_nav", "pose_truth", "ranges", "no_return")}}
+        return {
+            "metadata": run.metadata,
+            **{k: getattr(batch, k) for k in ("time_s", "pose_nav", "pose_truth", "ranges", "no_return")},
+        }
 
 
 def same_contents(a: dict, b: dict) -> bool:
     return a.keys() == b.keys() and all(
-        np.array_equal(a[k], b[k], equal_nan=True) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a)
+        np.array_equal(a[k], b[k], equal_nan=True) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a
+    )
 
 
 @pytest.fixture(scope="module")
@@ -183,11 +193,20 @@ def test_killed_simulations_leave_the_earlier_run_and_nothing_stale(simulated, e
     complete_run(argv, env, folder, out.name)
     assert same_contents(run_contents(out), earlier_contents)
     assert leftovers(folder, out.name) == [], "temporaries of killed runs survived the next run"
-    record("simulate", {"earlier_s": round(earlier.finished_at, 2), "write_window_s": round(write_window(earlier), 3),
-                        "kills": kills, "stale_before_next_run": len(stale), "stale_after": 0})
+    record(
+        "simulate",
+        {
+            "earlier_s": round(earlier.finished_at, 2),
+            "write_window_s": round(write_window(earlier), 3),
+            "kills": kills,
+            "stale_before_next_run": len(stale),
+            "stale_after": 0,
+        },
+    )
 
 
 # ------------------------------------------------------------------------------ vogjax map
+
 
 def folder_bytes(folder: Path) -> dict:
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
@@ -222,8 +241,16 @@ def test_killed_map_jobs_leave_the_earlier_results_and_nothing_stale(tmp_path, e
     complete_map_folder(results, set(earlier_files))
     assert leftovers(maps, "run") == [], "temporaries of killed runs survived the next run"
     assert [p.name for p in maps.iterdir()] == ["run"]
-    record("map", {"earlier_s": round(earlier.finished_at, 2), "write_window_s": round(write_window(earlier), 3),
-                   "kills": kills, "stale_before_next_run": len(stale), "stale_after": 0})
+    record(
+        "map",
+        {
+            "earlier_s": round(earlier.finished_at, 2),
+            "write_window_s": round(write_window(earlier), 3),
+            "kills": kills,
+            "stale_before_next_run": len(stale),
+            "stale_after": 0,
+        },
+    )
 
 
 # ------------------------------------------------------------------------------ publishing a folder over one
@@ -285,8 +312,10 @@ def test_a_kill_before_the_new_folder_is_complete_keeps_the_old_one(tmp_path):
     target = tmp_path / "results"
     target.mkdir()
     (target / "file.txt").write_text("old")
-    script = KILLED_BETWEEN_RENAMES.replace('(temporary / "file.txt").write_text("new")',
-                                            '(temporary / "file.txt").write_text("new"); os.kill(os.getpid(), 9)')
+    script = KILLED_BETWEEN_RENAMES.replace(
+        '(temporary / "file.txt").write_text("new")',
+        '(temporary / "file.txt").write_text("new"); os.kill(os.getpid(), 9)',
+    )
     process = subprocess.run([sys.executable, "-c", script, str(target)], capture_output=True)
     assert process.returncode == -signal.SIGKILL
     atomic.remove_stale(target)

@@ -54,14 +54,17 @@ def test_write_is_atomic(saved, monkeypatch):
     assert os.listdir(path.parent) == [path.name]  # and no temporary file is left
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda b: b[: len(b) // 2], "truncated"),
-    (lambda b: b[:10], "truncated"),
-    (lambda b: b[:-1] + bytes([b[-1] ^ 1]), "checksum"),
-    (lambda b: b"NOTAMAP!" + b[8:], "not a vogjax map"),
-    (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], "version 99"),
-    (lambda b: b + b"extra", "trailing"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda b: b[: len(b) // 2], "truncated"),
+        (lambda b: b[:10], "truncated"),
+        (lambda b: b[:-1] + bytes([b[-1] ^ 1]), "checksum"),
+        (lambda b: b"NOTAMAP!" + b[8:], "not a vogjax map"),
+        (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], "version 99"),
+        (lambda b: b + b"extra", "trailing"),
+    ],
+)
 def test_damaged_files_give_clear_errors(saved, damage, message):
     _, path = saved
     path.write_bytes(damage(path.read_bytes()))

@@ -29,7 +29,9 @@ from .test_fuzz_maps import CFG, bounded, fuzz
 
 SCENES = "propeller, pilings, tank, boxes"  # a bad scene's error lists them (it says "name", not --scene)
 SIM_SCANS = 25  # every simulation here records this many scans (one MJX compilation for all)
-TINY_SETTINGS = "[timing]\nrays = 100\nevery_submaps = 0\n[report]\nsurface_points = 500\n[pipeline]\nscans_per_submap = 10\n"
+TINY_SETTINGS = (
+    "[timing]\nrays = 100\nevery_submaps = 0\n[report]\nsurface_points = 500\n[pipeline]\nscans_per_submap = 10\n"
+)
 
 
 class Workspace:
@@ -46,8 +48,10 @@ class Workspace:
         return self.root / name
 
     def snapshot(self) -> dict:
-        return {str(p.relative_to(self.root)): (p.read_bytes() if p.is_file() else None)
-                for p in sorted(self.root.rglob("*"))}
+        return {
+            str(p.relative_to(self.root)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(self.root.rglob("*"))
+        }
 
 
 @pytest.fixture(scope="module")
@@ -88,6 +92,7 @@ def template(tmp_path_factory):
 def workspace_factory(template, tmp_path_factory):
     def make() -> Workspace:
         return Workspace(template, tmp_path_factory.mktemp("ws") / "w")
+
     return make
 
 
@@ -150,27 +155,65 @@ def outcome(code, err, bad, argv, before, after):
 
 # ------------------------------------------------------------------------------ simulate
 
+
 @fuzz(20)
 @given(data=st.data())
 def test_cli_simulate(workspace_factory, capsys, data):
     ws = workspace_factory()
     scene = data.draw(chosen(["boxes"], [(name, ["scene", SCENES]) for name in ("nope", "", "BOXES", "../boxes")]))
-    out = data.draw(chosen([ws / "new.h5"], [(ws / "run.h5", ["run.h5"]), (ws / "folder", ["folder"]),
-                                             (ws / "missing" / "x.h5", ["missing"]),
-                                             (ws / "notes.txt" / "x.h5", ["notes.txt"])]))
+    out = data.draw(
+        chosen(
+            [ws / "new.h5"],
+            [
+                (ws / "run.h5", ["run.h5"]),
+                (ws / "folder", ["folder"]),
+                (ws / "missing" / "x.h5", ["missing"]),
+                (ws / "notes.txt" / "x.h5", ["notes.txt"]),
+            ],
+        )
+    )
     overwrite = data.draw(st.sampled_from([None, True]))
     if overwrite and out[0] == ws / "run.h5":
         out = (out[0], None)  # replacing it is what --overwrite is for
-    scans = data.draw(chosen([SIM_SCANS], [(0, ["scans"]), (-1, ["scans"]), (10**8, ["scans"]), ("x", ["--scans"]),
-                                           ("1e3", ["--scans"]), ("", ["--scans"])]))
+    scans = data.draw(
+        chosen(
+            [SIM_SCANS],
+            [
+                (0, ["scans"]),
+                (-1, ["scans"]),
+                (10**8, ["scans"]),
+                ("x", ["--scans"]),
+                ("1e3", ["--scans"]),
+                ("", ["--scans"]),
+            ],
+        )
+    )
     laps = data.draw(chosen([None, 1, 2], [(0, ["laps"]), (-3, ["laps"]), (1001, ["laps"]), ("two", ["--laps"])]))
     # (a negative seed: test_negative_seed_is_refused_naming_it)
     seed = data.draw(chosen([0, 7], [("x", ["--seed"]), (2**70, [EITHER, "seed"])]))
-    noise = data.draw(chosen([0.02, 0.0], [(-1.0, ["range", "noise"]), ("nan", ["range", "noise"]),
-                                           ("inf", ["range", "noise"]), ("x", ["--range-noise"]),
-                                           (1e300, [EITHER, "range", "noise", "ranges"])]))
-    argv, bad = args_of([("--scene", scene), ("--out", out), ("--scans", scans), ("--laps", laps), ("--seed", seed),
-                         ("--range-noise", noise), ("--overwrite", (overwrite, None))])
+    noise = data.draw(
+        chosen(
+            [0.02, 0.0],
+            [
+                (-1.0, ["range", "noise"]),
+                ("nan", ["range", "noise"]),
+                ("inf", ["range", "noise"]),
+                ("x", ["--range-noise"]),
+                (1e300, [EITHER, "range", "noise", "ranges"]),
+            ],
+        )
+    )
+    argv, bad = args_of(
+        [
+            ("--scene", scene),
+            ("--out", out),
+            ("--scans", scans),
+            ("--laps", laps),
+            ("--seed", seed),
+            ("--range-noise", noise),
+            ("--overwrite", (overwrite, None)),
+        ]
+    )
     event("simulated" if not [names for names in bad if names[0] != EITHER] else "refused or doubtful")
     before = ws.snapshot()
     code, _, err = run_cli(["simulate", *argv], capsys)
@@ -182,30 +225,63 @@ def test_cli_simulate(workspace_factory, capsys, data):
 
 # ------------------------------------------------------------------------------ map
 
+
 @fuzz(15)
 @given(data=st.data())
 def test_cli_map(workspace_factory, capsys, data):
     ws = workspace_factory()
-    runs = data.draw(st.lists(chosen([ws / "run.h5"], [(ws / "missing.h5", ["missing.h5"]),
-                                                       (ws / "truncated.h5", ["truncated.h5"]),
-                                                       (ws / "flipped.h5", ["flipped.h5"]),
-                                                       (ws / "notes.txt", ["notes.txt"]),
-                                                       (ws / "folder", ["folder"]),
-                                                       (ws / "voxel.vog", ["voxel.vog"])]), min_size=1, max_size=2))
+    runs = data.draw(
+        st.lists(
+            chosen(
+                [ws / "run.h5"],
+                [
+                    (ws / "missing.h5", ["missing.h5"]),
+                    (ws / "truncated.h5", ["truncated.h5"]),
+                    (ws / "flipped.h5", ["flipped.h5"]),
+                    (ws / "notes.txt", ["notes.txt"]),
+                    (ws / "folder", ["folder"]),
+                    (ws / "voxel.vog", ["voxel.vog"]),
+                ],
+            ),
+            min_size=1,
+            max_size=2,
+        )
+    )
     if len(runs) == 2 and runs[0][0] == runs[1][0]:
         runs[1] = (runs[1][0], ["share an output folder", "paths"])
-    out = data.draw(chosen([ws / "maps"], [(ws / "notes.txt", ["notes.txt"]), (ws / "notes.txt" / "sub", ["notes.txt"])]))
-    config = data.draw(chosen([ws / "tiny.toml"], [(ws / "typo.toml", ["voxel_sise"]), (ws / "type.toml", ["voxel_size"]),
-                                                   (ws / "range.toml", ["max_range"]), (ws / "table.toml", ["maps"]),
-                                                   (ws / "huge.toml", ["rays"]), (ws / "broken.toml", ["broken.toml"]),
-                                                   (ws / "binary.toml", ["binary.toml"]),
-                                                   (ws / "nope.toml", ["nope.toml"]), (ws / "folder", ["folder"])]))
+    out = data.draw(
+        chosen([ws / "maps"], [(ws / "notes.txt", ["notes.txt"]), (ws / "notes.txt" / "sub", ["notes.txt"])])
+    )
+    config = data.draw(
+        chosen(
+            [ws / "tiny.toml"],
+            [
+                (ws / "typo.toml", ["voxel_sise"]),
+                (ws / "type.toml", ["voxel_size"]),
+                (ws / "range.toml", ["max_range"]),
+                (ws / "table.toml", ["maps"]),
+                (ws / "huge.toml", ["rays"]),
+                (ws / "broken.toml", ["broken.toml"]),
+                (ws / "binary.toml", ["binary.toml"]),
+                (ws / "nope.toml", ["nope.toml"]),
+                (ws / "folder", ["folder"]),
+            ],
+        )
+    )
     preset = data.draw(chosen([None, "default"], [("fast", ["preset"]), ("", ["preset"])]))
     workers = data.draw(chosen([None], [(0, ["workers"]), (-2, ["workers"]), ("many", ["--workers"])]))
     crm = data.draw(st.sampled_from([None, True]))
     argv = [str(r[0]) for r in runs]
-    more, bad = args_of([("--out", out), ("--config", config), ("--preset", preset), ("--workers", workers),
-                         ("--crm", (crm, None)), ("--quiet", (True, None))])
+    more, bad = args_of(
+        [
+            ("--out", out),
+            ("--config", config),
+            ("--preset", preset),
+            ("--workers", workers),
+            ("--crm", (crm, None)),
+            ("--quiet", (True, None)),
+        ]
+    )
     argv += more
     bad += [r[1] for r in runs if r[1] is not None]
     event("mapped" if not bad else "refused")
@@ -218,19 +294,35 @@ def test_cli_map(workspace_factory, capsys, data):
 
 # ------------------------------------------------------------------------------ export, view, import
 
+
 @fuzz(30)
 @given(data=st.data())
 def test_cli_export(workspace_factory, capsys, data):
     ws = workspace_factory()
-    source = data.draw(chosen([ws / "voxel.vog", ws / "global.vog"],
-                              [(ws / "damaged.vog", ["damaged.vog"]), (ws / "missing.vog", ["missing.vog"]),
-                               (ws / "run.h5", ["run.h5"]), (ws / "folder", ["folder"]),
-                               (ws / "notes.txt", ["notes.txt"])]))
+    source = data.draw(
+        chosen(
+            [ws / "voxel.vog", ws / "global.vog"],
+            [
+                (ws / "damaged.vog", ["damaged.vog"]),
+                (ws / "missing.vog", ["missing.vog"]),
+                (ws / "run.h5", ["run.h5"]),
+                (ws / "folder", ["folder"]),
+                (ws / "notes.txt", ["notes.txt"]),
+            ],
+        )
+    )
     fmt = data.draw(chosen([None, "bt", "ot", "ply"], [("xyz", ["--format"]), ("", ["--format"])]))
     suffix = data.draw(st.sampled_from([".bt", ".ot", ".ply", ".txt", ""]))
-    out = data.draw(chosen([ws / f"out{suffix}"], [(ws / "folder", ["folder", "--out"]),
-                                                   (ws / "missing" / f"x{suffix}", ["missing", "--out"]),
-                                                   (ws / "notes.txt" / f"x{suffix}", ["notes.txt", "--out"])]))
+    out = data.draw(
+        chosen(
+            [ws / f"out{suffix}"],
+            [
+                (ws / "folder", ["folder", "--out"]),
+                (ws / "missing" / f"x{suffix}", ["missing", "--out"]),
+                (ws / "notes.txt" / f"x{suffix}", ["notes.txt", "--out"]),
+            ],
+        )
+    )
     if fmt[0] is None and suffix not in (".bt", ".ot", ".ply") and out[1] is None:
         out = (out[0], ["--format", "--out"])  # the format must come from somewhere
     argv, bad = args_of([("--format", fmt), ("--out", out)])
@@ -252,11 +344,27 @@ def rerun():
 @given(data=st.data())
 def test_cli_view(rerun, workspace_factory, capsys, data):
     ws = workspace_factory()
-    source = data.draw(chosen([ws / "voxel.vog", ws / "global.vog"],
-                              [(ws / "damaged.vog", ["damaged.vog"]), (ws / "missing.vog", ["missing.vog"]),
-                               (ws / "folder", ["folder"]), (ws / "notes.txt", ["notes.txt"])]))
-    save = data.draw(chosen([ws / "rec.rrd"], [(ws / "rec.txt", ["--save", "rec.txt"]),
-                                               (ws / "missing" / "r.rrd", ["missing"]), (ws / "folder", ["folder"])]))
+    source = data.draw(
+        chosen(
+            [ws / "voxel.vog", ws / "global.vog"],
+            [
+                (ws / "damaged.vog", ["damaged.vog"]),
+                (ws / "missing.vog", ["missing.vog"]),
+                (ws / "folder", ["folder"]),
+                (ws / "notes.txt", ["notes.txt"]),
+            ],
+        )
+    )
+    save = data.draw(
+        chosen(
+            [ws / "rec.rrd"],
+            [
+                (ws / "rec.txt", ["--save", "rec.txt"]),
+                (ws / "missing" / "r.rrd", ["missing"]),
+                (ws / "folder", ["folder"]),
+            ],
+        )
+    )
     argv, bad = args_of([("--save", save)])
     argv = [source[0], *argv]
     if source[1] is not None:
@@ -273,14 +381,38 @@ def test_cli_import(workspace_factory, capsys, data):
     """No bag here is a real one: every call is refused, naming the bag, the --max-range or --out."""
     ws = workspace_factory()
     # (a folder that is no ROS 2 bag: test_import_of_a_folder_that_is_no_bag)
-    bag = data.draw(st.sampled_from([(ws / "missing.bag", ["missing.bag"]), (ws / "notes.txt", ["notes.txt"]),
-                                     (ws / "run.h5", ["run.h5"]), (ws / "voxel.vog", ["voxel.vog"])]))
+    bag = data.draw(
+        st.sampled_from(
+            [
+                (ws / "missing.bag", ["missing.bag"]),
+                (ws / "notes.txt", ["notes.txt"]),
+                (ws / "run.h5", ["run.h5"]),
+                (ws / "voxel.vog", ["voxel.vog"]),
+            ]
+        )
+    )
     topic = data.draw(st.sampled_from(["/points", "", "not a topic", "/" * 50]))
-    max_range = data.draw(chosen([None, 5.0], [(-1.0, ["max_range", "max-range"]), ("nan", ["max_range", "max-range"]),
-                                               ("x", ["--max-range"]), (1e300, ["max_range", "max-range"])]))
+    max_range = data.draw(
+        chosen(
+            [None, 5.0],
+            [
+                (-1.0, ["max_range", "max-range"]),
+                ("nan", ["max_range", "max-range"]),
+                ("x", ["--max-range"]),
+                (1e300, ["max_range", "max-range"]),
+            ],
+        )
+    )
     out = data.draw(chosen([ws / "imported.h5"], [(ws / "run.h5", ["run.h5"]), (ws / "missing" / "i.h5", ["missing"])]))
-    argv, bad = args_of([("--points", (topic, None)), ("--odometry", ("/odom", None)), ("--max-range", max_range),
-                         ("--out", out), ("--quiet", (True, None))])
+    argv, bad = args_of(
+        [
+            ("--points", (topic, None)),
+            ("--odometry", ("/odom", None)),
+            ("--max-range", max_range),
+            ("--out", out),
+            ("--quiet", (True, None)),
+        ]
+    )
     argv = [bag[0], *argv]
     bad.append(bag[1])
     before = ws.snapshot()
@@ -289,6 +421,7 @@ def test_cli_import(workspace_factory, capsys, data):
 
 
 # ------------------------------------------------------------------------------ explore, demo, the command itself
+
 
 @fuzz(20)
 @given(data=st.data())
@@ -299,13 +432,30 @@ def test_cli_explore(workspace_factory, capsys, data):
     scene = data.draw(chosen(["boxes"], [(name, ["scene", SCENES]) for name in ("nope", "")]))
     submaps = data.draw(chosen([2], [(0, ["submaps"]), (-1, ["submaps"]), ("x", ["--submaps"])]))
     seed = data.draw(chosen([0], [(-1, ["seed"]), ("x", ["--seed"])]))
-    config = data.draw(chosen([None], [(ws / "typo.toml", ["voxel_sise"]), (ws / "broken.toml", ["broken.toml"]),
-                                       (ws / "nope.toml", ["nope.toml"])]))
+    config = data.draw(
+        chosen(
+            [None],
+            [
+                (ws / "typo.toml", ["voxel_sise"]),
+                (ws / "broken.toml", ["broken.toml"]),
+                (ws / "nope.toml", ["nope.toml"]),
+            ],
+        )
+    )
     kind = data.draw(chosen(["global"], [("octomap", ["--map"])]))
     # (an existing run file: test_explore_keeps_an_existing_run)
     out = data.draw(chosen([ws / "explored.h5"], [(ws / "folder", ["folder"]), (ws / "missing" / "e.h5", ["missing"])]))
-    argv, bad = args_of([("--scene", scene), ("--submaps", submaps), ("--seed", seed), ("--config", config),
-                         ("--map", kind), ("--out", out), ("--quiet", (True, None))])
+    argv, bad = args_of(
+        [
+            ("--scene", scene),
+            ("--submaps", submaps),
+            ("--seed", seed),
+            ("--config", config),
+            ("--map", kind),
+            ("--out", out),
+            ("--quiet", (True, None)),
+        ]
+    )
     assume(bad)
     before = ws.snapshot()
     code, _, err = run_cli(["explore", *argv], capsys)
@@ -313,8 +463,14 @@ def test_cli_explore(workspace_factory, capsys, data):
 
 
 @fuzz(20)
-@given(argv=st.lists(st.sampled_from(["", "mapp", "--out", "-x", "simulate", "map", "--help", "--version", "view",
-                                      "\x00", "é", "--scene=boxes"]), max_size=3))
+@given(
+    argv=st.lists(
+        st.sampled_from(
+            ["", "mapp", "--out", "-x", "simulate", "map", "--help", "--version", "view", "\x00", "é", "--scene=boxes"]
+        ),
+        max_size=3,
+    )
+)
 def test_cli_top_level(capsys, argv):
     """Unknown commands and options: argparse's exit 2 (or 0 for --help), never a traceback."""
     assume(not (argv and argv[0] in ("simulate", "map", "view") and "--help" not in argv))
@@ -326,11 +482,13 @@ def test_cli_top_level(capsys, argv):
 
 # ------------------------------------------------------------------------------ findings, fixed (regression tests)
 
+
 def test_import_of_a_folder_that_is_no_bag(workspace_factory, capsys):
     ws = workspace_factory()
     try:
-        code, _, err = run_cli(["import", ws / "folder", "--points", "/p", "--odometry", "/o", "--out", ws / "i.h5"],
-                               capsys)
+        code, _, err = run_cli(
+            ["import", ws / "folder", "--points", "/p", "--odometry", "/o", "--out", ws / "i.h5"], capsys
+        )
     except OSError as error:
         raise AssertionError(f"{type(error).__name__}: {error}") from None
     check_refusal(code, err, ["folder"], "import")
@@ -357,8 +515,9 @@ def test_demo_into_a_file_is_refused(workspace_factory, capsys, out):
 
 def test_negative_seed_is_refused_naming_it(workspace_factory, capsys):
     ws = workspace_factory()
-    code, _, err = run_cli(["simulate", "--scene", "boxes", "--scans", SIM_SCANS, "--seed", -1, "--out", ws / "s.h5"],
-                           capsys)
+    code, _, err = run_cli(
+        ["simulate", "--scene", "boxes", "--scans", SIM_SCANS, "--seed", -1, "--out", ws / "s.h5"], capsys
+    )
     check_refusal(code, err, ["seed"], "simulate --seed -1")
 
 
@@ -372,10 +531,13 @@ def test_explore_keeps_an_existing_run(workspace_factory, capsys, monkeypatch):
 
     def stop(*args, **kwargs):
         raise _Explored
+
     monkeypatch.setattr(explore, "_Loop", stop)
     ws = workspace_factory()
     try:
-        code, _, err = run_cli(["explore", "--scene", "boxes", "--submaps", 2, "--out", ws / "run.h5", "--quiet"], capsys)
+        code, _, err = run_cli(
+            ["explore", "--scene", "boxes", "--submaps", 2, "--out", ws / "run.h5", "--quiet"], capsys
+        )
     except _Explored:
         raise AssertionError("explore set out to replace the existing run.h5") from None
     check_refusal(code, err, ["run.h5"], "explore")

@@ -27,7 +27,7 @@ from vogjax.io.mapfile import read_map_file, write_map_file
 from vogjax.maps.blocks import pack_blocks, unpack_blocks
 
 from . import submap_helpers as helpers
-from .test_fuzz_maps import CFG, CRM_CFG, JUNK, REFUSED, attempt, crm_base, fuzz, refuses, same
+from .test_fuzz_maps import CFG, JUNK, REFUSED, attempt, crm_base, fuzz, refuses, same
 
 # ------------------------------------------------------------------------------ map files
 
@@ -94,8 +94,9 @@ def test_damaged_map_files(map_files, tmp_path_factory, data):
     damaged = bytearray(original)
     start = header_end(original)
     for _ in range(data.draw(st.integers(1, 3))):
-        how = data.draw(st.sampled_from(["flip_payload", "flip_payload", "flip_prefix", "truncate", "append", "insert",
-                                         "zero_run"]))
+        how = data.draw(
+            st.sampled_from(["flip_payload", "flip_payload", "flip_prefix", "truncate", "append", "insert", "zero_run"])
+        )
         if how in ("flip_payload", "flip_prefix", "truncate", "zero_run", "insert") and len(damaged) <= start:
             how = "append"
         if how == "flip_payload":
@@ -111,7 +112,7 @@ def test_damaged_map_files(map_files, tmp_path_factory, data):
             damaged[at:at] = data.draw(st.binary(min_size=1, max_size=8))
         else:
             at = data.draw(st.integers(start, max(start, len(damaged) - 1)))
-            damaged[at:at + 64] = bytes(len(damaged[at:at + 64]))
+            damaged[at : at + 64] = bytes(len(damaged[at : at + 64]))
     target = tmp_path_factory.mktemp("damaged") / "map.vog"
     target.write_bytes(bytes(damaged))
     loaded = attempt(lambda: CLASSES[kind].load(target), [str(target)], None, "either", f"{kind}.load")
@@ -120,6 +121,7 @@ def test_damaged_map_files(map_files, tmp_path_factory, data):
 
 
 # crafted files: the checksum is right, the contents are not what a map can hold
+
 
 def craft_voxelmap(metadata, arrays, how):
     if not isinstance(metadata, dict):
@@ -136,8 +138,11 @@ def craft_voxelmap(metadata, arrays, how):
     elif how == "missing":
         del arrays["log_odds"]
     elif how in ("config_type", "config_range", "config_unknown") and "config" in metadata:
-        key, value = {"config_type": ("voxel_size", "0.1"), "config_range": ("prob_hit", 1.5),
-                      "config_unknown": ("voxel_sise", 0.1)}[how]
+        key, value = {
+            "config_type": ("voxel_size", "0.1"),
+            "config_range": ("prob_hit", 1.5),
+            "config_unknown": ("voxel_sise", 0.1),
+        }[how]
         metadata["config"][key] = value
     elif how == "metadata_list":
         return [], arrays
@@ -178,12 +183,42 @@ def craft_globalmap(metadata, arrays, how):
     return metadata, arrays
 
 
-CRAFTS = {"VoxelMap": (craft_voxelmap, ["keys_int32", "values_float64", "duplicate_key", "rows", "missing",
-                                        "config_type", "config_range", "config_unknown", "metadata_list", "no_config",
-                                        "values_2d", "pickled", "nan_values"]),
-          "GlobalMap": (craft_globalmap, ["count_dtype", "sum_dtype", "revision_text", "id_text", "pose_missing",
-                                          "no_applied", "shapes", "config_type", "config_range",
-                                          "metadata_list", "no_config"])}
+CRAFTS = {
+    "VoxelMap": (
+        craft_voxelmap,
+        [
+            "keys_int32",
+            "values_float64",
+            "duplicate_key",
+            "rows",
+            "missing",
+            "config_type",
+            "config_range",
+            "config_unknown",
+            "metadata_list",
+            "no_config",
+            "values_2d",
+            "pickled",
+            "nan_values",
+        ],
+    ),
+    "GlobalMap": (
+        craft_globalmap,
+        [
+            "count_dtype",
+            "sum_dtype",
+            "revision_text",
+            "id_text",
+            "pose_missing",
+            "no_applied",
+            "shapes",
+            "config_type",
+            "config_range",
+            "metadata_list",
+            "no_config",
+        ],
+    ),
+}
 
 
 def consistent(m) -> None:
@@ -239,9 +274,15 @@ def run_fields(rng, count=SCANS, first_time=0.0):
     ranges = rng.uniform(0.5, 10.0, (count, BEAMS)).astype(np.float32)
     no_return = rng.random((count, BEAMS)) < 0.2
     ranges[no_return] = np.nan
-    return {"time_s": first_time + np.arange(count) * 0.2, "pose_truth": poses, "pose_nav": poses.copy(),
-            "sonar_origin": np.tile(np.float32([0.9, 0.0, -0.1]), (count, 1)),
-            "sonar_directions": directions.astype(np.float32), "ranges": ranges, "no_return": no_return}
+    return {
+        "time_s": first_time + np.arange(count) * 0.2,
+        "pose_truth": poses,
+        "pose_nav": poses.copy(),
+        "sonar_origin": np.tile(np.float32([0.9, 0.0, -0.1]), (count, 1)),
+        "sonar_directions": directions.astype(np.float32),
+        "ranges": ranges,
+        "no_return": no_return,
+    }
 
 
 METADATA = {"scene": "boxes", "seed": 3, "sensor": {"kind": "sonar", "beams": BEAMS}}
@@ -260,9 +301,22 @@ def read_run(path):
     with Dataset(path) as ds:
         ds.validate()
         batch = next(ds.batches(10**6))
-        return ds.metadata, ds.has_truth, {name: getattr(batch, name) for name in
-                                           ("time_s", "pose_truth", "pose_nav", "sonar_origin", "sonar_directions",
-                                            "ranges", "no_return")}
+        return (
+            ds.metadata,
+            ds.has_truth,
+            {
+                name: getattr(batch, name)
+                for name in (
+                    "time_s",
+                    "pose_truth",
+                    "pose_nav",
+                    "sonar_origin",
+                    "sonar_directions",
+                    "ranges",
+                    "no_return",
+                )
+            },
+        )
 
 
 def chunk_spans(path):
@@ -271,8 +325,10 @@ def chunk_spans(path):
     with h5py.File(path, "r") as f:
         for name in f:
             ds = f[name]
-            spans += [(info.byte_offset, info.size) for info in
-                      (ds.id.get_chunk_info(i) for i in range(ds.id.get_num_chunks()))]
+            spans += [
+                (info.byte_offset, info.size)
+                for info in (ds.id.get_chunk_info(i) for i in range(ds.id.get_num_chunks()))
+            ]
     return spans
 
 
@@ -301,8 +357,18 @@ ATTRIBUTES = {  # (array-valued format and has_truth, text format_version: test_
     "format": ["vogjax-run", "vogjax-runs", "", 7],
     "format_version": [2, 1, 3, 99, -1, 2.5, "2", np.array([2, 2]), True],
     "has_truth": [True, False, "no", 2],
-    "metadata": [json.dumps(METADATA), "[]", "null", "{", "", '"text"', "5", json.dumps({"scene": 5}), b"\xff\xfe",
-                 np.array([1, 2])],
+    "metadata": [
+        json.dumps(METADATA),
+        "[]",
+        "null",
+        "{",
+        "",
+        '"text"',
+        "5",
+        json.dumps({"scene": 5}),
+        b"\xff\xfe",
+        np.array([1, 2]),
+    ],
 }
 
 
@@ -330,12 +396,33 @@ def test_run_file_attributes(run_file, tmp_path_factory, data):
     metadata, has_truth, scans = result
     assert isinstance(metadata, dict)
     assert changed.get("format", "vogjax-run") == "vogjax-run"
-    assert same(scans, fields) if has_truth else same({k: v for k, v in scans.items() if k != "pose_truth"},
-                                                      {k: v for k, v in fields.items() if k != "pose_truth"})
+    assert (
+        same(scans, fields)
+        if has_truth
+        else same(
+            {k: v for k, v in scans.items() if k != "pose_truth"},
+            {k: v for k, v in fields.items() if k != "pose_truth"},
+        )
+    )
 
 
-FIELD_DAMAGE = ["dtype", "shape", "length", "missing", "nan_range", "negative_range", "far_range", "time_back",
-                "time_nan", "nonrigid", "direction", "no_return_int", "origin_far", "scalar", "empty"]
+FIELD_DAMAGE = [
+    "dtype",
+    "shape",
+    "length",
+    "missing",
+    "nan_range",
+    "negative_range",
+    "far_range",
+    "time_back",
+    "time_nan",
+    "nonrigid",
+    "direction",
+    "no_return_int",
+    "origin_far",
+    "scalar",
+    "empty",
+]
 
 
 @fuzz(60)
@@ -357,7 +444,7 @@ def test_run_file_fields(run_file, tmp_path_factory, data):
             value = value.reshape(SCANS, -1) if value.ndim > 1 else value[:, None]
             value = np.concatenate([value, value], axis=1)
         elif how == "length":
-            value = value[:-data.draw(st.integers(1, 5))]
+            value = value[: -data.draw(st.integers(1, 5))]
         elif how == "scalar":
             value = np.float64(1.0)
         elif how == "empty":
@@ -367,9 +454,17 @@ def test_run_file_fields(run_file, tmp_path_factory, data):
             if how != "missing":
                 f.create_dataset(name, data=value)
         else:
-            field = {"nan_range": "ranges", "negative_range": "ranges", "far_range": "ranges", "time_back": "time_s",
-                     "time_nan": "time_s", "nonrigid": "pose_nav", "direction": "sonar_directions",
-                     "no_return_int": "no_return", "origin_far": "sonar_origin"}[how]
+            field = {
+                "nan_range": "ranges",
+                "negative_range": "ranges",
+                "far_range": "ranges",
+                "time_back": "time_s",
+                "time_nan": "time_s",
+                "nonrigid": "pose_nav",
+                "direction": "sonar_directions",
+                "no_return_int": "no_return",
+                "origin_far": "sonar_origin",
+            }[how]
             stored = f[field]
             value = stored[()]
             if how == "nan_range":
@@ -413,17 +508,28 @@ def test_dataset_writer_appends(tmp_path_factory, data):
     with DatasetWriter(target, BEAMS, METADATA) as writer:
         for _ in range(data.draw(st.integers(1, 4))):
             fields = run_fields(rng, data.draw(st.integers(0, 5)), first_time=last_time + 1.0)
-            how = data.draw(st.sampled_from(["valid"] * 3 + ["missing", "extra", "junk", "nan_time", "back_in_time",
-                                                               "beams", "pose", "range"]))
+            how = data.draw(
+                st.sampled_from(
+                    ["valid"] * 3 + ["missing", "extra", "junk", "nan_time", "back_in_time", "beams", "pose", "range"]
+                )
+            )
             if how == "missing":
                 del fields["ranges"]
             elif how == "extra":
                 fields["depth"] = np.zeros(len(fields["time_s"]))
             elif how == "junk":  # (None, and scalar times: test_missing_fields_are_refused_naming_them)
                 name = data.draw(st.sampled_from(list(fields)))
-                fields[name] = data.draw(st.sampled_from(
-                    [j for j in JUNK if j is not None and not isinstance(j, (list, tuple))
-                     and (name != "time_s" or isinstance(j, (str, bytes)))]))
+                fields[name] = data.draw(
+                    st.sampled_from(
+                        [
+                            j
+                            for j in JUNK
+                            if j is not None
+                            and not isinstance(j, (list, tuple))
+                            and (name != "time_s" or isinstance(j, (str, bytes)))
+                        ]
+                    )
+                )
             elif how == "nan_time" and len(fields["time_s"]):  # (all fields are arrays here)
                 fields["time_s"][0] = np.nan
             elif how == "back_in_time" and len(fields["time_s"]):
@@ -439,9 +545,13 @@ def test_dataset_writer_appends(tmp_path_factory, data):
             changed = how != "valid" and (count or how in ("missing", "extra", "junk", "beams"))
             if how == "back_in_time" and last_time < 0:
                 changed = False  # nothing before them: any finite increasing times will do
-            result = attempt(lambda: writer.append(**fields), ["scans for", "fields", "time_s", "ranges", "no_return",
-                                                               "pose", "sonar", str(target)],
-                             None, "invalid" if changed else "either", "DatasetWriter.append")
+            result = attempt(
+                lambda: writer.append(**fields),
+                ["scans for", "fields", "time_s", "ranges", "no_return", "pose", "sonar", str(target)],
+                None,
+                "invalid" if changed else "either",
+                "DatasetWriter.append",
+            )
             if result is not REFUSED:
                 accepted.append(fields)
                 if count:
@@ -457,19 +567,31 @@ def test_dataset_writer_appends(tmp_path_factory, data):
 
 # ------------------------------------------------------------------------------ settings (TOML)
 
+
 def settings_tables(job: JobConfig | None = None) -> dict:
     """TOML table name -> the Config it sets, as README documents the settings file."""
     job = job or JobConfig()
     p = job.pipeline
-    return {"map": p.map, "nav_noise": p.nav_noise, "pipeline": p, "loop_closure": p.loop_closure,
-            "loop_closure.icp": p.loop_closure.icp, "loop_closure.correlative": p.loop_closure.correlative,
-            "timing": p.timing, "report": job.report}
+    return {
+        "map": p.map,
+        "nav_noise": p.nav_noise,
+        "pipeline": p,
+        "loop_closure": p.loop_closure,
+        "loop_closure.icp": p.loop_closure.icp,
+        "loop_closure.correlative": p.loop_closure.correlative,
+        "timing": p.timing,
+        "report": job.report,
+    }
 
 
 def plain_fields(config) -> dict:
     import dataclasses
-    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
-            if not dataclasses.is_dataclass(getattr(config, f.name))}
+
+    return {
+        f.name: getattr(config, f.name)
+        for f in dataclasses.fields(config)
+        if not dataclasses.is_dataclass(getattr(config, f.name))
+    }
 
 
 def toml_value(value) -> str:
@@ -497,8 +619,9 @@ def test_settings_documents(tmp_path_factory, data):
     and key (or the file, for TOML that does not parse)."""
     tables = settings_tables()
     document, expected, wrong = {}, {}, []
-    for table in data.draw(st.lists(st.sampled_from(list(tables) + ["maps", "loop_closure.icpp"]), min_size=1,
-                                    max_size=3, unique=True)):
+    for table in data.draw(
+        st.lists(st.sampled_from(list(tables) + ["maps", "loop_closure.icpp"]), min_size=1, max_size=3, unique=True)
+    ):
         if table not in tables:
             document[table] = {"x": 1}
             wrong.append(table)
@@ -531,14 +654,24 @@ def test_settings_documents(tmp_path_factory, data):
             elif bad is None:
                 wrong.append(None)  # may or may not be accepted
             expected[(table, key)] = value
-    text = "\n".join(f"[{table}]\n" + "\n".join(f"{k} = {toml_value(v)}" for k, v in values.items())
-                     for table, values in document.items()) + "\n"
+    text = (
+        "\n".join(
+            f"[{table}]\n" + "\n".join(f"{k} = {toml_value(v)}" for k, v in values.items())
+            for table, values in document.items()
+        )
+        + "\n"
+    )
     path = tmp_path_factory.mktemp("settings") / "settings.toml"
     path.write_text(text)
     names = [w for w in wrong if w] + [t for t in document] + ["map.", "pipeline", "loop_closure", "timing"]
     definite = [w for w in wrong if w]
-    config = attempt(lambda: JobConfig.from_toml(path), names, None, "invalid" if definite else
-                     ("valid" if not wrong else "either"), "JobConfig.from_toml")
+    config = attempt(
+        lambda: JobConfig.from_toml(path),
+        names,
+        None,
+        "invalid" if definite else ("valid" if not wrong else "either"),
+        "JobConfig.from_toml",
+    )
     if config is REFUSED:
         return
     loaded = settings_tables(config)
@@ -557,8 +690,11 @@ def test_settings_documents(tmp_path_factory, data):
 
 def test_settings_files_that_are_no_toml(tmp_path):
     """Binary junk, a folder, a missing file: a ValueError naming the file."""
-    cases = {"binary.toml": b"\xff\xfe\x00[map]", "bad.toml": b"[map\nvoxel_size = 0.1", "dup.toml":
-             b"[map]\nvoxel_size = 0.1\nvoxel_size = 0.2\n"}  # (deep nesting: test_deeply_nested_settings_...)
+    cases = {
+        "binary.toml": b"\xff\xfe\x00[map]",
+        "bad.toml": b"[map\nvoxel_size = 0.1",
+        "dup.toml": b"[map]\nvoxel_size = 0.1\nvoxel_size = 0.2\n",
+    }  # (deep nesting: test_deeply_nested_settings_...)
     for name, content in cases.items():
         (tmp_path / name).write_bytes(content)
         refuses(lambda: JobConfig.from_toml(tmp_path / name), name)
@@ -568,16 +704,22 @@ def test_settings_files_that_are_no_toml(tmp_path):
 
 # ------------------------------------------------------------------------------ findings, fixed (regression tests)
 
+
 def flip_in_header(data: bytes, old: bytes, new: bytes) -> bytes:
     """`data` with the first `old` inside the JSON header replaced by `new` (same length)."""
     end = header_end(data)
     at = data.index(old, PREFIX.size, end)
-    return data[:at] + new + data[at + len(old):]
+    return data[:at] + new + data[at + len(old) :]
 
 
-@pytest.mark.parametrize("kind, old, new", [("VoxelMap", b'"voxel_size": 0.25', b'"voxel_size": 4.25'),
-                                            ("GlobalMap", b'"prob_hit": 0.75', b'"prob_hit": 0.71'),
-                                            ("ConfidenceMap", b'"range_sigma_m": 0.1', b'"range_sigma_m": 0.3')])
+@pytest.mark.parametrize(
+    "kind, old, new",
+    [
+        ("VoxelMap", b'"voxel_size": 0.25', b'"voxel_size": 4.25'),
+        ("GlobalMap", b'"prob_hit": 0.75', b'"prob_hit": 0.71'),
+        ("ConfidenceMap", b'"range_sigma_m": 0.1', b'"range_sigma_m": 0.3'),
+    ],
+)
 def test_map_header_damage_is_detected(map_files, tmp_path, kind, old, new):
     path, original, m = map_files[kind]
     target = tmp_path / "map.vog"
@@ -647,8 +789,11 @@ def chunk_key(path, field: str, chunk: int) -> tuple[int, int]:
     with h5py.File(path, "r") as f:
         info = f[field].id.get_chunk_info(chunk)
         rank = f[field].ndim
-    key = struct.pack("<II", info.size, info.filter_mask) + struct.pack(f"<{rank + 1}Q", *info.chunk_offset, 0) + \
-        struct.pack("<Q", info.byte_offset)
+    key = (
+        struct.pack("<II", info.size, info.filter_mask)
+        + struct.pack(f"<{rank + 1}Q", *info.chunk_offset, 0)
+        + struct.pack("<Q", info.byte_offset)
+    )
     data = path.read_bytes()
     assert data.count(key) == 1
     return data.index(key), len(key)
@@ -685,8 +830,9 @@ def test_damaged_run_metadata_is_detected(run_file, tmp_path):
     assert metadata == METADATA, f"metadata read back as {metadata}"
 
 
-@pytest.mark.parametrize("name, value", [("format", np.array([1, 2])), ("has_truth", np.array([True, False])),
-                                         ("format_version", "abc")])
+@pytest.mark.parametrize(
+    "name, value", [("format", np.array([1, 2])), ("has_truth", np.array([True, False])), ("format_version", "abc")]
+)
 def test_attributes_of_the_wrong_kind_are_refused_naming_the_file(run_file, tmp_path, name, value):
     path, original, _ = run_file
     target = tmp_path / "run.h5"
@@ -705,8 +851,18 @@ def test_deeply_nested_settings_are_refused_naming_the_file(tmp_path):
         raise AssertionError(f"RecursionError: {error}") from None
 
 
-@pytest.mark.parametrize("name, value", [("pose_nav", None), ("pose_truth", None), ("ranges", None), ("time_s", None),
-                                         ("time_s", True), ("time_s", 5.0), ("sonar_directions", None)])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("pose_nav", None),
+        ("pose_truth", None),
+        ("ranges", None),
+        ("time_s", None),
+        ("time_s", True),
+        ("time_s", 5.0),
+        ("sonar_directions", None),
+    ],
+)
 def test_missing_fields_are_refused_naming_them(tmp_path, name, value):
     fields = run_fields(np.random.default_rng(0), 3)
     fields[name] = value

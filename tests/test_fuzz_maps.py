@@ -47,11 +47,20 @@ MEMORY_LIMIT_BYTES = 1 << 30
 def fuzz(examples: int):
     """Hypothesis settings of one fuzz test: `examples` by default (derandomized, so the suite
     is repeatable), VOGJAX_FUZZ_EXAMPLES when set (random)."""
-    return settings(max_examples=EXAMPLES or examples, deadline=None, derandomize=not EXAMPLES,
-                    database=None, print_blob=True,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                           HealthCheck.filter_too_much, HealthCheck.function_scoped_fixture,
-                                           HealthCheck.large_base_example])
+    return settings(
+        max_examples=EXAMPLES or examples,
+        deadline=None,
+        derandomize=not EXAMPLES,
+        database=None,
+        print_blob=True,
+        suppress_health_check=[
+            HealthCheck.too_slow,
+            HealthCheck.data_too_large,
+            HealthCheck.filter_too_much,
+            HealthCheck.function_scoped_fixture,
+            HealthCheck.large_base_example,
+        ],
+    )
 
 
 # ------------------------------------------------------------------------------ outcome checks
@@ -82,8 +91,7 @@ def same(a, b) -> bool:
         return isinstance(b, (tuple, list)) and len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         a, b = np.asarray(a), np.asarray(b)
-        return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(
-            a, b, equal_nan=a.dtype.kind in "fc")
+        return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind in "fc")
     return a == b
 
 
@@ -112,8 +120,19 @@ SPECIALS = [math.nan, math.inf, -math.inf]
 HUGE = [1e300, -1e300, 7.2e7, 1e7, -1e7, 3e38, 1e200]
 TINY = [1e-320, 1e-200, 5e-324, -1e-310]
 RAGGED = [[1.0, 2.0], [3.0]]
-JUNK = [None, "abc", ["a", "b", "c"], [["1", "2", "3"]], {"x": 1}, b"\x00\x01", True, object(),
-        RAGGED, (1, 2, 3, 4), "1,2,3"]
+JUNK = [
+    None,
+    "abc",
+    ["a", "b", "c"],
+    [["1", "2", "3"]],
+    {"x": 1},
+    b"\x00\x01",
+    True,
+    object(),
+    RAGGED,
+    (1, 2, 3, 4),
+    "1,2,3",
+]
 # ragged index lists are left to test_ragged_ids_are_refused_naming_the_argument
 JUNK_IDS = [j for j in JUNK if j is not RAGGED]
 
@@ -138,7 +157,8 @@ def hostile_array(draw, shape: tuple, good, allow_empty: bool = True):
         if dtype in (np.float32, np.int64, np.int32):
             return value.astype(dtype), "valid" if dtype is not np.float32 or np.all(np.abs(value) < 3e38) else "either"
         return value.astype(dtype) if dtype is not np.float16 else value.astype(dtype), (
-            "invalid" if dtype in (np.bool_, np.complex128) else "either")
+            "invalid" if dtype in (np.bool_, np.complex128) else "either"
+        )
     if kind == "list":  # an empty list has no shape (N,3): either answer is fine
         return value.tolist(), "valid" if value.size else "either"
     if kind == "special" and value.size:
@@ -150,7 +170,8 @@ def hostile_array(draw, shape: tuple, good, allow_empty: bool = True):
         if wrong == tuple(s for s in shape):
             wrong = (5, 5)
         return np.ones(wrong), "either" if len(wrong) == len(shape) and all(
-            s in (-1, w) for s, w in zip(shape, wrong)) else "invalid"
+            s in (-1, w) for s, w in zip(shape, wrong)
+        ) else "invalid"
     if kind == "dtype":
         return value.astype(draw(st.sampled_from([np.bool_, np.complex64, object, "U8"]))), "invalid"
     if kind == "empty" and allow_empty:
@@ -159,9 +180,11 @@ def hostile_array(draw, shape: tuple, good, allow_empty: bool = True):
 
 
 def points_array(n_lo=0, n_hi=12, lo=-4.0, hi=4.0):
-    return st.integers(n_lo, n_hi).flatmap(
-        lambda n: st.lists(st.tuples(*[generic_floats(lo, hi)] * 3), min_size=n, max_size=n)).map(
-        lambda rows: np.array(rows, dtype=np.float64).reshape(-1, 3))
+    return (
+        st.integers(n_lo, n_hi)
+        .flatmap(lambda n: st.lists(st.tuples(*[generic_floats(lo, hi)] * 3), min_size=n, max_size=n))
+        .map(lambda rows: np.array(rows, dtype=np.float64).reshape(-1, 3))
+    )
 
 
 def vector3(lo=-2.0, hi=2.0):
@@ -236,10 +259,20 @@ def test_voxelmap_integrate_scan(warm, data):
         scale = data.draw(st.sampled_from([10.0, 1e3, 1e5, 5e5, 3e6]))
         points = np.asarray(points, np.float64) * scale
         points_expect = "valid" if in_key_range(points, CFG.voxel_size) else "invalid"
-    expect = ("invalid" if "invalid" in (origin_expect, points_expect)
-              else "valid" if origin_expect == points_expect == "valid" else "either")
-    result = attempt(lambda: vmap.integrate_scan(origin, points), ["origin", "points"], vmap.voxels, expect,
-                     "VoxelMap.integrate_scan")
+    expect = (
+        "invalid"
+        if "invalid" in (origin_expect, points_expect)
+        else "valid"
+        if origin_expect == points_expect == "valid"
+        else "either"
+    )
+    result = attempt(
+        lambda: vmap.integrate_scan(origin, points),
+        ["origin", "points"],
+        vmap.voxels,
+        expect,
+        "VoxelMap.integrate_scan",
+    )
     if result is REFUSED:
         return
     o = np.asarray(origin, np.float64).astype(np.float32)
@@ -260,8 +293,11 @@ def test_voxelmap_integrate_scans(warm, data):
     count = np.shape(origins)[0] if origins_expect == "valid" else 3
     points, points_expect = data.draw(hostile_array((-1, 3), points_array()))
     n = np.shape(points)[0] if points_expect == "valid" else 1
-    index_kind = data.draw(st.sampled_from(["valid", "valid", "valid", "float", "negative", "beyond", "length",
-                                            "junk", "bool", "unsorted"]))
+    index_kind = data.draw(
+        st.sampled_from(
+            ["valid", "valid", "valid", "float", "negative", "beyond", "length", "junk", "bool", "unsorted"]
+        )
+    )
     scan_index = np.array(data.draw(st.lists(st.integers(0, max(count - 1, 0)), min_size=n, max_size=n)), np.int64)
     index_expect = "valid" if count > 0 or n == 0 else "invalid"
     if index_kind == "float":  # an empty one is what [] reads as: nothing to index, accepted
@@ -280,8 +316,13 @@ def test_voxelmap_integrate_scans(warm, data):
         scan_index = scan_index[::-1].copy()
     expects = (origins_expect, points_expect, index_expect)
     expect = "invalid" if "invalid" in expects else "valid" if set(expects) == {"valid"} else "either"
-    result = attempt(lambda: vmap.integrate_scans(origins, points, scan_index), ["origins", "points", "scan_index"],
-                     vmap.voxels, expect, "VoxelMap.integrate_scans")
+    result = attempt(
+        lambda: vmap.integrate_scans(origins, points, scan_index),
+        ["origins", "points", "scan_index"],
+        vmap.voxels,
+        expect,
+        "VoxelMap.integrate_scans",
+    )
     if result is REFUSED:
         return
     o = np.asarray(origins, np.float64).reshape(-1, 3)
@@ -374,14 +415,19 @@ def ray_arguments(draw, count_hi=6):
         max_range = np.array(draw(st.lists(RANGES, min_size=n, max_size=n)))
         e3 = "valid"
     elif kind == "bad":
-        max_range, e3 = draw(st.sampled_from([np.ones(n + 1), np.full(max(n, 1), -1.0), np.full(max(n, 1), math.nan),
-                                              np.ones((max(n, 1), 1))])), "invalid"
+        max_range, e3 = (
+            draw(
+                st.sampled_from(
+                    [np.ones(n + 1), np.full(max(n, 1), -1.0), np.full(max(n, 1), math.nan), np.ones((max(n, 1), 1))]
+                )
+            ),
+            "invalid",
+        )
         if n == 0 and max_range.shape == (1,):
             e3 = "invalid"
     else:
         max_range, e3 = draw(st.sampled_from([j for j in JUNK if not isinstance(j, tuple)])), "invalid"
-    if isinstance(max_range, np.ndarray) and max_range.dtype.kind == "f" and max_range.size and \
-            np.any(max_range == 0):
+    if isinstance(max_range, np.ndarray) and max_range.dtype.kind == "f" and max_range.size and np.any(max_range == 0):
         e3 = "invalid"  # 5e-324 stays positive; zero does not arise from RANGES
     expects = (e1, e2, e3)
     expect = "invalid" if "invalid" in expects else "valid" if set(expects) == {"valid"} else "either"
@@ -420,8 +466,13 @@ def check_rays(result, cells, origins, directions, max_range, cfg):
 def test_voxelmap_raycast(warm, args):
     vmap, cells = base_map()
     origins, directions, max_range, expect = args
-    result = attempt(lambda: vmap.raycast(origins, directions, max_range), ["origins", "directions", "max_range"],
-                     vmap.voxels, expect, "VoxelMap.raycast")
+    result = attempt(
+        lambda: vmap.raycast(origins, directions, max_range),
+        ["origins", "directions", "max_range"],
+        vmap.voxels,
+        expect,
+        "VoxelMap.raycast",
+    )
     if result is not REFUSED:
         check_rays(result, cells, origins, directions, max_range, CFG)
 
@@ -450,20 +501,37 @@ def test_voxelmap_raycast_on_the_device_agrees_with_numpy(warm, args):
     count = o.shape[0]
     d_origins = wp.array(o, dtype=wp.float64, device=vmap.device)
     d_directions = wp.array(d, dtype=wp.float64, device=vmap.device)
-    if np.isscalar(max_range) and isinstance(max_range, (int, float, np.integer, np.floating)) \
-            and not isinstance(max_range, bool):
+    if (
+        np.isscalar(max_range)
+        and isinstance(max_range, (int, float, np.integer, np.floating))
+        and not isinstance(max_range, bool)
+    ):
         d_range = max_range
-    elif isinstance(max_range, np.ndarray) and max_range.dtype.kind in "fiu" and max_range.dtype != np.bool_ \
-            and max_range.shape == (count,):
+    elif (
+        isinstance(max_range, np.ndarray)
+        and max_range.dtype.kind in "fiu"
+        and max_range.dtype != np.bool_
+        and max_range.shape == (count,)
+    ):
         d_range = wp.array(max_range.astype(np.float64), dtype=wp.float64, device=vmap.device)
     else:
         d_range = None
     assume(d_range is not None)
-    host = attempt(lambda: vmap.raycast(origins, directions, max_range), ["origins", "directions", "max_range"],
-                   vmap.voxels, "either", "VoxelMap.raycast")
+    host = attempt(
+        lambda: vmap.raycast(origins, directions, max_range),
+        ["origins", "directions", "max_range"],
+        vmap.voxels,
+        "either",
+        "VoxelMap.raycast",
+    )
     event("refused" if host is REFUSED else "answered")
-    device = attempt(lambda: vmap.raycast(d_origins, d_directions, d_range), ["origins", "directions", "max_range"],
-                     vmap.voxels, "invalid" if host is REFUSED else "valid", "VoxelMap.raycast on the device")
+    device = attempt(
+        lambda: vmap.raycast(d_origins, d_directions, d_range),
+        ["origins", "directions", "max_range"],
+        vmap.voxels,
+        "invalid" if host is REFUSED else "valid",
+        "VoxelMap.raycast on the device",
+    )
     if host is not REFUSED:
         for name in ("hit", "distance", "num_unknown", "num_free"):
             assert np.array_equal(getattr(device, name).numpy(), getattr(host, name)), name
@@ -476,9 +544,18 @@ def line_arguments(draw):
     ends, e2 = draw(hostile_array((-1, 3), points_array(count, count, -4.0, 4.0)))
     if e2 == "valid" and draw(st.integers(0, 3)) == 0 and np.size(ends):
         ends = np.asarray(ends, np.float64) * draw(st.sampled_from([1e3, 1e4, 1e5, 1e8]))
-        long = np.abs(np.floor(ends / CFG.voxel_size) - np.floor(np.asarray(starts, np.float64).reshape(-1, 3)[
-            :len(ends)] / CFG.voxel_size)).sum(axis=1).max(initial=0) + 1 > blockmap.MAX_LINE_VOXELS \
-            if e1 == "valid" and np.shape(starts) == np.shape(ends) else None
+        long = (
+            np.abs(
+                np.floor(ends / CFG.voxel_size)
+                - np.floor(np.asarray(starts, np.float64).reshape(-1, 3)[: len(ends)] / CFG.voxel_size)
+            )
+            .sum(axis=1)
+            .max(initial=0)
+            + 1
+            > blockmap.MAX_LINE_VOXELS
+            if e1 == "valid" and np.shape(starts) == np.shape(ends)
+            else None
+        )
         e2 = "invalid" if long or not in_key_range(ends, CFG.voxel_size) else "either" if long is None else "valid"
     if e1 == e2 == "valid" and np.shape(starts) != np.shape(ends):
         e2 = "invalid"
@@ -492,8 +569,9 @@ def line_arguments(draw):
 def test_voxelmap_line_query(warm, args):
     vmap, cells = base_map()
     starts, ends, expect = args
-    result = attempt(lambda: vmap.line_query(starts, ends), ["starts", "ends"], vmap.voxels, expect,
-                     "VoxelMap.line_query")
+    result = attempt(
+        lambda: vmap.line_query(starts, ends), ["starts", "ends"], vmap.voxels, expect, "VoxelMap.line_query"
+    )
     if result is REFUSED:
         return
     values, lengths = result
@@ -502,7 +580,7 @@ def test_voxelmap_line_query(warm, args):
     assert values.dtype == np.float32 and lengths.dtype == np.int32 and lengths.shape == (len(s),)
     assert values.shape == (len(s), int(lengths.max(initial=0)))
     for k in range(len(s)):
-        assert np.all(np.isnan(values[k, lengths[k]:]))
+        assert np.all(np.isnan(values[k, lengths[k] :]))
         if lengths[k] <= 2000:
             expected = ref.line_values(cells, s[k], e[k], CFG)
             assert lengths[k] == len(expected)
@@ -526,13 +604,24 @@ BAD_VALUES = st.sampled_from([math.nan, math.inf, -math.inf, None, "0.1", [0.1],
 
 def map_rules_hold(f: dict) -> bool:
     """MapConfig's documented rules, written out independently."""
+
     def p(x):
         return 0 < x < 1
-    return (1e-4 <= f["voxel_size"] <= 1000 and p(f["prob_hit"]) and p(f["prob_miss"]) and p(f["occupied_threshold"])
-            and p(f["free_threshold"]) and 0 <= f["clamp_min"] < 1 and 0 < f["clamp_max"] <= 1
-            and f["max_range"] > 0 and f["prob_miss"] < 0.5 < f["prob_hit"]
-            and f["free_threshold"] <= f["occupied_threshold"] and f["clamp_min"] < f["clamp_max"]
-            and f["max_range"] <= MAX_RANGE_VOXELS * f["voxel_size"])
+
+    return (
+        1e-4 <= f["voxel_size"] <= 1000
+        and p(f["prob_hit"])
+        and p(f["prob_miss"])
+        and p(f["occupied_threshold"])
+        and p(f["free_threshold"])
+        and 0 <= f["clamp_min"] < 1
+        and 0 < f["clamp_max"] <= 1
+        and f["max_range"] > 0
+        and f["prob_miss"] < 0.5 < f["prob_hit"]
+        and f["free_threshold"] <= f["occupied_threshold"]
+        and f["clamp_min"] < f["clamp_max"]
+        and f["max_range"] <= MAX_RANGE_VOXELS * f["voxel_size"]
+    )
 
 
 @fuzz(150)
@@ -540,8 +629,7 @@ def map_rules_hold(f: dict) -> bool:
 def test_map_config(data):
     """Every field in and out of range or of the wrong type: a config exactly when the rules
     hold, else a ValueError naming a field; from_dict refuses unknown keys and wrong types."""
-    chosen = {name: data.draw(strategy) for name, strategy in MAP_FIELDS.items()
-              if data.draw(st.integers(0, 2)) > 0}
+    chosen = {name: data.draw(strategy) for name, strategy in MAP_FIELDS.items() if data.draw(st.integers(0, 2)) > 0}
     junk = data.draw(st.one_of(st.none(), st.sampled_from(list(MAP_FIELDS))))
     fields = dict(chosen)
     if junk is not None:
@@ -549,22 +637,30 @@ def test_map_config(data):
     full = {f: getattr(vj.MapConfig, f) for f in MAP_FIELDS} | fields
     valid = junk is None and map_rules_hold(full)
     names = [f"MapConfig.{f}" for f in MAP_FIELDS]
-    config = attempt(lambda: vj.MapConfig(**fields), names, expect="valid" if valid else "invalid",
-                     what="MapConfig")
+    config = attempt(lambda: vj.MapConfig(**fields), names, expect="valid" if valid else "invalid", what="MapConfig")
     if config is not REFUSED:
         assert all(getattr(config, f) == v for f, v in full.items())
     extra = data.draw(st.sampled_from([{}, {"voxel_sise": 0.1}, {"max_range": "11"}, {"voxel_size": 1}]))
     document = {**fields, **extra}
-    valid_document = valid and "voxel_sise" not in extra and "max_range" not in extra and \
-        (extra.get("voxel_size") is None or map_rules_hold(full | {"voxel_size": 1.0}))
-    loaded = attempt(lambda: vj.MapConfig.from_dict(document), names + ["voxel_sise", "MapConfig"],
-                     expect="valid" if valid_document else "either", what="MapConfig.from_dict")
+    valid_document = (
+        valid
+        and "voxel_sise" not in extra
+        and "max_range" not in extra
+        and (extra.get("voxel_size") is None or map_rules_hold(full | {"voxel_size": 1.0}))
+    )
+    loaded = attempt(
+        lambda: vj.MapConfig.from_dict(document),
+        names + ["voxel_sise", "MapConfig"],
+        expect="valid" if valid_document else "either",
+        what="MapConfig.from_dict",
+    )
     if loaded is not REFUSED:
         assert valid or all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in document.values())
         assert all(getattr(loaded, f) == v for f, v in document.items())
 
 
 # ------------------------------------------------------------------------------ VogMap
+
 
 def rotation(yaw, pitch, roll):
     return vj.geometry.rotation_from_ypr(yaw, pitch, roll)
@@ -581,8 +677,9 @@ def poses(draw, count=None, spread=2.0):
         good[k, :3, :3] = rotation(*angles[k])
         good[k, :3, 3] = shifts[k]
     value = good[0] if count is None else good
-    kind = draw(st.sampled_from(["valid"] * 5 + ["near", "scaled", "reflect", "row", "special", "shape", "junk",
-                                                  "far", "skew"]))
+    kind = draw(
+        st.sampled_from(["valid"] * 5 + ["near", "scaled", "reflect", "row", "special", "shape", "junk", "far", "skew"])
+    )
     if kind == "valid":
         return value, "valid"
     bad = np.array(value, dtype=np.float64)
@@ -606,8 +703,12 @@ def poses(draw, count=None, spread=2.0):
         return bad, "invalid"
     if kind == "shape":
         # (an empty stack where one pose is due: see test_an_empty_pose_stack_is_not_a_pose)
-        return draw(st.sampled_from([np.eye(3), np.eye(4)[None, None], np.ones((n + 1, 4, 4)), np.eye(4).ravel()]
-                                    + ([np.zeros((0, 4, 4))] if count is not None else []))), "invalid"
+        return draw(
+            st.sampled_from(
+                [np.eye(3), np.eye(4)[None, None], np.ones((n + 1, 4, 4)), np.eye(4).ravel()]
+                + ([np.zeros((0, 4, 4))] if count is not None else [])
+            )
+        ), "invalid"
     if kind == "far":  # a valid rotation far away (the submaps' voxels then leave the key range)
         flat[0, :3, 3] = draw(st.sampled_from([[1e5, 0, 0], [0, 3e6, 0], [1e300, 0, 0]]))
         return bad, "either"
@@ -621,13 +722,31 @@ def random_vog(n=2, cfg=CFG, seed=3):
     return helpers.random_vog(np.random.default_rng(seed), n, cfg, scans=2, beams=30, spread=2.0)
 
 
-IDS = st.one_of(st.integers(-2, 4), st.lists(st.integers(-1, 4), max_size=3),
-                st.sampled_from([[], np.array([0, 1]), np.array([0.0]), [True], "0", None, [[0]], 1.5, np.int64(1),
-                                 [0, 0], np.uint8(1), 2**63, -2**63]))
+IDS = st.one_of(
+    st.integers(-2, 4),
+    st.lists(st.integers(-1, 4), max_size=3),
+    st.sampled_from(
+        [
+            [],
+            np.array([0, 1]),
+            np.array([0.0]),
+            [True],
+            "0",
+            None,
+            [[0]],
+            1.5,
+            np.int64(1),
+            [0, 0],
+            np.uint8(1),
+            2**63,
+            -(2**63),
+        ]
+    ),
+)
 
 
 def ids_valid(ids, n) -> str:
-    """"valid", "invalid" or "either" for submap ids of a map of n submaps."""
+    """ "valid", "invalid" or "either" for submap ids of a map of n submaps."""
     if isinstance(ids, bool) or ids is None or isinstance(ids, str):
         return "invalid"
     try:
@@ -685,8 +804,11 @@ def test_vogmap_poses(warm, data):
                     assert np.array_equal(result, np.array(model).reshape(-1, 4, 4)[picked].reshape(-1, 4, 4))
             else:
                 expect = "valid" if ids is None else expect
-                if expect == "valid" and ids is not None and \
-                        len(set(np.atleast_1d(ids).tolist())) != np.atleast_1d(ids).size:
+                if (
+                    expect == "valid"
+                    and ids is not None
+                    and len(set(np.atleast_1d(ids).tolist())) != np.atleast_1d(ids).size
+                ):
                     expect = "invalid"  # one submap twice would count twice in every sum
                 result = attempt(lambda: vog.view(ids), ["ids"], snapshot, expect, "VogMap.view")
                 if result is not REFUSED:
@@ -717,16 +839,22 @@ def test_vogmap_queries(warm, data):
             assert np.array_equal(vog.state(p), blockmap.classify(helpers.reference_values(vog, p), CFG))
     elif op == "rays":
         origins, directions, max_range, expect = data.draw(ray_arguments(4))
-        result = attempt(lambda: vog.raycast(origins, directions, max_range), ["origins", "directions", "max_range"],
-                         snapshot, expect, "VogMap.raycast")
+        result = attempt(
+            lambda: vog.raycast(origins, directions, max_range),
+            ["origins", "directions", "max_range"],
+            snapshot,
+            expect,
+            "VogMap.raycast",
+        )
         if result is not REFUSED:
             expected = merged.raycast(origins, directions, max_range)
             for name in ("hit", "distance", "num_unknown", "num_free"):
                 assert np.array_equal(getattr(result, name), getattr(expected, name)), name
     else:
         starts, ends, expect = data.draw(line_arguments())
-        result = attempt(lambda: vog.line_query(starts, ends), ["starts", "ends"], snapshot, expect,
-                         "VogMap.line_query")
+        result = attempt(
+            lambda: vog.line_query(starts, ends), ["starts", "ends"], snapshot, expect, "VogMap.line_query"
+        )
         if result is not REFUSED:
             values, lengths = result
             expected_values, expected_lengths = merged.line_query(starts, ends)
@@ -735,6 +863,7 @@ def test_vogmap_queries(warm, data):
 
 
 # ------------------------------------------------------------------------------ GlobalMap
+
 
 def global_state(g):
     return g.sums(), g.applied_ids, [g.applied_pose(i) for i in g.applied_ids]
@@ -759,8 +888,11 @@ def sums_dict(g) -> dict:
 
 
 def marginals_case(draw, n):
-    kind = draw(st.sampled_from(["none", "none", "valid", "valid", "nan_row", "asym", "negative", "shape", "junk",
-                                 "inf", "huge", "zeros"]))
+    kind = draw(
+        st.sampled_from(
+            ["none", "none", "valid", "valid", "nan_row", "asym", "negative", "shape", "junk", "inf", "huge", "zeros"]
+        )
+    )
     rng = np.random.default_rng(draw(st.integers(0, 100)))
     a = rng.normal(size=(n, 6, 6)) * draw(st.sampled_from([1e-3, 1.0, 10.0]))
     good = a @ a.transpose(0, 2, 1)
@@ -790,8 +922,10 @@ def marginals_case(draw, n):
     return draw(st.sampled_from(["marginals", [1, 2], [["a"] * 6] * 6, None if False else {"m": 1}])), "invalid"
 
 
-EPS = st.one_of(st.sampled_from([0.0, 1e-2, 2e-3, 1e300, -1.0, math.nan, math.inf, "auto", "big", None, True, [0.1]]),
-                st.floats(0, 1))
+EPS = st.one_of(
+    st.sampled_from([0.0, 1e-2, 2e-3, 1e300, -1.0, math.nan, math.inf, "auto", "big", None, True, [0.1]]),
+    st.floats(0, 1),
+)
 EPS_DEFAULTS = {"eps_rot": 1e-2, "eps_trans": 2e-3, "eps_cov": "auto", "eps_move_m": 0.0}
 
 
@@ -822,16 +956,23 @@ def test_globalmap_sequences(warm, data):
     for _ in range(data.draw(st.integers(1, 5))):
         op = data.draw(st.sampled_from(["merge", "add", "update", "update", "move", "integrate"]))
         target = data.draw(st.sampled_from(["vog"] * 5 + ["other", "none", "voxelmap", "config"]))
-        m = {"vog": vog, "other": other, "none": None, "voxelmap": vj.VoxelMap(CFG),
-             "config": vj.VogMap(vj.MapConfig(voxel_size=0.5))}[target]
+        m = {
+            "vog": vog,
+            "other": other,
+            "none": None,
+            "voxelmap": vj.VoxelMap(CFG),
+            "config": vj.VogMap(vj.MapConfig(voxel_size=0.5)),
+        }[target]
         is_vogmap = target in ("vog", "other")
         foreign = [i for i, owner in owners.items() if owner is not m]  # applied from another VogMap
         snapshot = lambda: global_state(g)
         marginals, m_expect = marginals_case(data.draw, 3)
         if op == "merge":
             expect = combined("valid" if is_vogmap else "invalid", m_expect)
-            if attempt(lambda: g.merge(m, marginals), ["vog", "marginals"], snapshot, expect,
-                       "GlobalMap.merge") is not REFUSED:
+            if (
+                attempt(lambda: g.merge(m, marginals), ["vog", "marginals"], snapshot, expect, "GlobalMap.merge")
+                is not REFUSED
+            ):
                 owners, applied = {i: m for i in range(3)}, {i: m.pose(i) for i in range(3)}
         elif op == "add":
             ids = data.draw(IDS)
@@ -842,17 +983,27 @@ def test_globalmap_sequences(warm, data):
             # adding another VogMap's submaps beside those already there: not specified
             target_expect = ("valid" if not foreign else "either") if is_vogmap else "invalid"
             expect = combined(target_expect, m_expect, id_expect)
-            if attempt(lambda: g.add(m, ids, marginals), ["vog", "marginals", "ids"], snapshot, expect,
-                       "GlobalMap.add") is not REFUSED:
+            if (
+                attempt(
+                    lambda: g.add(m, ids, marginals), ["vog", "marginals", "ids"], snapshot, expect, "GlobalMap.add"
+                )
+                is not REFUSED
+            ):
                 owners.update({i: m for i in listed})
                 applied.update({i: m.pose(i) for i in listed})
         elif op == "update":
-            eps = {name: data.draw(EPS) if data.draw(st.integers(0, 3)) == 0 else EPS_DEFAULTS[name]
-                   for name in thresholds}
+            eps = {
+                name: data.draw(EPS) if data.draw(st.integers(0, 3)) == 0 else EPS_DEFAULTS[name] for name in thresholds
+            }
             target_expect = ("invalid" if foreign else "valid") if is_vogmap else "invalid"
             expect = combined(target_expect, m_expect, *[eps_valid(k, v) for k, v in eps.items()])
-            report = attempt(lambda: g.update_poses(m, marginals, **eps), ["vog", "marginals", *thresholds],
-                             snapshot, expect, "GlobalMap.update_poses")
+            report = attempt(
+                lambda: g.update_poses(m, marginals, **eps),
+                ["vog", "marginals", *thresholds],
+                snapshot,
+                expect,
+                "GlobalMap.update_poses",
+            )
             if report is not REFUSED:
                 for i in report.reapplied:
                     applied[i] = m.pose(i)
@@ -868,8 +1019,13 @@ def test_globalmap_sequences(warm, data):
                 # its old contribution cannot be undone any more: moving it and updating is refused
                 moved = vog.pose(i) @ vj.geometry.exp_se3(np.array([0, 0, 0.3, 0.5, 0, 0]))
                 vog.set_poses([i], moved[None])
-                attempt(lambda: g.update_poses(vog, None, **{k: 0.0 for k in thresholds}), ["vog"], snapshot,
-                        "invalid", "GlobalMap.update_poses (changed submap)")
+                attempt(
+                    lambda: g.update_poses(vog, None, **{k: 0.0 for k in thresholds}),
+                    ["vog"],
+                    snapshot,
+                    "invalid",
+                    "GlobalMap.update_poses (changed submap)",
+                )
                 g.merge(vog)
                 owners, applied = {k: vog for k in range(3)}, {k: vog.pose(k) for k in range(3)}
         assert g.applied_ids == tuple(sorted(owners))
@@ -918,12 +1074,18 @@ def test_confidence_map_integrate(warm, data):
             count = np.shape(points)[0] if np.ndim(points) else 0
         except ValueError:  # ragged
             count = 0
-        call = lambda: crm.integrate_scans(np.asarray(origin)[None] if isinstance(origin, np.ndarray) else [origin],
-                                           points, np.zeros(count, np.int64))
+        call = lambda: crm.integrate_scans(
+            np.asarray(origin)[None] if isinstance(origin, np.ndarray) else [origin], points, np.zeros(count, np.int64)
+        )
     else:
         call = lambda: crm.integrate_scan(origin, points)
-    result = attempt(call, ["origin", "points", "scan_index"], crm.voxels, expect,
-                     "ConfidenceMap.integrate_scans" if batch else "ConfidenceMap.integrate_scan")
+    result = attempt(
+        call,
+        ["origin", "points", "scan_index"],
+        crm.voxels,
+        expect,
+        "ConfidenceMap.integrate_scans" if batch else "ConfidenceMap.integrate_scan",
+    )
     if result is REFUSED:
         return
     twin.integrate_scan(np.asarray(origin, np.float64), np.asarray(points, np.float64).reshape(-1, 3))
@@ -945,14 +1107,17 @@ def test_confidence_map_queries(warm, data):
         if expect == "valid" and data.draw(st.booleans()):
             points = np.concatenate([np.asarray(points, np.float64).reshape(-1, 3), centres[:3]])
         for name in ("mean", "variance", "state", "observed", "distribution"):
-            result = attempt(lambda: getattr(crm, name)(points), ["points"], crm.voxels, expect,
-                             f"ConfidenceMap.{name}")
+            result = attempt(
+                lambda: getattr(crm, name)(points), ["points"], crm.voxels, expect, f"ConfidenceMap.{name}"
+            )
             if result is REFUSED:
                 continue
             p = np.asarray(points, np.float64).reshape(-1, 3)
             keys = np.floor(p.astype(np.float32).astype(np.float64) / CRM_CFG.voxel_size).astype(np.int64)
-            known = {tuple(k): v for k, v in zip(np.floor(centres / CRM_CFG.voxel_size).astype(np.int64).tolist(),
-                                                 stored_mean)}
+            known = {
+                tuple(k): v
+                for k, v in zip(np.floor(centres / CRM_CFG.voxel_size).astype(np.int64).tolist(), stored_mean)
+            }
             means = np.array([known.get(tuple(k), np.nan) for k in keys.tolist()], np.float32)
             if name == "mean":
                 assert np.array_equal(result, np.where(np.isnan(means), CRM_CFG.prior_mean, means))
@@ -969,8 +1134,13 @@ def test_confidence_map_queries(warm, data):
         origins, directions, max_range, expect = data.draw(ray_arguments(4))
         if expect == "valid":
             expect = "either"  # ranges reaching past the key range are refused by this map
-        result = attempt(lambda: crm.raycast(origins, directions, max_range), ["origins", "directions", "max_range"],
-                         crm.voxels, expect, "ConfidenceMap.raycast")
+        result = attempt(
+            lambda: crm.raycast(origins, directions, max_range),
+            ["origins", "directions", "max_range"],
+            crm.voxels,
+            expect,
+            "ConfidenceMap.raycast",
+        )
         if result is not REFUSED:
             n = np.shape(origins)[0]
             ranges = np.broadcast_to(np.asarray(max_range, np.float64), (n,))
@@ -994,12 +1164,21 @@ CRM_FIELDS = {
 
 
 def crm_rules_hold(f: dict) -> bool:
-    return (1e-4 <= f["voxel_size"] <= 1000 and 0 < f["max_range"] <= MAX_RANGE_VOXELS * f["voxel_size"]
-            and f["range_sigma_m"] > 0
-            and f["cause_range"] in ("chord", "centre") and isinstance(f["num_bins"], int)
-            and 2 <= f["num_bins"] <= 64 and 0 <= f["spurious_probability"] < 1 and 0.5 <= f["cone_sigmas"] <= 10
-            and 0 < f["bin_floor"] <= 0.01 and 0 < f["occupied_threshold"] < 1 and 0 < f["free_threshold"] < 1
-            and f["free_threshold"] <= f["occupied_threshold"] and f["bin_floor"] * f["num_bins"] < 0.5)
+    return (
+        1e-4 <= f["voxel_size"] <= 1000
+        and 0 < f["max_range"] <= MAX_RANGE_VOXELS * f["voxel_size"]
+        and f["range_sigma_m"] > 0
+        and f["cause_range"] in ("chord", "centre")
+        and isinstance(f["num_bins"], int)
+        and 2 <= f["num_bins"] <= 64
+        and 0 <= f["spurious_probability"] < 1
+        and 0.5 <= f["cone_sigmas"] <= 10
+        and 0 < f["bin_floor"] <= 0.01
+        and 0 < f["occupied_threshold"] < 1
+        and 0 < f["free_threshold"] < 1
+        and f["free_threshold"] <= f["occupied_threshold"]
+        and f["bin_floor"] * f["num_bins"] < 0.5
+    )
 
 
 @fuzz(100)
@@ -1008,13 +1187,18 @@ def test_crm_config(data):
     fields = {name: data.draw(strategy) for name, strategy in CRM_FIELDS.items() if data.draw(st.integers(0, 2)) > 0}
     full = {f: getattr(vj.CrmConfig, f) for f in CRM_FIELDS} | fields
     valid = crm_rules_hold(full)
-    config = attempt(lambda: vj.CrmConfig(**fields), [f"CrmConfig.{f}" for f in CRM_FIELDS],
-                     expect="valid" if valid else "invalid", what="CrmConfig")
+    config = attempt(
+        lambda: vj.CrmConfig(**fields),
+        [f"CrmConfig.{f}" for f in CRM_FIELDS],
+        expect="valid" if valid else "invalid",
+        what="CrmConfig",
+    )
     if config is not REFUSED:
         assert all(getattr(config, f) == v for f, v in full.items())
 
 
 # ------------------------------------------------------------------------------ documented limits
+
 
 def test_confidence_map_refuses_rays_leaving_the_key_range():
     """A confidence-rich map walks every voxel of a ray, so it refuses ranges that leave the key
@@ -1027,6 +1211,7 @@ def test_confidence_map_refuses_rays_leaving_the_key_range():
 
 
 # ------------------------------------------------------------------------------ findings, fixed (regression tests)
+
 
 def refuses(call, name: str = "") -> None:
     """AssertionError unless `call()` raises a ValueError naming `name`."""
@@ -1041,22 +1226,30 @@ def refuses(call, name: str = "") -> None:
 COMPLEX_POSE = np.eye(4) + 1e-3j  # a rigid real part: the imaginary part is silently dropped
 
 
-@pytest.mark.parametrize("call", [
-    lambda: vj.VogMap(CFG).add_submap(COMPLEX_POSE),
-    lambda: vj.VogMap(CFG).add_submap(np.eye(4).astype(str)),
-    lambda: random_vog(1).set_poses([0], COMPLEX_POSE[None]),
-    lambda: vj.GlobalMap(CFG).merge(random_vog(1), np.eye(6)[None] * (1 + 5j)),
-], ids=["add_submap-complex", "add_submap-strings", "set_poses-complex", "merge-complex-marginals"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: vj.VogMap(CFG).add_submap(COMPLEX_POSE),
+        lambda: vj.VogMap(CFG).add_submap(np.eye(4).astype(str)),
+        lambda: random_vog(1).set_poses([0], COMPLEX_POSE[None]),
+        lambda: vj.GlobalMap(CFG).merge(random_vog(1), np.eye(6)[None] * (1 + 5j)),
+    ],
+    ids=["add_submap-complex", "add_submap-strings", "set_poses-complex", "merge-complex-marginals"],
+)
 def test_complex_and_text_arrays_are_refused(call):
     refuses(call)
 
 
-@pytest.mark.parametrize("call, name", [
-    (lambda: base_map()[0].integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
-    (lambda: crm_base().integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
-    (lambda: random_vog(2).poses([[0], [0, 1]]), "ids"),
-    (lambda: random_vog(2).set_poses([[0], [0, 1]], np.eye(4)[None]), "ids"),
-], ids=["VoxelMap.integrate_scans", "ConfidenceMap.integrate_scans", "VogMap.poses", "VogMap.set_poses"])
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda: base_map()[0].integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
+        (lambda: crm_base().integrate_scans(np.zeros((2, 3)), np.ones((2, 3)), RAGGED), "scan_index"),
+        (lambda: random_vog(2).poses([[0], [0, 1]]), "ids"),
+        (lambda: random_vog(2).set_poses([[0], [0, 1]], np.eye(4)[None]), "ids"),
+    ],
+    ids=["VoxelMap.integrate_scans", "ConfidenceMap.integrate_scans", "VogMap.poses", "VogMap.set_poses"],
+)
 def test_ragged_ids_are_refused_naming_the_argument(call, name):
     refuses(call, name)
 
@@ -1081,6 +1274,7 @@ def test_readers_are_not_starved_by_writers_taking_turns():
         while not stop.is_set():
             with lock.writing():
                 time.sleep(0.005)  # an update: the GIL is free meanwhile
+
     writers = [threading.Thread(target=write, daemon=True) for _ in range(2)]
     for writer in writers:
         writer.start()

@@ -21,14 +21,33 @@ from vogjax.config import CorrelativeConfig, IcpConfig
 from vogjax.geometry import exp_se3, log_se3
 from vogjax.slam import backend, correlative
 
-from .test_fuzz_maps import JUNK, REFUSED, SPECIALS, attempt, combined, fuzz, hostile_array, poses, refuses
+from .test_fuzz_maps import JUNK, REFUSED, SPECIALS, attempt, combined, fuzz, poses, refuses
 
 DEVICE = str(devices.resolve(None))  # the front end's kernels, on the GPU where there is one
 
 # ------------------------------------------------------------------------------ PoseGraph
 
-DURATIONS = st.sampled_from([0.1, 1.0, 20.0, 1e3, 1e7, 1e-3,  # valid
-                             1e-5, 0.0, -1.0, math.nan, math.inf, 1.1e7, "1", None, True, [1.0], np.array([1.0])])
+DURATIONS = st.sampled_from(
+    [
+        0.1,
+        1.0,
+        20.0,
+        1e3,
+        1e7,
+        1e-3,  # valid
+        1e-5,
+        0.0,
+        -1.0,
+        math.nan,
+        math.inf,
+        1.1e7,
+        "1",
+        None,
+        True,
+        [1.0],
+        np.array([1.0]),
+    ]
+)
 
 
 def duration_valid(value) -> str:
@@ -52,8 +71,9 @@ def covariance_case(draw):
     low, high = draw(st.sampled_from([(1e-4, 1e-2), (1e-12, 1e-12), (1e12, 1e12), (1e-12, 1e12), (1e-3, 1.0)]))
     good = q @ np.diag(np.geomspace(low, high, 6)) @ q.T
     good = (good + good.T) / 2
-    kind = draw(st.sampled_from(["valid"] * 4 + ["asym", "negative", "singular", "tiny", "huge", "special",
-                                                  "shape", "junk"]))
+    kind = draw(
+        st.sampled_from(["valid"] * 4 + ["asym", "negative", "singular", "tiny", "huge", "special", "shape", "junk"])
+    )
     if kind == "valid":
         return good, "either" if high / low > 1e15 else "valid"  # symmetric to 1e-9 relative only
     if kind == "asym":
@@ -134,10 +154,18 @@ def test_pose_graph(data):
                 pose = nav_pose(n)
             duration = data.draw(DURATIONS)
             e2 = duration_valid(duration) if n > 0 else "either"  # the first node has no duration
-            e3 = step_valid(pg.navigation_poses()[-1], pose, duration, noise) if n > 0 and e1 == e2 == "valid" \
+            e3 = (
+                step_valid(pg.navigation_poses()[-1], pose, duration, noise)
+                if n > 0 and e1 == e2 == "valid"
                 else "either"
-            i = attempt(lambda: pg.add_submap(pose, duration), ["T_world_submap_nav", "duration_s"], snapshot,
-                        combined(e1, e2, e3), "PoseGraph.add_submap")
+            )
+            i = attempt(
+                lambda: pg.add_submap(pose, duration),
+                ["T_world_submap_nav", "duration_s"],
+                snapshot,
+                combined(e1, e2, e3),
+                "PoseGraph.add_submap",
+            )
             if i is not REFUSED:
                 assert i == n
                 twin.add_submap(pose, duration)
@@ -154,8 +182,13 @@ def test_pose_graph(data):
             if e_ids == "valid" and int(i) == int(k):
                 e_ids = "invalid"
             expect = combined(e_ids, e3, e4, e5)
-            result = attempt(lambda: pg.add_loop_closure(i, k, T, covariance, basis),
-                             ["i", "k", "T_i_k", "covariance", "basis"], snapshot, expect, "PoseGraph.add_loop_closure")
+            result = attempt(
+                lambda: pg.add_loop_closure(i, k, T, covariance, basis),
+                ["i", "k", "T_i_k", "covariance", "basis"],
+                snapshot,
+                expect,
+                "PoseGraph.add_loop_closure",
+            )
             if result is not REFUSED:
                 twin.add_loop_closure(i, k, T, covariance, basis)
                 consistent &= agreeing and e3 == "valid"
@@ -193,12 +226,23 @@ def test_pose_graph_constructor(data):
     if prior is None:
         e1 = "valid"  # the default: the identity
     kind = data.draw(st.sampled_from(["default", "valid", "tiny", "huge", "shape", "special", "junk", "negative"]))
-    sigmas, e2 = {"default": (backend.PRIOR_SIGMAS, "valid"), "valid": (np.full(6, 0.5), "valid"),
-                  "tiny": (np.full(6, 1e-7), "invalid"), "huge": (np.full(6, 1e7), "invalid"),
-                  "shape": (np.ones(5), "invalid"), "special": (np.r_[np.ones(5), math.nan], "invalid"),
-                  "junk": ("sigmas", "invalid"), "negative": (np.full(6, 1e-3), "valid")}[kind]  # see below
-    pg = attempt(lambda: slam.PoseGraph(vj.NavNoise(), prior, sigmas), ["prior_pose", "prior_sigmas"], None,
-                 combined(e1, e2), "PoseGraph")
+    sigmas, e2 = {
+        "default": (backend.PRIOR_SIGMAS, "valid"),
+        "valid": (np.full(6, 0.5), "valid"),
+        "tiny": (np.full(6, 1e-7), "invalid"),
+        "huge": (np.full(6, 1e7), "invalid"),
+        "shape": (np.ones(5), "invalid"),
+        "special": (np.r_[np.ones(5), math.nan], "invalid"),
+        "junk": ("sigmas", "invalid"),
+        "negative": (np.full(6, 1e-3), "valid"),
+    }[kind]  # see below
+    pg = attempt(
+        lambda: slam.PoseGraph(vj.NavNoise(), prior, sigmas),
+        ["prior_pose", "prior_sigmas"],
+        None,
+        combined(e1, e2),
+        "PoseGraph",
+    )
     if pg is not REFUSED:
         pg.add_submap(np.eye(4) if prior is None else prior)
         expected = np.eye(4) if prior is None else np.asarray(prior, np.float64).reshape(4, 4)
@@ -207,11 +251,15 @@ def test_pose_graph_constructor(data):
 
 # ------------------------------------------------------------------------------ ICP
 
+
 def structured_cloud(rng, count=300, offset=(0.0, 0.0, 0.0)):
     """Points on three orthogonal rough planes: every direction constrained."""
     a, b, c = (rng.uniform(0, 2, (count // 3, 2)) for _ in range(3))
-    planes = [np.c_[a[:, 0], a[:, 1], 0.02 * np.sin(3 * a[:, 0])], np.c_[b[:, 0], 0.02 * np.cos(2 * b[:, 1]), b[:, 1]],
-              np.c_[0.02 * np.sin(c[:, 1] * 4), c[:, 0], c[:, 1]]]
+    planes = [
+        np.c_[a[:, 0], a[:, 1], 0.02 * np.sin(3 * a[:, 0])],
+        np.c_[b[:, 0], 0.02 * np.cos(2 * b[:, 1]), b[:, 1]],
+        np.c_[0.02 * np.sin(c[:, 1] * 4), c[:, 0], c[:, 1]],
+    ]
     return np.concatenate(planes) + offset
 
 
@@ -266,10 +314,17 @@ def test_icp(data):
         T_init = np.eye(4)
     method = data.draw(st.sampled_from(["point_to_plane"] * 3 + ["point_to_point_xyh", "plane", None, 3]))
     e4 = "valid" if method in ("point_to_plane", "point_to_point_xyh") else "invalid"
-    config = IcpConfig(max_correspondence_m=data.draw(st.sampled_from([0.5, 1e-9, 1e300])),
-                       max_iterations=data.draw(st.sampled_from([50, 1, 10_000])))
-    result = attempt(lambda: slam.icp(source, target, T_init, method, config), ["source", "target", "T_init", "method"],
-                     None, combined(e1, e2, e3, e4), "icp")
+    config = IcpConfig(
+        max_correspondence_m=data.draw(st.sampled_from([0.5, 1e-9, 1e300])),
+        max_iterations=data.draw(st.sampled_from([50, 1, 10_000])),
+    )
+    result = attempt(
+        lambda: slam.icp(source, target, T_init, method, config),
+        ["source", "target", "T_init", "method"],
+        None,
+        combined(e1, e2, e3, e4),
+        "icp",
+    )
     if result is REFUSED:
         return
     well_formed_icp(result, len(np.asarray(source)))
@@ -278,8 +333,12 @@ def test_icp(data):
     if e1 == e2 == "valid":  # clouds without ties (tiny ones round distances to ties): the same bits
         assert np.array_equal(on_device.T_target_source, result.T_target_source)
         assert (on_device.iterations, on_device.fitness) == (result.iterations, result.fitness)
-    clean = e1 == e2 == e3 == "valid" and method == "point_to_plane" and config.max_correspondence_m == 0.5 \
+    clean = (
+        e1 == e2 == e3 == "valid"
+        and method == "point_to_plane"
+        and config.max_correspondence_m == 0.5
         and config.max_iterations == 50
+    )
     if clean:
         assert result.converged
         np.testing.assert_allclose(log_se3(np.linalg.inv(truth) @ result.T_target_source), 0, atol=2e-3)
@@ -296,12 +355,18 @@ def test_icp_batch(data):
     assume(count_s or count_t)  # both empty: test_empty_batch_is_fine
     sources, targets = clouds[:count_s], clouds[:count_t][::-1]
     T_inits = data.draw(st.sampled_from([None, "eye", "short", "junk"]))
-    inits = {None: None, "eye": np.tile(np.eye(4), (count_s, 1, 1)), "short": np.tile(np.eye(4), (count_s + 1, 1, 1)),
-             "junk": "T"}[T_inits]
-    expect = combined("valid" if count_s == count_t else "invalid",
-                      "invalid" if T_inits in ("short", "junk") else "valid")
-    results = attempt(lambda: slam.icp_batch(sources, targets, inits), ["sources", "targets", "T_init"], None,
-                      expect, "icp_batch")
+    inits = {
+        None: None,
+        "eye": np.tile(np.eye(4), (count_s, 1, 1)),
+        "short": np.tile(np.eye(4), (count_s + 1, 1, 1)),
+        "junk": "T",
+    }[T_inits]
+    expect = combined(
+        "valid" if count_s == count_t else "invalid", "invalid" if T_inits in ("short", "junk") else "valid"
+    )
+    results = attempt(
+        lambda: slam.icp_batch(sources, targets, inits), ["sources", "targets", "T_init"], None, expect, "icp_batch"
+    )
     if results is REFUSED:
         return
     assert len(results) == count_s
@@ -311,6 +376,7 @@ def test_icp_batch(data):
 
 
 # ------------------------------------------------------------------------------ correlative search
+
 
 def blocky_cloud(rng, resolution=0.1):
     """Occupied voxel centres of a few boxes on a floor: an unambiguous x-y pattern."""
@@ -343,27 +409,43 @@ def test_correlative_search(data):
     clean_init = e3 == "valid"
     if clean_init:
         T_init = np.eye(4)
-    radius = data.draw(st.sampled_from([1.0, 1.0, 0.0, 3.0, 1e300, -1.0, math.nan, math.inf, "1", None, True,
-                                        np.float64(1.0), np.int64(1)]))
+    radius = data.draw(
+        st.sampled_from(
+            [1.0, 1.0, 0.0, 3.0, 1e300, -1.0, math.nan, math.inf, "1", None, True, np.float64(1.0), np.int64(1)]
+        )
+    )
     yaw = data.draw(st.sampled_from([0.0, 0.0, 0.02, 0.5, 1e300, -0.1, math.nan, "0"]))
 
     def number_valid(value):
         if isinstance(value, (bool, str)) or value is None or isinstance(value, np.integer):
             return "either"
         return "valid" if math.isfinite(value) and value >= 0 else "invalid"
+
     e4, e5 = number_valid(radius), number_valid(yaw)
     if radius == 1e300 or yaw == 1e300:
         e4 = "either"  # refused as a search too large, naming both radii
         # (with clouds beyond 1e100 or yaw steps of 1e-9: test_huge_search_radii_are_refused_naming_them)
         assume(e1 == e2 == "valid")
-    config = data.draw(st.sampled_from([CorrelativeConfig(), CorrelativeConfig(resolution_m=1e-4),
-                                        CorrelativeConfig(yaw_step_rad=1e-9), CorrelativeConfig(blur_voxels=0.0),
-                                        CorrelativeConfig(resolution_m=1e3)]))
+    config = data.draw(
+        st.sampled_from(
+            [
+                CorrelativeConfig(),
+                CorrelativeConfig(resolution_m=1e-4),
+                CorrelativeConfig(yaw_step_rad=1e-9),
+                CorrelativeConfig(blur_voxels=0.0),
+                CorrelativeConfig(resolution_m=1e3),
+            ]
+        )
+    )
     assume(not (yaw == 1e300 and config.yaw_step_rad < 1e-6))
     e6 = "valid" if config in (CorrelativeConfig(), CorrelativeConfig(blur_voxels=0.0)) else "either"
-    match = attempt(lambda: slam.correlative_xyh(source, target, T_init, radius, yaw, config),
-                    ["source", "target", "T_init", "radius_m", "yaw_radius_rad"], None,
-                    combined(e1, e2, e3, e4, e5, e6), "correlative_xyh")
+    match = attempt(
+        lambda: slam.correlative_xyh(source, target, T_init, radius, yaw, config),
+        ["source", "target", "T_init", "radius_m", "yaw_radius_rad"],
+        None,
+        combined(e1, e2, e3, e4, e5, e6),
+        "correlative_xyh",
+    )
     if match is REFUSED:
         return
     T = match.T_target_source
@@ -380,13 +462,19 @@ def test_correlative_search(data):
     if np.array_equal(on_device.T_target_source, T):
         assert abs(on_device.runner_up - match.runner_up) <= 1e-5 * max(match.runner_up, 1e-2)
     whole = len(source) == len(source_good) and len(target) == len(target_good)
-    if e1 == e2 == e3 == e4 == e5 == e6 == "valid" and whole and float(radius) >= 1.0 and float(yaw) == 0.0 and \
-            config == CorrelativeConfig():
+    if (
+        e1 == e2 == e3 == e4 == e5 == e6 == "valid"
+        and whole
+        and float(radius) >= 1.0
+        and float(yaw) == 0.0
+        and config == CorrelativeConfig()
+    ):
         np.testing.assert_allclose(T[:2, 3], shift[:2], atol=1e-9)
         assert T[2, 3] == 0
 
 
 # ------------------------------------------------------------------------------ findings, fixed (regression tests)
+
 
 @pytest.mark.parametrize("duration_s", [1e-9, 1e-300])
 def test_tiny_durations_are_refused_or_solved(duration_s):
@@ -407,16 +495,27 @@ def test_tiny_durations_are_refused_or_solved(duration_s):
 COMPLEX_POSE = np.eye(4) + 1e-3j
 
 
-@pytest.mark.parametrize("call", [
-    lambda: slam.PoseGraph(prior_pose=COMPLEX_POSE),
-    lambda: slam.PoseGraph(prior_pose=np.eye(4).astype(str)),
-    lambda: slam.PoseGraph(prior_sigmas=np.ones(6) * (1 + 1j)),
-    lambda: _three_node_graph().add_loop_closure(0, 2, np.eye(4), np.eye(6) * (1e-2 + 1e-2j)),
-    lambda: slam.icp(structured_cloud(np.random.default_rng(0)) + 1j, structured_cloud(np.random.default_rng(0))),
-    lambda: slam.correlative_xyh(blocky_cloud(np.random.default_rng(0)) + 1j, blocky_cloud(np.random.default_rng(0)),
-                                 np.eye(4), 1.0, 0.0),
-], ids=["prior_pose-complex", "prior_pose-strings", "prior_sigmas-complex", "covariance-complex", "icp-complex",
-        "correlative-complex"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: slam.PoseGraph(prior_pose=COMPLEX_POSE),
+        lambda: slam.PoseGraph(prior_pose=np.eye(4).astype(str)),
+        lambda: slam.PoseGraph(prior_sigmas=np.ones(6) * (1 + 1j)),
+        lambda: _three_node_graph().add_loop_closure(0, 2, np.eye(4), np.eye(6) * (1e-2 + 1e-2j)),
+        lambda: slam.icp(structured_cloud(np.random.default_rng(0)) + 1j, structured_cloud(np.random.default_rng(0))),
+        lambda: slam.correlative_xyh(
+            blocky_cloud(np.random.default_rng(0)) + 1j, blocky_cloud(np.random.default_rng(0)), np.eye(4), 1.0, 0.0
+        ),
+    ],
+    ids=[
+        "prior_pose-complex",
+        "prior_pose-strings",
+        "prior_sigmas-complex",
+        "covariance-complex",
+        "icp-complex",
+        "correlative-complex",
+    ],
+)
 def test_complex_and_text_arrays_are_refused(call):
     refuses(call)
 
@@ -435,11 +534,15 @@ def test_empty_batch_is_fine():
         assert "sources" in str(error), f"{error!r} names no argument"
 
 
-@pytest.mark.parametrize("call", [
-    lambda: slam.PoseGraph(prior_pose=np.zeros((0, 4, 4))),
-    lambda: _three_node_graph().add_submap(np.zeros((0, 4, 4)), 1.0),
-    lambda: _three_node_graph().add_loop_closure(0, 2, np.zeros((0, 4, 4)), np.eye(6) * 1e-2),
-], ids=["prior_pose", "add_submap", "add_loop_closure"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: slam.PoseGraph(prior_pose=np.zeros((0, 4, 4))),
+        lambda: _three_node_graph().add_submap(np.zeros((0, 4, 4)), 1.0),
+        lambda: _three_node_graph().add_loop_closure(0, 2, np.zeros((0, 4, 4)), np.eye(6) * 1e-2),
+    ],
+    ids=["prior_pose", "add_submap", "add_loop_closure"],
+)
 def test_an_empty_pose_stack_is_not_a_pose(call):
     try:
         refuses(call)
@@ -467,8 +570,9 @@ def test_huge_clouds_are_refused_or_aligned(scale):
 @pytest.mark.parametrize("junk", ["abc", {"x": 1}], ids=["text", "dict"])
 def test_junk_clouds_are_refused_naming_the_argument(junk):
     try:
-        refuses(lambda: slam.correlative_xyh(junk, blocky_cloud(np.random.default_rng(0)), np.eye(4), 1.0, 0.0),
-                "source")
+        refuses(
+            lambda: slam.correlative_xyh(junk, blocky_cloud(np.random.default_rng(0)), np.eye(4), 1.0, 0.0), "source"
+        )
     except TypeError as error:
         raise AssertionError(f"TypeError: {error}") from None
 
@@ -483,9 +587,11 @@ def test_far_clouds_are_refused_or_matched():
     assert np.array_equal(match.T_target_source, np.eye(4)), f"shift {match.T_target_source[:3, 3]}"
 
 
-@pytest.mark.parametrize("scale, radius_m, yaw_radius_rad, yaw_step_rad", [
-    (1e100, 1e300, 0.0, 0.005), (1e100, 1.0, 0.0, 0.005), (1.0, 1.0, 1e300, 1e-9)],
-    ids=["far-clouds-huge-radius", "far-source", "yaw"])
+@pytest.mark.parametrize(
+    "scale, radius_m, yaw_radius_rad, yaw_step_rad",
+    [(1e100, 1e300, 0.0, 0.005), (1e100, 1.0, 0.0, 0.005), (1.0, 1.0, 1e300, 1e-9)],
+    ids=["far-clouds-huge-radius", "far-source", "yaw"],
+)
 def test_huge_search_radii_are_refused_naming_them(scale, radius_m, yaw_radius_rad, yaw_step_rad):
     cloud = blocky_cloud(np.random.default_rng(0))
     config = CorrelativeConfig(yaw_step_rad=yaw_step_rad)
@@ -506,8 +612,10 @@ class _Accepted(Exception):
 def test_correlative_search_time_is_bounded(monkeypatch):
     """Accepted searches must be bounded in time: here, no more than 1e9 cell-steps (about 3 min
     of FFTs here). Checked without running the search: the first step after the checks raises."""
+
     def stop(*args, **kwargs):
         raise _Accepted
+
     monkeypatch.setattr(correlative.ndimage, "gaussian_filter", stop)
     monkeypatch.setattr(correlative.fft, "rfft2", stop)
     rng = np.random.default_rng(0)
@@ -531,6 +639,7 @@ def test_loop_closure_floors_stay_within_the_pose_graph_bounds(field):
     def closure_with_floor():
         floor = getattr(LoopClosureConfig(**{field: 1e7}), field) ** 2
         backend._covariance("covariance", np.eye(6) * 1e-4 + np.diag([floor] * 6), 6)
+
     refuses(closure_with_floor, field)
 
 

@@ -42,8 +42,7 @@ def test_virtual_map_matches_brute_force_sum():
     vog = random_vog(rng, 3)
     near = [vog.submap(i).voxels()[0][::5] @ vog.pose(i)[:3, :3].T + vog.pose(i)[:3, 3] for i in range(3)]
     near = np.concatenate(near)
-    points = np.concatenate([rng.uniform(-4, 4, (1000, 3)),
-                             near + rng.uniform(-0.2, 0.2, near.shape)])
+    points = np.concatenate([rng.uniform(-4, 4, (1000, 3)), near + rng.uniform(-0.2, 0.2, near.shape)])
     expected = reference_values(vog, points)
     observed = ~np.isnan(expected)
     assert observed.sum() > 300
@@ -72,8 +71,7 @@ def test_global_and_virtual_agree_at_voxel_centres_and_along_rays():
 
 
 @settings(max_examples=15, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), steps=st.lists(st.sampled_from(["move", "add", "back"]),
-                                                       min_size=1, max_size=5))
+@given(seed=st.integers(0, 2**32 - 1), steps=st.lists(st.sampled_from(["move", "add", "back"]), min_size=1, max_size=5))
 def test_any_sequence_of_updates_equals_a_fresh_merge(seed, steps):
     rng = np.random.default_rng(seed)
     vog = random_vog(rng, 2, scans=1, beams=30)
@@ -196,7 +194,7 @@ def test_a_creeping_submap_with_an_unknown_marginal_counts_as_uncertain():
     gmap.add(vog, range(12), applied_uncertain)
     # submap 7 creeps 1.5 mm per update: below eps_trans each time, past it after two
     poses = vog.poses()
-    for step in range(2):
+    for _ in range(2):
         poses[7, :3, 3] += [0.0015, 0, 0]
         vog.set_poses(np.arange(12), poses)
         marginals = certain.copy()
@@ -267,22 +265,25 @@ def test_save_load_round_trip_keeps_applied_poses(tmp_path):
         vj.GlobalMap.load(tmp_path / "voxel.vog")
 
 
-@pytest.mark.parametrize("call, argument", [
-    (lambda g, v: g.update_poses(v, marginals=np.zeros((2, 6, 6))), "marginals"),
-    (lambda g, v: g.update_poses(v, marginals=np.zeros((3, 6))), "marginals"),
-    (lambda g, v: g.update_poses(v, marginals=np.where(np.eye(6) > 0, np.nan, np.zeros((3, 6, 6)))), "marginals"),
-    (lambda g, v: g.update_poses(v, marginals=np.tile(np.triu(np.ones((6, 6))), (3, 1, 1))), "marginals"),
-    (lambda g, v: g.update_poses(v, marginals=-np.tile(np.eye(6), (3, 1, 1))), "marginals"),
-    (lambda g, v: g.update_poses(v, eps_rot=-1.0), "eps_rot"),
-    (lambda g, v: g.update_poses(v, eps_trans=float("nan")), "eps_trans"),
-    (lambda g, v: g.update_poses(v, np.tile(np.eye(6), (3, 1, 1)), eps_cov="big"), "eps_cov"),
-    (lambda g, v: g.update_poses("not a map"), "vog"),
-    (lambda g, v: g.update_poses(vj.VogMap(vj.MapConfig(voxel_size=0.5))), "vog"),
-    (lambda g, v: g.add(v, [7]), "ids"),
-    (lambda g, v: g.add(v, [0]), "ids"),
-    (lambda g, v: g.add(v, ["a"]), "ids"),
-    (lambda g, v: g.applied_pose(9), "i"),
-])
+@pytest.mark.parametrize(
+    "call, argument",
+    [
+        (lambda g, v: g.update_poses(v, marginals=np.zeros((2, 6, 6))), "marginals"),
+        (lambda g, v: g.update_poses(v, marginals=np.zeros((3, 6))), "marginals"),
+        (lambda g, v: g.update_poses(v, marginals=np.where(np.eye(6) > 0, np.nan, np.zeros((3, 6, 6)))), "marginals"),
+        (lambda g, v: g.update_poses(v, marginals=np.tile(np.triu(np.ones((6, 6))), (3, 1, 1))), "marginals"),
+        (lambda g, v: g.update_poses(v, marginals=-np.tile(np.eye(6), (3, 1, 1))), "marginals"),
+        (lambda g, v: g.update_poses(v, eps_rot=-1.0), "eps_rot"),
+        (lambda g, v: g.update_poses(v, eps_trans=float("nan")), "eps_trans"),
+        (lambda g, v: g.update_poses(v, np.tile(np.eye(6), (3, 1, 1)), eps_cov="big"), "eps_cov"),
+        (lambda g, v: g.update_poses("not a map"), "vog"),
+        (lambda g, v: g.update_poses(vj.VogMap(vj.MapConfig(voxel_size=0.5))), "vog"),
+        (lambda g, v: g.add(v, [7]), "ids"),
+        (lambda g, v: g.add(v, [0]), "ids"),
+        (lambda g, v: g.add(v, ["a"]), "ids"),
+        (lambda g, v: g.applied_pose(9), "i"),
+    ],
+)
 def test_bad_input_raises_and_changes_nothing(call, argument):
     rng = np.random.default_rng(7)
     vog = random_vog(rng, 3, scans=1, beams=20)
@@ -331,8 +332,9 @@ def test_eps_move_reapplies_only_submaps_whose_voxels_moved_that_far():
     lo, hi = vog.submap(2).bounds()
     lever = np.abs(np.stack([lo, hi])).max()
     turn = 0.08 / lever  # a small turn, but its farthest corner travels more than 5 cm
-    poses[2, :3, :3] = poses[2, :3, :3] @ np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0],
-                                                     [0, 0, 1.0]])
+    poses[2, :3, :3] = poses[2, :3, :3] @ np.array(
+        [[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1.0]]
+    )
     vog.set_poses(np.arange(4), poses)
     report = gmap.update_poses(vog, eps_rot=0.0, eps_trans=0.0, eps_move_m=0.05)
     assert report.moved == (2,) and report.reapplied == (2,)
@@ -370,4 +372,6 @@ def test_marginals_of_the_moved_submaps_alone_give_the_same_update(seed, eps_mov
     assert a.moved == b.moved == moved
     assert a.reapplied == b.reapplied
     assert as_dict(full) == as_dict(partial)
-    assert [full._applied[i].volume for i in full.applied_ids] == [partial._applied[i].volume for i in partial.applied_ids]
+    assert [full._applied[i].volume for i in full.applied_ids] == [
+        partial._applied[i].volume for i in partial.applied_ids
+    ]

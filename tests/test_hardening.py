@@ -40,6 +40,7 @@ def snapshot(m) -> tuple:
 
 # ------------------------------------------------------------------ global map: the key range
 
+
 def far_pose(x_m: float) -> np.ndarray:
     pose = np.eye(4)
     pose[0, 3] = x_m
@@ -109,6 +110,7 @@ def test_applied_pose_takes_integer_ids_only():
 
 # ------------------------------------------------------------------ settings
 
+
 def test_huge_integers_are_refused_naming_the_setting():
     refuses(lambda: vj.MapConfig(voxel_size=10**400), "MapConfig.voxel_size")
     refuses(lambda: vj.CrmConfig(max_range=10**400), "CrmConfig.max_range")
@@ -150,6 +152,7 @@ def test_numpy_integers_are_stored_as_ints(tmp_path):
 
 # ------------------------------------------------------------------ confidence-map queries
 
+
 def test_confidence_queries_refuse_walks_longer_than_the_line_limit():
     # every voxel on the way is walked (unknown ones have a mean too): 100 rays of 830 km took 23 s
     crm = vj.ConfidenceMap(CRM)
@@ -165,13 +168,13 @@ def test_an_empty_path_is_no_path():
     crm = vj.ConfidenceMap(CRM)
     refuses(lambda: path_cost(crm, np.zeros((0, 3))), "waypoints")
     refuses(lambda: choose_path(crm, [np.zeros((0, 3)), np.zeros((1, 3))]), "waypoints")
-    refuses(lambda: choose_path(crm, [np.zeros((1, 3))], T_world_sensor=5, sensor=vj.SonarConfig()),
-            "T_world_sensor")
+    refuses(lambda: choose_path(crm, [np.zeros((1, 3))], T_world_sensor=5, sensor=vj.SonarConfig()), "T_world_sensor")
     best, costs = choose_path(crm, [np.zeros((2, 3)), np.zeros((1, 3))])
     assert best == 1 and costs[0] == pytest.approx(2 * costs[1])
 
 
 # ------------------------------------------------------------------ map files
+
 
 def saved_map(tmp_path):
     vmap = vj.VoxelMap(CFG)
@@ -199,16 +202,23 @@ def test_an_array_larger_than_its_bytes_is_refused_before_allocating(tmp_path):
     metadata, arrays = read_map_file(saved_map(tmp_path), "VoxelMap")
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w") as archive:
-        header = "{'descr': '<i8', 'fortran_order': False, 'shape': (%d,), }" % 2**40
+        header = f"{{'descr': '<i8', 'fortran_order': False, 'shape': ({2**40},), }}"
         header += " " * (118 - len(header) - 1) + "\n"
-        archive.writestr("block_keys.npy", b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode()
-                         + b"\0" * 64)
+        archive.writestr(
+            "block_keys.npy", b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode() + b"\0" * 64
+        )
         stored = io.BytesIO()
         np.save(stored, arrays["log_odds"])
         archive.writestr("log_odds.npy", stored.getvalue())
     payload = buffer.getvalue()
-    head = json.dumps({"kind": "VoxelMap", "metadata": metadata, "payload_bytes": len(payload),
-                       "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+    head = json.dumps(
+        {
+            "kind": "VoxelMap",
+            "metadata": metadata,
+            "payload_bytes": len(payload),
+            "payload_sha256": hashlib.sha256(payload).hexdigest(),
+        }
+    ).encode()
     path = with_header(tmp_path / "huge.vog", head, payload)
     refuses(lambda: vj.VoxelMap.load(path), "declares shape (1099511627776,)")
 
@@ -269,6 +279,7 @@ def test_the_command_line_turns_os_errors_into_one_line(tmp_path, monkeypatch, c
 
 # ------------------------------------------------------------------ run files
 
+
 def run_file(tmp_path):
     path = tmp_path / "run.h5"
     with DatasetWriter(path, BEAMS, METADATA) as writer:
@@ -310,6 +321,7 @@ def test_a_folder_is_no_run_file(tmp_path):
 
 # ------------------------------------------------------------------ TUM trajectories
 
+
 def test_tum_files_need_unit_quaternions_and_increasing_times(tmp_path):
     path = tmp_path / "t.tum"
     path.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n")
@@ -327,6 +339,7 @@ def test_an_empty_batch_takes_an_empty_list_of_scan_indices():
 
 # ------------------------------------------------------------------ the mapper takes checked batches
 
+
 def scan_batch(first: int, count: int, start_s: float = 0.0, truth: bool = True) -> ScanBatch:
     fields = run_fields(np.random.default_rng(first), count=count, first_time=start_s)
     if not truth:
@@ -335,8 +348,7 @@ def scan_batch(first: int, count: int, start_s: float = 0.0, truth: bool = True)
 
 
 def mapper_state(mapper) -> tuple:
-    return (mapper.scans, len(mapper._scan_time), sum(len(p) for p in mapper._pending),
-            snapshot(mapper.standard_map))
+    return (mapper.scans, len(mapper._scan_time), sum(len(p) for p in mapper._pending), snapshot(mapper.standard_map))
 
 
 def test_the_mapper_checks_each_batch_before_changing_anything():
@@ -355,10 +367,17 @@ def test_the_mapper_checks_each_batch_before_changing_anything():
         "not rigid": dataclasses.replace(good, pose_nav=scaled),
         "strictly increasing": dataclasses.replace(good, time_s=good.time_s - 20.0),
         "pose_truth is missing": dataclasses.replace(good, pose_truth=None),
-        "beams per scan": ScanBatch(4, **{k: v for k, v in run_fields(np.random.default_rng(1), 4, 10.0).items()
-                                          if k not in ("sonar_directions", "ranges", "no_return")},
-                                    sonar_directions=np.tile(np.float32([1, 0, 0]), (4, 2, 1)),
-                                    ranges=np.ones((4, 2), np.float32), no_return=np.zeros((4, 2), bool)),
+        "beams per scan": ScanBatch(
+            4,
+            **{
+                k: v
+                for k, v in run_fields(np.random.default_rng(1), 4, 10.0).items()
+                if k not in ("sonar_directions", "ranges", "no_return")
+            },
+            sonar_directions=np.tile(np.float32([1, 0, 0]), (4, 2, 1)),
+            ranges=np.ones((4, 2), np.float32),
+            no_return=np.zeros((4, 2), bool),
+        ),
     }
     for message, batch in bad.items():
         refuses(lambda batch=batch: mapper.add(batch), message)
@@ -371,6 +390,7 @@ def test_the_mapper_checks_each_batch_before_changing_anything():
 
 
 # ------------------------------------------------------------------ the planner
+
 
 def test_a_stale_overlay_reads_a_submap_added_since_from_base_only():
     from vogjax import planner
@@ -431,14 +451,12 @@ def test_gain_and_collision_work_is_bounded():
     m = vj.VoxelMap(vj.MapConfig(voxel_size=0.2))
     sonar = vj.SonarConfig(beams=4)
     # 2 m at 1e-7 m took 75 s and 10 GB
-    refuses(lambda: planner.edge_gain(m, [[0, 0, 0, 0]], [[2, 0, 0, 0]], sonar, step_m=1e-7, max_range_m=1.0),
-            "step_m")
+    refuses(lambda: planner.edge_gain(m, [[0, 0, 0, 0]], [[2, 0, 0, 0]], sonar, step_m=1e-7, max_range_m=1.0), "step_m")
     views = planner.edge_views(np.zeros((1, 4)), [[2.0 * MAX_EDGE_VIEWS * 1e-4, 0, 0, 0]], np.eye(4), 2e-4, 1.0)[1]
     assert len(views) == MAX_EDGE_VIEWS  # at the limit: accepted
     refuses(lambda: planner.edge_views(np.zeros((1, 4)), np.ones((1, 4)), np.eye(4), 0.0, 5.0), "step_m")
     # 1e5 m of rays at 0.2 m voxels took minutes; a map's beams stop at MAX_RANGE_VOXELS
-    refuses(lambda: planner.view_gain(m, np.eye(4)[None], sonar, max_range_m=MAX_RANGE_VOXELS * 0.2 + 1),
-            "max_range_m")
+    refuses(lambda: planner.view_gain(m, np.eye(4)[None], sonar, max_range_m=MAX_RANGE_VOXELS * 0.2 + 1), "max_range_m")
     assert planner.view_gain(m, np.eye(4)[None], sonar, max_range_m=5.0).unknown[0] > 0
     side = int(np.cbrt(MAX_SWEPT_VOXELS)) * 0.2 * 2
     refuses(lambda: planner.edges_clear(m, [[0, 0, 0]], [[side, side, side]], (1, 1, 1), (0, 0, 0)), "ends")
@@ -450,8 +468,10 @@ def test_sonar_and_tree_sizes_are_bounded():
 
     refuses(lambda: vj.SonarConfig(beams=10**12), "SonarConfig.beams")
     refuses(lambda: vj.SonarConfig(beams=1 << 12, subrays=1 << 9), "SonarConfig.beams times SonarConfig.subrays")
-    refuses(lambda: planner.PlannerConfig(max_nodes=MAX_TREE_NODES + 1, tolerance_nodes=MAX_TREE_NODES + 1),
-            "PlannerConfig.max_nodes")
+    refuses(
+        lambda: planner.PlannerConfig(max_nodes=MAX_TREE_NODES + 1, tolerance_nodes=MAX_TREE_NODES + 1),
+        "PlannerConfig.max_nodes",
+    )
 
 
 def test_nearest_nodes_in_chunks_are_the_brute_force_ones():
@@ -468,8 +488,14 @@ def test_an_archive_that_lies_about_its_members_is_refused(tmp_path):
     metadata, arrays = read_map_file(saved_map(tmp_path), "VoxelMap")
 
     def saved_with(payload: bytes, name: str):
-        head = json.dumps({"kind": "VoxelMap", "metadata": metadata, "payload_bytes": len(payload),
-                           "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+        head = json.dumps(
+            {
+                "kind": "VoxelMap",
+                "metadata": metadata,
+                "payload_bytes": len(payload),
+                "payload_sha256": hashlib.sha256(payload).hexdigest(),
+            }
+        ).encode()
         return with_header(tmp_path / name, head, payload)
 
     # a member whose central-directory size (zip64) claims 8 TiB it does not hold
@@ -480,13 +506,13 @@ def test_an_archive_that_lies_about_its_members_is_refused(tmp_path):
         archive.writestr("log_odds.npy", header.getvalue() + b"\0" * 64)
     data = bytearray(buffer.getvalue())
     directory = data.find(b"PK\x01\x02")
-    name_length, = struct.unpack_from("<H", data, directory + 28)
+    (name_length,) = struct.unpack_from("<H", data, directory + 28)
     struct.pack_into("<I", data, directory + 24, 0xFFFFFFFF)  # uncompressed size: see the zip64 field
     struct.pack_into("<H", data, directory + 30, 12)
     at = directory + 46 + name_length
     data[at:at] = struct.pack("<HHQ", 1, 8, (1 << 43) + 4096)
     end = data.find(b"PK\x05\x06")
-    size, = struct.unpack_from("<I", data, end + 12)
+    (size,) = struct.unpack_from("<I", data, end + 12)
     struct.pack_into("<I", data, end + 12, size + 12)
     assert zipfile.ZipFile(io.BytesIO(bytes(data))).infolist()[0].file_size == (1 << 43) + 4096
     refuses(lambda: vj.VoxelMap.load(saved_with(bytes(data), "inflated.vog")), "the payload does not hold")
@@ -506,11 +532,14 @@ def test_an_archive_that_lies_about_its_members_is_refused(tmp_path):
 def test_report_numbers_that_are_not_defined_are_null():
     from vogjax.report.document import finite_or_null
 
-    report = {"auc": {"online": np.float32("nan"), "standard": 0.9}, "errors": [1.0, float("inf")],
-              "counts": np.array([1, 2]), "name": "run"}
+    report = {
+        "auc": {"online": np.float32("nan"), "standard": 0.9},
+        "errors": [1.0, float("inf")],
+        "counts": np.array([1, 2]),
+        "name": "run",
+    }
     cleaned = finite_or_null(report)
-    assert cleaned == {"auc": {"online": None, "standard": 0.9}, "errors": [1.0, None], "counts": [1, 2],
-                       "name": "run"}
+    assert cleaned == {"auc": {"online": None, "standard": 0.9}, "errors": [1.0, None], "counts": [1, 2], "name": "run"}
     json.dumps(cleaned, allow_nan=False)  # strict JSON
 
 

@@ -22,6 +22,7 @@ SONAR = vj.SonarConfig(beams=8)
 
 # ------------------------------------------------------------------ A. scan rates and physics steps
 
+
 @pytest.mark.parametrize("rate", [15.0, 30.0, 6.6, 1e6])
 def test_sim_rates_off_the_physics_step_are_refused_before_any_work(tmp_path, rate):
     """A scan comes after whole 0.05 s steps: 15 Hz would record 0.067 s between scans 0.05 s of
@@ -55,22 +56,25 @@ START = pose_from_xyz_yaw(0.0, 0.0, 1.0, 0.0)
 WAYPOINTS = np.array([[1.0, 0.0, 1.0, 0.0], [1.0, 1.0, 1.0, 0.5]])
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"scan_rate_hz": 0.0}, "scan_rate_hz must be a positive number"),
-    ({"scan_rate_hz": -5.0}, "scan_rate_hz must be a positive number"),
-    ({"scan_rate_hz": float("nan")}, "scan_rate_hz"),
-    ({"waypoints": np.full((1, 4), np.nan)}, "waypoints contains NaN"),
-    ({"waypoints": np.zeros((0, 4))}, "waypoints must hold at least one waypoint"),
-    ({"waypoints": np.zeros((2, 3))}, r"waypoints must have shape \(N, 4\)"),
-    ({"waypoints": [[1e30, 0.0, 1.0, 0.0]]}, "waypoints must lie within"),
-    ({"num_scans": -1}, "num_scans"),
-    ({"num_scans": 2.5}, "num_scans"),
-    ({"num_scans": MAX_SCANS + 1}, "num_scans"),
-    ({"start_pose": np.full((4, 4), np.nan)}, "start_pose contains NaN"),
-    ({"start_pose": np.diag([2.0, 2.0, 2.0, 1.0])}, "start_pose is not rigid"),
-    ({"start_pose": np.eye(3)}, "start_pose must have shape"),
-    ({"config": {"max_speed_mps": 1.0}}, "config must be a ControllerConfig"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"scan_rate_hz": 0.0}, "scan_rate_hz must be a positive number"),
+        ({"scan_rate_hz": -5.0}, "scan_rate_hz must be a positive number"),
+        ({"scan_rate_hz": float("nan")}, "scan_rate_hz"),
+        ({"waypoints": np.full((1, 4), np.nan)}, "waypoints contains NaN"),
+        ({"waypoints": np.zeros((0, 4))}, "waypoints must hold at least one waypoint"),
+        ({"waypoints": np.zeros((2, 3))}, r"waypoints must have shape \(N, 4\)"),
+        ({"waypoints": [[1e30, 0.0, 1.0, 0.0]]}, "waypoints must lie within"),
+        ({"num_scans": -1}, "num_scans"),
+        ({"num_scans": 2.5}, "num_scans"),
+        ({"num_scans": MAX_SCANS + 1}, "num_scans"),
+        ({"start_pose": np.full((4, 4), np.nan)}, "start_pose contains NaN"),
+        ({"start_pose": np.diag([2.0, 2.0, 2.0, 1.0])}, "start_pose is not rigid"),
+        ({"start_pose": np.eye(3)}, "start_pose must have shape"),
+        ({"config": {"max_speed_mps": 1.0}}, "config must be a ControllerConfig"),
+    ],
+)
 def test_simulate_checks_its_arguments(kwargs, message):
     args = {"start_pose": START, "waypoints": WAYPOINTS, "num_scans": 3, **kwargs}
     with pytest.raises(ValueError, match=message):
@@ -109,9 +113,11 @@ def test_scan_checks_its_poses():
 def test_drifting_navigation_checks_its_arguments():
     truth = np.tile(np.eye(4), (4, 1, 1))
     truth[:, 0, 3] = np.arange(4)
-    for times, message in [([0.0, 1.0, 0.5, 0.2], "times_s must not decrease"),
-                           ([0.0, np.nan, 2.0, 3.0], "times_s contains NaN"),
-                           ([0.0, 1.0], r"times_s must have shape \(4,\)")]:
+    for times, message in [
+        ([0.0, 1.0, 0.5, 0.2], "times_s must not decrease"),
+        ([0.0, np.nan, 2.0, 3.0], "times_s contains NaN"),
+        ([0.0, 1.0], r"times_s must have shape \(4,\)"),
+    ]:
         with pytest.raises(ValueError, match=message):
             sim.drifting_navigation(truth, np.array(times))
     scaled = truth.copy()
@@ -126,6 +132,7 @@ def test_drifting_navigation_checks_its_arguments():
 
 
 # ------------------------------------------------------------------ C. ground truth
+
 
 @pytest.mark.parametrize("voxel_size", [0.0, -0.1, float("nan"), float("inf"), "0.1", None])
 def test_occupancy_refuses_a_bad_voxel_size(voxel_size):
@@ -147,6 +154,7 @@ def test_every_built_in_scene_fits_the_limit_down_to_5_cm():
 
 
 # ------------------------------------------------------------------ D. shared scenes
+
 
 def test_loaded_scenes_cannot_be_changed_by_a_caller():
     scene = scenes.load("boxes")
@@ -174,6 +182,7 @@ def test_survey_and_surface_points_check_their_counts():
 
 # ------------------------------------------------------------------ E. metrics and map_run
 
+
 def test_roc_refuses_nan_scores_and_non_boolean_truth():
     occupied = np.array([True, False, True, False])
     for scores in ([np.nan, 0.1, 0.8, 0.2], np.full(4, np.nan)):  # were AUC 0.5 and 0.75
@@ -200,6 +209,7 @@ def test_map_run_checks_its_config_before_any_work(tmp_path):
 
 
 # ------------------------------------------------------------------ F. geometry helpers
+
 
 def test_pose_deltas_needs_rigid_poses():
     with pytest.raises(ValueError, match="T_new is not rigid"):  # was: (0, 0), no motion
@@ -236,10 +246,12 @@ def test_confidence_volume_needs_a_covariance():
     assert geometry.confidence_volume(singular) == 0.0
     small = np.eye(6) * 1e-8  # tiny covariances keep their volume
     assert geometry.confidence_volume(small) == pytest.approx(
-        4 / 3 * np.pi * geometry.CHI2_3DOF_95**1.5 * np.sqrt(1e-24), rel=1e-12)
+        4 / 3 * np.pi * geometry.CHI2_3DOF_95**1.5 * np.sqrt(1e-24), rel=1e-12
+    )
     m = np.diag([1e-4, 1e-4, 4e-4, 1e-2, 9e-2, 1e-3])
-    assert geometry.confidence_volume(m) == pytest.approx(4 / 3 * np.pi * geometry.CHI2_3DOF_95**1.5 * np.sqrt(
-        1e-2 * 9e-2 * 4e-4), rel=1e-12)
+    assert geometry.confidence_volume(m) == pytest.approx(
+        4 / 3 * np.pi * geometry.CHI2_3DOF_95**1.5 * np.sqrt(1e-2 * 9e-2 * 4e-4), rel=1e-12
+    )
 
 
 def test_quaternion_conversions_check_their_input():
@@ -254,8 +266,9 @@ def test_quaternion_conversions_check_their_input():
     with pytest.raises(ValueError, match=r"quaternions must have shape \(\.\.\., 4\)"):
         geometry.rotations_from_quaternions(np.ones(3))
     R = geometry.rotation_from_ypr(np.array([0.3, -2.0]), 0.1, 0.2)
-    np.testing.assert_allclose(geometry.rotations_from_quaternions(2 * geometry.quaternions_from_rotations(R)), R,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        geometry.rotations_from_quaternions(2 * geometry.quaternions_from_rotations(R)), R, atol=1e-12
+    )
 
 
 def test_map_refuses_a_ground_truth_beyond_the_limit_before_the_pipeline_runs(tmp_path):
@@ -264,8 +277,10 @@ def test_map_refuses_a_ground_truth_beyond_the_limit_before_the_pipeline_runs(tm
     run = tmp_path / "run.h5"
     sim.simulate_run("boxes", run, num_scans=3, sensor=vj.SonarConfig(beams=4), progress=False)
     config = vj.config.JobConfig.from_dict({"pipeline": {"map": {"voxel_size": 0.015}}})
-    for call in (lambda: vj_eval.map_runs([run], tmp_path / "out", config, progress=False),
-                 lambda: vj_eval.map_run(run, tmp_path / "out" / "run", config, progress=False)):
+    for call in (
+        lambda: vj_eval.map_runs([run], tmp_path / "out", config, progress=False),
+        lambda: vj_eval.map_run(run, tmp_path / "out" / "run", config, progress=False),
+    ):
         with pytest.raises(ValueError, match=f"more than the limit of {MAX_GROUND_TRUTH_CELLS}"):
             call()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.h5"]

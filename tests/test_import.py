@@ -8,8 +8,8 @@ import pytest
 
 import vogjax as vj
 from vogjax import cli
-from vogjax.io.dataset import Dataset
 from vogjax.config.point_cloud import PointCloudConfig
+from vogjax.io.dataset import Dataset
 from vogjax.io.rosbag import cloud_points, import_bag
 from vogjax.sensors.point_cloud import PointCloudSensor
 
@@ -28,9 +28,13 @@ MOUNT = np.array([0.3, -0.1, 0.5])  # lidar in base_link, rotated below
 def quat_matrix(q):
     """Rotation matrix of (x, y, z, w)."""
     x, y, z, w = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def slerp(q0, q1, u):
@@ -81,8 +85,9 @@ class Messages:
         self.ros1 = ros1
         self.store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
         if ros1:  # Noetic's store lacks tf2_msgs
-            self.store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
-                                                   "tf2_msgs/msg/TFMessage"))
+            self.store.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            )
         self.t = self.store.types
 
     def header(self, stamp_ns, frame):
@@ -92,51 +97,79 @@ class Messages:
 
     def odometry(self, stamp_ns, position, quat):
         g = self.t
-        pose = g["geometry_msgs/msg/Pose"](position=g["geometry_msgs/msg/Point"](*position),
-                                           orientation=g["geometry_msgs/msg/Quaternion"](*quat))
-        twist = g["geometry_msgs/msg/Twist"](linear=g["geometry_msgs/msg/Vector3"](0, 0, 0),
-                                             angular=g["geometry_msgs/msg/Vector3"](0, 0, 0))
+        pose = g["geometry_msgs/msg/Pose"](
+            position=g["geometry_msgs/msg/Point"](*position), orientation=g["geometry_msgs/msg/Quaternion"](*quat)
+        )
+        twist = g["geometry_msgs/msg/Twist"](
+            linear=g["geometry_msgs/msg/Vector3"](0, 0, 0), angular=g["geometry_msgs/msg/Vector3"](0, 0, 0)
+        )
         return g["nav_msgs/msg/Odometry"](
-            header=self.header(stamp_ns, "odom"), child_frame_id="base_link",
+            header=self.header(stamp_ns, "odom"),
+            child_frame_id="base_link",
             pose=g["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-            twist=g["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
+            twist=g["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+        )
 
     def cloud(self, stamp_ns, frame, points, float64=False):
         """x, y, z plus an intensity field and padding, so offsets and point_step matter."""
         kind = "<f8" if float64 else "<f4"
         size = 8 if float64 else 4
-        dtype = np.dtype({"names": ["intensity", "x", "y", "z"], "formats": ["<f4", kind, kind, kind],
-                          "offsets": [0, 4, 4 + size, 4 + 2 * size], "itemsize": 4 + 3 * size + 4})
+        dtype = np.dtype(
+            {
+                "names": ["intensity", "x", "y", "z"],
+                "formats": ["<f4", kind, kind, kind],
+                "offsets": [0, 4, 4 + size, 4 + 2 * size],
+                "itemsize": 4 + 3 * size + 4,
+            }
+        )
         rows = np.zeros(len(points), dtype=dtype)
         rows["x"], rows["y"], rows["z"] = points.T
         Field = self.t["sensor_msgs/msg/PointField"]
         code = 8 if float64 else 7
         fields = [Field(name="intensity", offset=0, datatype=7, count=1)] + [
-            Field(name=n, offset=4 + i * size, datatype=code, count=1) for i, n in enumerate("xyz")]
+            Field(name=n, offset=4 + i * size, datatype=code, count=1) for i, n in enumerate("xyz")
+        ]
         return self.t["sensor_msgs/msg/PointCloud2"](
-            header=self.header(stamp_ns, frame), height=1, width=len(points), fields=fields, is_bigendian=False,
-            point_step=dtype.itemsize, row_step=dtype.itemsize * len(points),
-            data=np.frombuffer(rows.tobytes(), dtype=np.uint8), is_dense=False)
+            header=self.header(stamp_ns, frame),
+            height=1,
+            width=len(points),
+            fields=fields,
+            is_bigendian=False,
+            point_step=dtype.itemsize,
+            row_step=dtype.itemsize * len(points),
+            data=np.frombuffer(rows.tobytes(), dtype=np.uint8),
+            is_dense=False,
+        )
 
     def laser(self, stamp_ns, frame, ranges, angle_min, increment, range_min, range_max):
         return self.t["sensor_msgs/msg/LaserScan"](
-            header=self.header(stamp_ns, frame), angle_min=angle_min,
+            header=self.header(stamp_ns, frame),
+            angle_min=angle_min,
             angle_max=angle_min + increment * (len(ranges) - 1),
-            angle_increment=increment, time_increment=0.0, scan_time=0.1, range_min=range_min, range_max=range_max,
-            ranges=np.asarray(ranges, dtype=np.float32), intensities=np.zeros(0, dtype=np.float32))
+            angle_increment=increment,
+            time_increment=0.0,
+            scan_time=0.1,
+            range_min=range_min,
+            range_max=range_max,
+            ranges=np.asarray(ranges, dtype=np.float32),
+            intensities=np.zeros(0, dtype=np.float32),
+        )
 
     def tf(self, stamp_ns, parent, child, T):
         g = self.t
         q = _quat_of(T[:3, :3])
-        transform = g["geometry_msgs/msg/Transform"](translation=g["geometry_msgs/msg/Vector3"](*T[:3, 3]),
-                                                     rotation=g["geometry_msgs/msg/Quaternion"](*q))
-        stamped = g["geometry_msgs/msg/TransformStamped"](header=self.header(stamp_ns, parent), child_frame_id=child,
-                                                          transform=transform)
+        transform = g["geometry_msgs/msg/Transform"](
+            translation=g["geometry_msgs/msg/Vector3"](*T[:3, 3]), rotation=g["geometry_msgs/msg/Quaternion"](*q)
+        )
+        stamped = g["geometry_msgs/msg/TransformStamped"](
+            header=self.header(stamp_ns, parent), child_frame_id=child, transform=transform
+        )
         return g["tf2_msgs/msg/TFMessage"](transforms=[stamped])
 
 
 def _quat_of(R):
     from scipy.spatial.transform import Rotation
+
     return Rotation.from_matrix(R).as_quat()
 
 
@@ -146,15 +179,17 @@ def write_bag(path, kind, messages):
     if kind == "ros1":
         writer = Writer1(path)
     else:
-        writer = Writer2(path, version=9,
-                         storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3)
+        writer = Writer2(
+            path, version=9, storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+        )
     with writer:
         connections = {}
         for topic, msgtype, stamp, message in messages:
             if topic not in connections:
                 connections[topic] = writer.add_connection(topic, msgtype, typestore=m.store)
-            data = (m.store.serialize_ros1(message, msgtype) if kind == "ros1"
-                    else m.store.serialize_cdr(message, msgtype))
+            data = (
+                m.store.serialize_ros1(message, msgtype) if kind == "ros1" else m.store.serialize_cdr(message, msgtype)
+            )
             writer.write(connections[topic], int(stamp), data)
     return path
 
@@ -251,13 +286,26 @@ def test_organised_big_endian_clouds_with_padded_rows_are_read_point_for_point()
     data = np.concatenate([np.r_[np.frombuffer(row.tobytes(), np.uint8), np.zeros(12, np.uint8)] for row in rows])
     Field = m.t["sensor_msgs/msg/PointField"]
     msg = m.t["sensor_msgs/msg/PointCloud2"](
-        header=m.header(T0_NS, "lidar"), height=2, width=5, is_bigendian=True, point_step=28, row_step=5 * 28 + 12,
+        header=m.header(T0_NS, "lidar"),
+        height=2,
+        width=5,
+        is_bigendian=True,
+        point_step=28,
+        row_step=5 * 28 + 12,
         fields=[Field(name=n, offset=o, datatype=8, count=1) for n, o in (("x", 16), ("y", 0), ("z", 8))],
-        data=data, is_dense=True)
+        data=data,
+        is_dense=True,
+    )
     np.testing.assert_array_equal(cloud_points(msg), points.reshape(-1, 3))
-    short = m.t["sensor_msgs/msg/PointCloud2"](**{**{f: getattr(msg, f) for f in (
-        "header", "height", "width", "fields", "is_bigendian", "point_step", "row_step", "is_dense")},
-        "data": data[:-20]})
+    short = m.t["sensor_msgs/msg/PointCloud2"](
+        **{
+            **{
+                f: getattr(msg, f)
+                for f in ("header", "height", "width", "fields", "is_bigendian", "point_step", "row_step", "is_dense")
+            },
+            "data": data[:-20],
+        }
+    )
     with pytest.raises(ValueError, match="'/p': PointCloud2 is malformed"):
         cloud_points(short, "/p")
 
@@ -271,7 +319,7 @@ def test_padding_never_changes_the_map(tmp_path):
     kept = [p for s, p in clouds if s >= odom[0][0] and np.isfinite(p).any()]
     for (_, origin, ends, _, _), points in zip(scans, kept):
         padded.integrate_scan(origin, ends)
-        real.integrate_scan(origin, ends[:np.isfinite(points).all(axis=1).sum()])
+        real.integrate_scan(origin, ends[: np.isfinite(points).all(axis=1).sum()])
     (c1, v1), (c2, v2) = padded.voxels(), real.voxels()
     assert len(v1) > 1000
     np.testing.assert_array_equal(c1, c2)
@@ -282,8 +330,9 @@ def test_padding_never_changes_the_map(tmp_path):
 def test_laser_scans_keep_returns_and_no_returns_and_drop_invalid_beams(tmp_path, kind):
     m = Messages(kind == "ros1")
     o_stamps, positions, quats = odometry_samples(30)
-    messages = [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q))
-                for s, p, q in zip(o_stamps, positions, quats)]
+    messages = [
+        ("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q)) for s, p, q in zip(o_stamps, positions, quats)
+    ]
     rng = np.random.default_rng(4)
     scans = []
     for k in range(8):
@@ -294,14 +343,22 @@ def test_laser_scans_keep_returns_and_no_returns_and_drop_invalid_beams(tmp_path
         ranges[[2, 11]] = np.nan  # invalid
         ranges[3] = 0.05  # below range_min: invalid
         ranges[4] = -np.inf  # too close: invalid
-        messages.append(("/scan", "sensor_msgs/msg/LaserScan", stamp,
-                         m.laser(stamp, "base_link", ranges, -1.2, 0.06, 0.1, 9.0)))
+        messages.append(
+            ("/scan", "sensor_msgs/msg/LaserScan", stamp, m.laser(stamp, "base_link", ranges, -1.2, 0.06, 0.1, 9.0))
+        )
         scans.append((stamp, ranges))
     # a second scan with the last one's stamp: not later than it, dropped
-    messages.append(("/scan", "sensor_msgs/msg/LaserScan", stamp + 1,
-                     m.laser(stamp, "base_link", ranges[::-1].copy(), -1.2, 0.06, 0.1, 9.0)))
-    bag = write_bag(tmp_path / ("scan.bag" if kind == "ros1" else "scan_bag"), kind,
-                    sorted(messages, key=lambda x: x[2]))
+    messages.append(
+        (
+            "/scan",
+            "sensor_msgs/msg/LaserScan",
+            stamp + 1,
+            m.laser(stamp, "base_link", ranges[::-1].copy(), -1.2, 0.06, 0.1, 9.0),
+        )
+    )
+    bag = write_bag(
+        tmp_path / ("scan.bag" if kind == "ros1" else "scan_bag"), kind, sorted(messages, key=lambda x: x[2])
+    )
     out = tmp_path / "scan.h5"
     assert cli.main(["import", str(bag), "--points", "/scan", "--odometry", "/odom", "--out", str(out), "--quiet"]) == 0
     rows, metadata, _ = beams_of(out)
@@ -329,10 +386,13 @@ def test_imported_run_maps_and_the_report_skips_ground_truth(tmp_path, capsys):
     bag, _, _ = cloud_bag(tmp_path / "long.bag", "ros1", scans=40, reach=4.0)
     run = tmp_path / "long.h5"
     import_bag(bag, run, "/points", "/odom", frame="lidar", progress=False)
-    (tmp_path / "s.toml").write_text("[map]\nvoxel_size = 0.2\nmax_range = 6.0\n[pipeline]\nscans_per_submap = 10\n"
-                                     "[timing]\nevery_submaps = 0\n")
-    assert cli.main(["map", str(run), "--out", str(tmp_path / "maps"), "--config", str(tmp_path / "s.toml"),
-                     "--quiet"]) == 0
+    (tmp_path / "s.toml").write_text(
+        "[map]\nvoxel_size = 0.2\nmax_range = 6.0\n[pipeline]\nscans_per_submap = 10\n[timing]\nevery_submaps = 0\n"
+    )
+    assert (
+        cli.main(["map", str(run), "--out", str(tmp_path / "maps"), "--config", str(tmp_path / "s.toml"), "--quiet"])
+        == 0
+    )
     report = json.loads((tmp_path / "maps" / "long" / "report.json").read_text())
     assert report["scene"] is None and report["scans"] == 38 and report["submaps"] == 4
     assert all(v is None for v in report["auc"].values()) and all(v is None for v in report["rmse_m"].values())
@@ -352,25 +412,33 @@ def run_cli(capsys, *args):
 def test_bad_bags_and_arguments_are_clear_errors(tmp_path, capsys):
     bag, _, _ = cloud_bag(tmp_path / "run.bag", "ros1", scans=4)
     out = tmp_path / "out.h5"
-    assert "--points: the bag has no topic '/nope'" in run_cli(capsys, bag, "--points", "/nope", "--odometry", "/odom",
-                                                               "--out", out, "--frame", "lidar")
+    assert "--points: the bag has no topic '/nope'" in run_cli(
+        capsys, bag, "--points", "/nope", "--odometry", "/odom", "--out", out, "--frame", "lidar"
+    )
     assert "--odometry: topic '/points' carries sensor_msgs/msg/PointCloud2, not nav_msgs/msg/Odometry" in run_cli(
-        capsys, bag, "--points", "/points", "--odometry", "/points", "--out", out, "--frame", "lidar")
+        capsys, bag, "--points", "/points", "--odometry", "/points", "--out", out, "--frame", "lidar"
+    )
     assert "--points: topic '/odom' carries nav_msgs/msg/Odometry" in run_cli(
-        capsys, bag, "--points", "/odom", "--odometry", "/odom", "--out", out)
+        capsys, bag, "--points", "/odom", "--odometry", "/odom", "--out", out
+    )
     assert "pass --frame lidar" in run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", out)
     assert "--frame 'camera': the scans on '/points' are in frame 'lidar'" in run_cli(
-        capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", out, "--frame", "camera")
-    assert "does not exist" in run_cli(capsys, tmp_path / "missing.bag", "--points", "/p", "--odometry", "/o",
-                                       "--out", out)
+        capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", out, "--frame", "camera"
+    )
+    assert "does not exist" in run_cli(
+        capsys, tmp_path / "missing.bag", "--points", "/p", "--odometry", "/o", "--out", out
+    )
     (tmp_path / "junk.bag").write_bytes(b"junk" * 100)
-    assert "cannot be read" in run_cli(capsys, tmp_path / "junk.bag", "--points", "/p", "--odometry", "/o",
-                                       "--out", out)
+    assert "cannot be read" in run_cli(
+        capsys, tmp_path / "junk.bag", "--points", "/p", "--odometry", "/o", "--out", out
+    )
     untied, _, _ = cloud_bag(tmp_path / "untied.bag", "ros1", scans=4, with_tf=False)
     assert "TF (/tf_static, /tf) does not connect it" in run_cli(
-        capsys, untied, "--points", "/points", "--odometry", "/odom", "--out", out, "--frame", "lidar")
-    assert "folder" in run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out",
-                               tmp_path / "no" / "x.h5", "--frame", "lidar")
+        capsys, untied, "--points", "/points", "--odometry", "/odom", "--out", out, "--frame", "lidar"
+    )
+    assert "folder" in run_cli(
+        capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "no" / "x.h5", "--frame", "lidar"
+    )
     assert not out.exists()
 
 
@@ -379,8 +447,7 @@ def test_a_bag_whose_scans_all_miss_the_odometry_is_an_error(tmp_path, capsys):
     stamps, positions, quats = odometry_samples(5)
     late = stamps[-1] + 10**9
     messages = [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q)) for s, p, q in zip(stamps, positions, quats)]
-    messages.append(("/points", "sensor_msgs/msg/PointCloud2", late,
-                     m.cloud(late, "base_link", np.ones((5, 3)))))
+    messages.append(("/points", "sensor_msgs/msg/PointCloud2", late, m.cloud(late, "base_link", np.ones((5, 3)))))
     bag = write_bag(tmp_path / "late", "mcap", messages)
     message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5")
     assert "no scan on '/points' can be imported: 1 outside odometry" in message
@@ -389,8 +456,11 @@ def test_a_bag_whose_scans_all_miss_the_odometry_is_an_error(tmp_path, capsys):
 # ------------------------------------------------------------------ hostile bags (a review campaign's findings)
 def odometry_messages(m, count, skip=()):
     stamps, positions, quats = odometry_samples(count)
-    return [("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q))
-            for k, (s, p, q) in enumerate(zip(stamps, positions, quats)) if k not in skip], stamps
+    return [
+        ("/odom", "nav_msgs/msg/Odometry", s, m.odometry(s, p, q))
+        for k, (s, p, q) in enumerate(zip(stamps, positions, quats))
+        if k not in skip
+    ], stamps
 
 
 def test_a_record_the_reader_cannot_read_names_the_bag(tmp_path, capsys):
@@ -400,8 +470,9 @@ def test_a_record_the_reader_cannot_read_names_the_bag(tmp_path, capsys):
     for at in range(len(data) // 2, len(data) * 3 // 4, 97):
         data[at] ^= 0xFF
     bag.write_bytes(bytes(data))
-    message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5",
-                      "--frame", "lidar")
+    message = run_cli(
+        capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5", "--frame", "lidar"
+    )
     assert str(bag) in message and "\n" not in message.strip()
 
 
@@ -409,26 +480,43 @@ def test_a_cloud_larger_than_a_run_takes_is_refused_before_converting():
     m = Messages(False)
     Field = m.t["sensor_msgs/msg/PointField"]
     huge = m.t["sensor_msgs/msg/PointCloud2"](
-        header=m.header(T0_NS, "lidar"), height=2048, width=1024, is_bigendian=False, point_step=12,
-        row_step=12 * 1024, fields=[Field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
-        data=np.zeros(12, np.uint8), is_dense=True)
+        header=m.header(T0_NS, "lidar"),
+        height=2048,
+        width=1024,
+        is_bigendian=False,
+        point_step=12,
+        row_step=12 * 1024,
+        fields=[Field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
+        data=np.zeros(12, np.uint8),
+        is_dense=True,
+    )
     with pytest.raises(ValueError, match="more than the 1048576 beams"):
         cloud_points(huge, "/p")
 
 
-@pytest.mark.parametrize("change, match", [
-    (lambda f: f.__setitem__(2, ("z", 100)), "is malformed"),  # z beyond point_step
-    (lambda f: f.__setitem__(2, ("x", 8)), "has field x twice"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda f: f.__setitem__(2, ("z", 100)), "is malformed"),  # z beyond point_step
+        (lambda f: f.__setitem__(2, ("x", 8)), "has field x twice"),
+    ],
+)
 def test_cloud_layouts_are_checked_before_numpy_sees_them(change, match):
     m = Messages(False)
     Field = m.t["sensor_msgs/msg/PointField"]
     layout = [("x", 0), ("y", 4), ("z", 8)]
     change(layout)
     msg = m.t["sensor_msgs/msg/PointCloud2"](
-        header=m.header(T0_NS, "lidar"), height=1, width=2, is_bigendian=False, point_step=12, row_step=24,
-        fields=[Field(name=n, offset=o, datatype=7, count=1) for n, o in layout], data=np.zeros(24, np.uint8),
-        is_dense=True)
+        header=m.header(T0_NS, "lidar"),
+        height=1,
+        width=2,
+        is_bigendian=False,
+        point_step=12,
+        row_step=24,
+        fields=[Field(name=n, offset=o, datatype=7, count=1) for n, o in layout],
+        data=np.zeros(24, np.uint8),
+        is_dense=True,
+    )
     with pytest.raises(ValueError, match=match):
         cloud_points(msg, "/p")
 
@@ -436,10 +524,12 @@ def test_cloud_layouts_are_checked_before_numpy_sees_them(change, match):
 def test_odometry_that_disagrees_with_itself_is_refused(tmp_path, capsys):
     m = Messages(False)
     messages, stamps = odometry_messages(m, 10)
-    messages.append(("/odom", "nav_msgs/msg/Odometry", stamps[4],
-                     m.odometry(stamps[4], [100.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])))
-    messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamps[5],
-                     m.cloud(stamps[5], "base_link", np.ones((5, 3)))))
+    messages.append(
+        ("/odom", "nav_msgs/msg/Odometry", stamps[4], m.odometry(stamps[4], [100.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
+    )
+    messages.append(
+        ("/points", "sensor_msgs/msg/PointCloud2", stamps[5], m.cloud(stamps[5], "base_link", np.ones((5, 3))))
+    )
     bag = write_bag(tmp_path / "dup", "mcap", sorted(messages, key=lambda e: e[2]))
     message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5")
     assert f"two different poses stamped {stamps[4]} ns" in message
@@ -470,9 +560,12 @@ def test_a_tf_link_off_the_path_may_be_junk_but_one_on_it_may_not(tmp_path, caps
     bad = ("/tf_static", "tf2_msgs/msg/TFMessage", T0_NS, m.tf(T0_NS, "base_link", "lidar", mount()))
     bad[3].transforms[0].transform.rotation.w = 0.1  # not a unit quaternion
     bag = write_bag(tmp_path / "bad", "mcap", sorted(messages + [bad], key=lambda e: e[2]))
-    message = run_cli(capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5",
-                      "--frame", "lidar")
-    assert "the TF link base_link -> lidar holds non-finite values or a quaternion that is not of unit length" in message
+    message = run_cli(
+        capsys, bag, "--points", "/points", "--odometry", "/odom", "--out", tmp_path / "x.h5", "--frame", "lidar"
+    )
+    assert (
+        "the TF link base_link -> lidar holds non-finite values or a quaternion that is not of unit length" in message
+    )
 
 
 def test_laser_returns_beyond_any_sensor_are_invalid_beams():

@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
+import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-import warp as wp
 
 import vogjax as vj
 from vogjax.kernels import integration
@@ -60,16 +59,16 @@ def test_matches_octomap_on_random_scans():
     tree.setClampingThresMax(cfg.clamp_max)
     origins, points, scan = ref.random_scans(rng, 30, 200, spread=8.0, far=0.1)
     for s in range(30):
-        tree.insertPointCloud(points[scan == s].astype(np.float64), origins[s].astype(np.float64),
-                              maxrange=cfg.max_range)
+        tree.insertPointCloud(
+            points[scan == s].astype(np.float64), origins[s].astype(np.float64), maxrange=cfg.max_range
+        )
     vmap = vj.VoxelMap(cfg)
     vmap.integrate_scans(origins, points, scan)
 
     octo = {}
     for leaf in tree.begin_leafs():  # pruned leaves stand for several voxels
         n = int(round(leaf.getSize() / cfg.voxel_size))
-        corner = np.floor((np.array(leaf.getCoordinate()) - leaf.getSize() / 2) / cfg.voxel_size
-                          + 0.5).astype(int)
+        corner = np.floor((np.array(leaf.getCoordinate()) - leaf.getSize() / 2) / cfg.voxel_size + 0.5).astype(int)
         for offset in np.ndindex(n, n, n):
             octo[tuple((corner + offset).tolist())] = leaf.getValue()
     ours = as_dict(vmap)
@@ -92,7 +91,9 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
     monkeypatch.setattr(integrator, "_apply", lambda *args, **kw: replayed.append(args[4]) or apply(*args, **kw))
     kernels = set()  # which replay kernels ran
     launch = wp.launch
-    monkeypatch.setattr(wp, "launch", lambda kernel, *args, **kw: kernels.add(kernel.key) or launch(kernel, *args, **kw))
+    monkeypatch.setattr(
+        wp, "launch", lambda kernel, *args, **kw: kernels.add(kernel.key) or launch(kernel, *args, **kw)
+    )
     rng = np.random.default_rng(3)
     if scans_per_pass == 16:
         origins, points, scan = ref.random_scans(rng, num_scans, 40, far=0.1)
@@ -128,8 +129,12 @@ def test_batch_equals_sequential_across_passes_and_budget_splits(monkeypatch, sc
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), num_scans=st.integers(1, 8), beams=st.integers(1, 30),
-       voxel_size=st.sampled_from([0.05, 0.1, 0.3]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    num_scans=st.integers(1, 8),
+    beams=st.integers(1, 30),
+    voxel_size=st.sampled_from([0.05, 0.1, 0.3]),
+)
 def test_batch_equals_sequential_property(seed, num_scans, beams, voxel_size):
     rng = np.random.default_rng(seed)
     cfg = vj.MapConfig(voxel_size=voxel_size, max_range=3.0)

@@ -8,9 +8,9 @@ import pytest
 import vogjax as vj
 from vogjax import cli, pipeline
 from vogjax.config import JobConfig
-from vogjax.report import job
 from vogjax.geometry import log_se3
 from vogjax.io.dataset import DatasetWriter
+from vogjax.report import job
 from vogjax.sim import simulate_run
 
 SETTINGS = """
@@ -40,14 +40,17 @@ def boxes_run(tmp_path_factory):
 def mapped(boxes_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
     (out / "settings.toml").write_text(SETTINGS)
-    assert cli.main(["map", str(boxes_run), "--out", str(out / "maps"), "--config", str(out / "settings.toml"),
-                     "--quiet"]) == 0
+    assert (
+        cli.main(["map", str(boxes_run), "--out", str(out / "maps"), "--config", str(out / "settings.toml"), "--quiet"])
+        == 0
+    )
     return out / "maps" / boxes_run.stem
 
 
 def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
-    config = JobConfig.from_document({"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0,
-                                                   "eps_move_m": 0}}).pipeline
+    config = JobConfig.from_document(
+        {"pipeline": {"eps_rot": 0, "eps_trans": 0, "eps_cov": 0, "eps_move_m": 0}}
+    ).pipeline
     result = pipeline.run(boxes_run, config, progress=False)
     assert len(result.loop_closures) >= 3
     # closures agree with the true relative poses, in the directions they constrain, far
@@ -68,8 +71,9 @@ def test_pipeline_closes_loops_and_beats_navigation(boxes_run):
     assert metrics["loop_closures"]["accepted"] == len(result.loop_closures)
     assert sum(metrics["loop_closures"]["rejected_by_reason"].values()) == len(result.rejected)
     # per scan too: scans carried with their submaps follow the truth better than navigation
-    scan_error = lambda which: np.sqrt(np.mean(np.sum(
-        (result.scan_poses(which)[:, :3, 3] - result.scan_truth[:, :3, 3]) ** 2, axis=1)))
+    scan_error = lambda which: np.sqrt(
+        np.mean(np.sum((result.scan_poses(which)[:, :3, 3] - result.scan_truth[:, :3, 3]) ** 2, axis=1))
+    )
     assert scan_error("optimized") < scan_error("navigation")
     # with eps = 0 the online map is the full merge, bit for bit
     fresh = vj.GlobalMap(config.map)
@@ -143,16 +147,19 @@ def test_missing_and_corrupt_runs_are_clear_errors_with_no_output(boxes_run, tmp
     assert not out.exists()
 
 
-@pytest.mark.parametrize("settings, message", [
-    ("[map]\nvoxel_sise = 0.1\n", "unknown setting map.voxel_sise"),
-    ("[maps]\nvoxel_size = 0.1\n", "unknown config table(s) maps"),
-    ("[map]\nvoxel_size = 'small'\n", "map.voxel_size must be float"),
-    ("[map]\nvoxel_size = -1.0\n", "voxel_size must be a positive number"),
-    ("[pipeline]\neps_cov = 'big'\n", "eps_cov must be 'auto'"),
-    ("[loop_closure.icp]\nmax_iterations = 2.5\n", "loop_closure.icp.max_iterations must be int"),
-    ("[timing]\nrays = 0\n", "rays must be a positive integer"),
-    ("[map\nvoxel_size = 0.1\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ("[map]\nvoxel_sise = 0.1\n", "unknown setting map.voxel_sise"),
+        ("[maps]\nvoxel_size = 0.1\n", "unknown config table(s) maps"),
+        ("[map]\nvoxel_size = 'small'\n", "map.voxel_size must be float"),
+        ("[map]\nvoxel_size = -1.0\n", "voxel_size must be a positive number"),
+        ("[pipeline]\neps_cov = 'big'\n", "eps_cov must be 'auto'"),
+        ("[loop_closure.icp]\nmax_iterations = 2.5\n", "loop_closure.icp.max_iterations must be int"),
+        ("[timing]\nrays = 0\n", "rays must be a positive integer"),
+        ("[map\nvoxel_size = 0.1\n", "not valid TOML"),
+    ],
+)
 def test_bad_settings_are_clear_errors_with_no_output(boxes_run, tmp_path, capsys, settings, message):
     (tmp_path / "bad.toml").write_text(settings)
     out = tmp_path / "out"
@@ -161,9 +168,11 @@ def test_bad_settings_are_clear_errors_with_no_output(boxes_run, tmp_path, capsy
 
 
 def test_settings_reach_the_configuration(tmp_path):
-    (tmp_path / "s.toml").write_text("[map]\nvoxel_size = 0.2\n[nav_noise]\nsigma2_x = 0.002\n"
-                                     "[pipeline]\nscans_per_submap = 'covariance'\n"
-                                     "[loop_closure.correlative]\nresolution_m = 0.15\n")
+    (tmp_path / "s.toml").write_text(
+        "[map]\nvoxel_size = 0.2\n[nav_noise]\nsigma2_x = 0.002\n"
+        "[pipeline]\nscans_per_submap = 'covariance'\n"
+        "[loop_closure.correlative]\nresolution_m = 0.15\n"
+    )
     config = JobConfig.from_toml(tmp_path / "s.toml")
     assert config.pipeline.map.voxel_size == 0.2 and config.pipeline.map.prob_hit == vj.MapConfig().prob_hit
     assert config.pipeline.nav_noise.sigma2_x == 0.002
@@ -172,10 +181,15 @@ def test_settings_reach_the_configuration(tmp_path):
 
 
 def test_a_run_without_the_standard_map_reports_without_it(boxes_run, tmp_path, capsys):
-    (tmp_path / "s.toml").write_text("[pipeline]\nstandard_map = false\n[timing]\nevery_submaps = 0\n"
-                                     "[report]\nsurface_points = 2000\n")
-    assert cli.main(["map", str(boxes_run), "--out", str(tmp_path / "out"), "--config", str(tmp_path / "s.toml"),
-                     "--quiet"]) == 0
+    (tmp_path / "s.toml").write_text(
+        "[pipeline]\nstandard_map = false\n[timing]\nevery_submaps = 0\n[report]\nsurface_points = 2000\n"
+    )
+    assert (
+        cli.main(
+            ["map", str(boxes_run), "--out", str(tmp_path / "out"), "--config", str(tmp_path / "s.toml"), "--quiet"]
+        )
+        == 0
+    )
     report = json.loads((tmp_path / "out" / boxes_run.stem / "report.json").read_text())
     assert "standard" not in report["auc"] and report["auc"]["online"] > 0.5
     assert report["fig9"] is None and "update_per_submap" not in report["timing_s"]
@@ -191,8 +205,15 @@ def test_paper_preset_is_sodhi_with_the_bounded_rule(tmp_path):
     assert paper == PipelineConfig.paper()
     assert (paper.scans_per_submap, paper.eps_rot, paper.eps_trans, paper.eps_cov) == (200, 1e-2, 2e-3, "auto")
     m = paper.map
-    assert (m.voxel_size, m.prob_hit, m.prob_miss, m.occupied_threshold, m.free_threshold, m.clamp_min,
-            m.clamp_max) == (0.1, 0.75, 0.2, 0.7, 0.3, 0.0, 1.0)
+    assert (
+        m.voxel_size,
+        m.prob_hit,
+        m.prob_miss,
+        m.occupied_threshold,
+        m.free_threshold,
+        m.clamp_min,
+        m.clamp_max,
+    ) == (0.1, 0.75, 0.2, 0.7, 0.3, 0.0, 1.0)
     assert paper.eps_move_m == PipelineConfig().eps_move_m == 0.05
     settings = tmp_path / "literal.toml"
     settings.write_text("[pipeline]\neps_move_m = 0\n")

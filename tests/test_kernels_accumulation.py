@@ -35,8 +35,7 @@ def test_threaded_merge_add_and_update_equal_one_thread_and_the_reference(monkey
 
 
 @settings(max_examples=50, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), count=st.integers(0, 400), parts=st.integers(1, 8),
-       width=st.integers(1, 40))
+@given(seed=st.integers(0, 2**32 - 1), count=st.integers(0, 400), parts=st.integers(1, 8), width=st.integers(1, 40))
 def test_disjoint_order_phases_never_share_a_block(seed, count, parts, width):
     rng = np.random.default_rng(seed)
     lo = rng.integers(-width, width, (count, 2))

@@ -70,16 +70,25 @@ def test_scratch_overflow_and_a_box_that_misses_rerun_the_pass(scans, monkeypatc
     assert_same(integrated(cfg, origins, points, scan), expected)
     # a box 8 blocks short on every side: walks leave it, the pass reruns hashed
     real = integrator._boxes
-    monkeypatch.setattr(integrator, "_boxes", lambda *a: [
-        None if box is None else (tuple(v + 8 for v in box[0]), tuple(max(1, v - 16) for v in box[1]))
-        for box in real(*a)])
+    monkeypatch.setattr(
+        integrator,
+        "_boxes",
+        lambda *a: [
+            None if box is None else (tuple(v + 8 for v in box[0]), tuple(max(1, v - 16) for v in box[1]))
+            for box in real(*a)
+        ],
+    )
     assert_same(integrated(cfg, origins, points, scan), expected)
     integrator._pool.clear()
 
 
 @settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), num_scans=st.integers(1, 70), dense=st.booleans(),
-       voxel_size=st.sampled_from([0.05, 0.2]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    num_scans=st.integers(1, 70),
+    dense=st.booleans(),
+    voxel_size=st.sampled_from([0.05, 0.2]),
+)
 def test_batch_equals_reference_property(seed, num_scans, dense, voxel_size):
     rng = np.random.default_rng(seed)
     cfg = vj.MapConfig(voxel_size=voxel_size, max_range=3.0)

@@ -32,8 +32,11 @@ def casts_four_ways(vmap, monkeypatch, origins, directions, ranges):
             results.append(vmap.raycast(origins, directions, ranges))
             tables = vmap._ray_tables()
             assert tables.kind == kind
-            assert [k for k in ("columns", "bases") if getattr(tables, k).shape[0] > 0] == \
-                {"dense": ["columns"], "grid": ["bases"], "device": []}[kind]
+            assert [k for k in ("columns", "bases") if getattr(tables, k).shape[0] > 0] == {
+                "dense": ["columns"],
+                "grid": ["bases"],
+                "device": [],
+            }[kind]
             assert (tables.grid.dims[0] > 0) == (grid_cells > 0)
             vmap.store._grid, vmap._ray_tables_cache = None, None
     return results
@@ -92,8 +95,14 @@ def test_the_cpu_and_gpu_kernels_agree_bit_for_bit_on_hostile_rays(monkeypatch, 
     vmap.integrate_scans(o + [3.0, -2.0, 1.0], p + [3.0, -2.0, 1.0], s)  # the box away from the origin
     lo, hi = vmap.store.block_box()
     centres, log_odds = vmap.voxels()
-    origins, directions, ranges = hostile_rays(rng, lo * 8 * cfg.voxel_size, (hi + 1) * 8 * cfg.voxel_size,
-                                               centres[log_odds >= cfg.log_occupied], cfg.voxel_size, 600)
+    origins, directions, ranges = hostile_rays(
+        rng,
+        lo * 8 * cfg.voxel_size,
+        (hi + 1) * 8 * cfg.voxel_size,
+        centres[log_odds >= cfg.log_occupied],
+        cfg.voxel_size,
+        600,
+    )
     results = casts_four_ways(vmap, monkeypatch, origins, directions, ranges)
     for other in results[1:]:
         for field in ("hit", "distance", "num_unknown", "num_free"):
@@ -107,8 +116,9 @@ def test_a_map_of_scattered_blocks_casts_through_the_grid_and_a_compact_one_thro
     compact, scattered = vj.VoxelMap(cfg), vj.VoxelMap(cfg)
     o, p, s = ref.random_scans(rng, 4, 200, spread=2.0)
     compact.integrate_scans(o, p, s)
-    scattered.integrate_scans(np.concatenate([o, o + 30.0]), np.concatenate([p, p + 30.0]),
-                              np.concatenate([s, s + 4]))  # two clusters 30 m apart: a box of mostly nothing
+    scattered.integrate_scans(
+        np.concatenate([o, o + 30.0]), np.concatenate([p, p + 30.0]), np.concatenate([s, s + 4])
+    )  # two clusters 30 m apart: a box of mostly nothing
     for vmap, kind in ((compact, "dense"), (scattered, "grid")):
         vmap.raycast(o, p[:4] - o, 5.0)
         tables = vmap._ray_tables()

@@ -53,16 +53,18 @@ def test_huge_and_tiny_directions_normalise(cls, scale):
     r = wall_map(cls).raycast([[0.05, 0.05, 0.05]] * 2, [[scale, 0.0, 0.0], [scale, scale * 1e-3, 0.0]], 10.0)
     assert r.hit.tolist() == [True, True]
     assert abs(r.distance[0] - 2.95) < 1e-6
-    np.testing.assert_allclose(blockmap.unit_directions(np.array([[scale, scale, 0.0]])),
-                               [[2**-0.5, 2**-0.5, 0.0]], rtol=1e-15)
+    np.testing.assert_allclose(
+        blockmap.unit_directions(np.array([[scale, scale, 0.0]])), [[2**-0.5, 2**-0.5, 0.0]], rtol=1e-15
+    )
 
 
 @pytest.mark.parametrize("cls", [vj.VoxelMap, vj.GlobalMap, vj.VogMap])
 def test_unknown_space_beyond_the_map_is_counted_up_to_the_key_range(cls):
     # Away from the wall: the map's voxels first (origin voxel free), then unknown voxels to
     # the end of the key range, 2^23 voxels from the origin along -x; none walked one by one.
-    r = wall_map(cls).raycast([[0.05, 0.05, 0.05], [0.05, 0.05, 0.05]], [[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]],
-                              [7.2e7, 1000.1])
+    r = wall_map(cls).raycast(
+        [[0.05, 0.05, 0.05], [0.05, 0.05, 0.05]], [[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], [7.2e7, 1000.1]
+    )
     assert r.hit.tolist() == [False, False]
     assert r.distance.tolist() == [np.float32(7.2e7), np.float32(1000.1)]
     assert r.num_free.tolist() == [1, 1]

@@ -69,8 +69,7 @@ def test_a_part_that_splits_again_runs_its_parts_without_deadlocking_the_pool():
         parallel.split_launch(inner, 8, 4)
 
     done = threading.Event()
-    worker = threading.Thread(target=lambda: (parallel.split_launch(outer_part, outer, outer), done.set()),
-                              daemon=True)
+    worker = threading.Thread(target=lambda: (parallel.split_launch(outer_part, outer, outer), done.set()), daemon=True)
     worker.start()
     assert done.wait(timeout=30), "nested split launches deadlocked"
     assert sorted(seen) == sorted([(2 * i, 2 * i + 2) for i in range(4)] * outer)

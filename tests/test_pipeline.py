@@ -17,8 +17,9 @@ def boxes_run(tmp_path_factory):
 
 
 def test_pipeline_keeps_the_online_map_equal_to_a_full_merge(boxes_run, tmp_path):
-    config = pipeline.PipelineConfig(scans_per_submap=60, batch_scans=90, eps_rot=0.0, eps_trans=0.0, eps_move_m=0.0,
-                                     eps_cov=0.0)
+    config = pipeline.PipelineConfig(
+        scans_per_submap=60, batch_scans=90, eps_rot=0.0, eps_trans=0.0, eps_move_m=0.0, eps_cov=0.0
+    )
     result = pipeline.run(boxes_run, config, progress=False)
     # 400 scans cut every 60: six full submaps and a last one of 40, across batch boundaries
     assert result.vog.num_submaps == 7
@@ -60,8 +61,9 @@ def test_run_evaluation_against_ground_truth(boxes_run):
 
 def test_submaps_cut_by_the_covariance_bound(boxes_run):
     noise = vj.NavNoise()
-    config = pipeline.PipelineConfig(scans_per_submap=None, max_xy_variance_m2=noise.sigma2_x * 30.0,
-                                     max_yaw_variance_rad2=1.0)
+    config = pipeline.PipelineConfig(
+        scans_per_submap=None, max_xy_variance_m2=noise.sigma2_x * 30.0, max_yaw_variance_rad2=1.0
+    )
     result = pipeline.run(boxes_run, config, progress=False)
     # 30 s of drift at 5 Hz: 150 scans per submap (the first scan of the next one crosses it)
     np.testing.assert_array_equal(result.submap_first_scan, [0, 151, 302])
@@ -96,6 +98,7 @@ def test_rigid_truth_is_the_least_squares_placement_of_a_bent_submap():
     returns closer to their true places (perturbations of it, and the base's true pose, all do
     worse); unbent returns give back the base's true pose."""
     from scipy.spatial.transform import Rotation
+
     from vogjax.pipeline.mapper import rigid_truth
 
     rng = np.random.default_rng(3)
@@ -146,8 +149,12 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
 
     bends = np.array([e["translation_m_bend"] for e in report["errors"]])
     assert bends.max() > 1e-3  # the boxes run's submaps are bent too
-    perfect = dataclasses.replace(result, loop_closures=tuple(
-        dataclasses.replace(c, T_i_k=inverse(rigid[c.i]) @ rigid[c.k]) for c in result.loop_closures))
+    perfect = dataclasses.replace(
+        result,
+        loop_closures=tuple(
+            dataclasses.replace(c, T_i_k=inverse(rigid[c.i]) @ rigid[c.k]) for c in result.loop_closures
+        ),
+    )
     for bound in (0.999 * bends.min(), float(bends.max())):  # below every bend, then above them all
         ideal, ceiling = perfect.closure_errors(max_translation_m=bound), result.closure_errors(max_translation_m=bound)
         assert ideal["precision_rigid"] == 1.0
@@ -158,8 +165,9 @@ def test_closure_errors_against_true_and_rigid_poses(boxes_run):
         assert perfect_error["rotation_deg"] == pytest.approx(e["rotation_deg_bend"], abs=1e-7)
         assert perfect_error["translation_m_rigid"] < 1e-9
     # without rigid truths there is no ceiling; without closures every precision is NaN
-    no_rigid = dataclasses.replace(result, submaps=tuple(dataclasses.replace(r, T_world_base_rigid=None)
-                                                          for r in result.submaps))
+    no_rigid = dataclasses.replace(
+        result, submaps=tuple(dataclasses.replace(r, T_world_base_rigid=None) for r in result.submaps)
+    )
     assert set(no_rigid.closure_errors()) == {"precision", "errors"}
     assert "translation_m_bend" not in no_rigid.closure_errors()["errors"][0]
     empty = dataclasses.replace(result, loop_closures=())
@@ -198,8 +206,9 @@ def test_rigid_truth_map_scores_the_true_pose_map_without_drift(tmp_path):
     from vogjax import report as vj_eval
     from vogjax import scenes
 
-    still = vj.NavNoise(**{name: 1e-14 for name in ("sigma2_x", "sigma2_y", "sigma2_z", "sigma2_yaw", "sigma2_pitch",
-                                                   "sigma2_roll")})
+    still = vj.NavNoise(
+        **{name: 1e-14 for name in ("sigma2_x", "sigma2_y", "sigma2_z", "sigma2_yaw", "sigma2_pitch", "sigma2_roll")}
+    )
     path = tmp_path / "still.h5"
     simulate_run("boxes", path, laps=1, num_scans=240, noise=still, progress=False)
     config = pipeline.PipelineConfig(scans_per_submap=60, nav_noise=still)

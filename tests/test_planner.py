@@ -50,8 +50,9 @@ def brute_gain(map_, poses, sensor, max_range, region=None, groups=None):
                     seen[group][tuple(key)] = int(state)
                 if state == vj.OCCUPIED:
                     break
-    return np.array([[sum(v == state for v in g.values()) for state in (vj.UNKNOWN, vj.FREE, vj.OCCUPIED)]
-                     for g in seen])
+    return np.array(
+        [[sum(v == state for v in g.values()) for state in (vj.UNKNOWN, vj.FREE, vj.OCCUPIED)] for g in seen]
+    )
 
 
 def small_map(rng, cfg):
@@ -83,8 +84,11 @@ def test_view_gain_matches_brute_force_on_a_voxel_map():
     np.testing.assert_allclose(gain.unknown_m3, expected[:, 0] * 0.2**3)
     assert gain.rays == 12 * 24
     # a voxel seen by two rays of a view counts once: fewer voxels than the rays passed through
-    walked = sum(len(ray_voxels(p[:3, 3], p[:3, :3] @ d, 3.0, 0.2)[0]) for p in poses[:1]
-                 for d in SONAR.beam_directions().reshape(-1, 3))
+    walked = sum(
+        len(ray_voxels(p[:3, 3], p[:3, :3] @ d, 3.0, 0.2)[0])
+        for p in poses[:1]
+        for d in SONAR.beam_directions().reshape(-1, 3)
+    )
     assert expected[0].sum() < walked
 
 
@@ -95,8 +99,9 @@ def test_view_gain_counts_only_the_region():
     poses = random_views(rng, 6)
     region = np.array([[-1.0, -2.0, -0.5], [2.0, 1.0, 1.5]])
     gain = planner.view_gain(vmap, poses, SONAR, max_range_m=3.0, region=region)
-    np.testing.assert_array_equal(np.c_[gain.unknown, gain.free, gain.occupied],
-                                  brute_gain(vmap, poses, SONAR, 3.0, region))
+    np.testing.assert_array_equal(
+        np.c_[gain.unknown, gain.free, gain.occupied], brute_gain(vmap, poses, SONAR, 3.0, region)
+    )
 
 
 def vog_and_global(rng, submaps=5):
@@ -215,8 +220,9 @@ def brute_clear(map_, start, end, box, vehicle, clearance):
         t = np.clip((centres[:, :2] - start[:2]) @ d[:2] / flat, 0, 1)
         layer = np.c_[keys[:, :2], np.floor((start[2] + t * d[2]) / s).astype(int)]
         layer_free = (map_.state((layer + 0.5) * s) == vj.FREE) & (layer[:, 2] != keys[:, 2])
-    return not np.any((states == vj.OCCUPIED) & ~at_vehicle) and not np.any((states == vj.UNKNOWN) & ~at_vehicle
-                                                                         & ~near & ~layer_free)
+    return not np.any((states == vj.OCCUPIED) & ~at_vehicle) and not np.any(
+        (states == vj.UNKNOWN) & ~at_vehicle & ~near & ~layer_free
+    )
 
 
 def test_edges_clear_matches_brute_force():
@@ -248,8 +254,10 @@ def test_edges_clear_matches_brute_force():
     i = vog.add_submap(np.eye(4))
     vog.submap(i).integrate_scans(np.zeros((1, 3)), np.r_[walls, walls2], np.zeros(600, np.int64))
     vog.submap(i).integrate_scans(origins, points, np.repeat(np.arange(30), 400))
-    np.testing.assert_array_equal(planner.edges_clear(vog, starts, ends, box, vehicle, 0.9),
-                                  planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9))
+    np.testing.assert_array_equal(
+        planner.edges_clear(vog, starts, ends, box, vehicle, 0.9),
+        planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9),
+    )
 
 
 def room_map(rng, walls=True):
@@ -266,8 +274,16 @@ def room_map(rng, walls=True):
 
 
 BOUNDS = np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]])
-SMALL = planner.PlannerConfig(edge_length_m=1.0, max_nodes=8, tolerance_nodes=24, gain_range_m=3.0, gain_step_m=0.2,
-                              clearance_m=0.6, max_heading_change_rad=1.0, seed=5)
+SMALL = planner.PlannerConfig(
+    edge_length_m=1.0,
+    max_nodes=8,
+    tolerance_nodes=24,
+    gain_range_m=3.0,
+    gain_step_m=0.2,
+    clearance_m=0.6,
+    max_heading_change_rad=1.0,
+    seed=5,
+)
 
 
 def node_gains(vmap, states, parents, config, sensor):
@@ -277,8 +293,9 @@ def node_gains(vmap, states, parents, config, sensor):
         p = parents[n]
         turn = abs((states[n, 3] - states[p, 3] + np.pi) % (2 * np.pi) - np.pi)
         # an edge costs its length, or the distance flown in the time its turn takes if longer
-        distances[n] = distances[p] + max(np.linalg.norm(states[n, :3] - states[p, :3]),
-                                          config.turn_cost_m_per_rad * turn)
+        distances[n] = distances[p] + max(
+            np.linalg.norm(states[n, :3] - states[p, :3]), config.turn_cost_m_per_rad * turn
+        )
         g = planner.edge_gain(vmap, states[p][None], states[n][None], sensor, config.gain_step_m, config.gain_range_m)
         gains[n] = gains[p] + planner.discounted(g.unknown_m3[0], distances[n], config.discount)
     return gains
@@ -301,8 +318,14 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned(turn_cost):
         assert np.linalg.norm(states[n, :3] - states[p, :3]) <= SMALL.edge_length_m + 1e-9
         assert abs((states[n, 3] - states[p, 3] + np.pi) % (2 * np.pi) - np.pi) <= SMALL.max_heading_change_rad + 1e-9
         assert np.all((states[n, :3] >= lo - 1e-9) & (states[n, :3] <= hi + 1e-9))
-        assert brute_clear(vmap, states[p, :3], states[n, :3], np.array(SMALL.box_m) + 2 * SMALL.margin_m,
-                           states[0, :3], SMALL.clearance_m)
+        assert brute_clear(
+            vmap,
+            states[p, :3],
+            states[n, :3],
+            np.array(SMALL.box_m) + 2 * SMALL.margin_m,
+            states[0, :3],
+            SMALL.clearance_m,
+        )
     gains = node_gains(vmap, states, parents, config, SONAR)
     assert plan.gain_m3 == pytest.approx(gains.max(), rel=1e-9) and plan.gain_m3 > 0
     best, branch = int(np.argmax(gains)), []
@@ -325,12 +348,13 @@ def test_receding_horizon_and_tolerance():
     # flown to the first node: the next tree starts with the rest of the best branch
     second = nbv.plan(vmap, pose_from_xyz_yaw(*first.waypoints[0]))
     rest = first.waypoints[1:]
-    np.testing.assert_allclose(second.tree_states[1:1 + len(rest)], rest)
-    np.testing.assert_array_equal(second.tree_parents[1:1 + len(rest)], np.arange(len(rest)))
+    np.testing.assert_allclose(second.tree_states[1 : 1 + len(rest)], rest)
+    np.testing.assert_array_equal(second.tree_parents[1 : 1 + len(rest)], np.arange(len(rest)))
     # nothing unknown in reach: no gain, so the tree grows on to N_tol
     region = np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])  # known free water only
     flat = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR, region=region).plan(
-        vmap, pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0))
+        vmap, pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0)
+    )
     assert flat.gain_m3 == 0 and flat.nodes >= config.tolerance_nodes
 
 
@@ -351,8 +375,9 @@ def test_risk_hook_discounts_every_edge():
     with pytest.raises(ValueError, match="risk"):
         planner.NbvPlanner(SMALL.replace(risk_weight=1.0), bounds=BOUNDS)
     with pytest.raises(ValueError, match="risk"):
-        planner.NbvPlanner(SMALL.replace(risk_weight=1.0), bounds=BOUNDS, sensor=SONAR,
-                           risk=lambda s, e: -np.ones(len(s))).plan(vmap, T)
+        planner.NbvPlanner(
+            SMALL.replace(risk_weight=1.0), bounds=BOUNDS, sensor=SONAR, risk=lambda s, e: -np.ones(len(s))
+        ).plan(vmap, T)
 
 
 def test_planner_rejects_bad_input():

@@ -26,8 +26,7 @@ def test_point_queries_match_reference():
     keys = [ref.key_of(q, cfg.voxel_size) for q in queries]
     expected = np.array([cells.get(k, 0.0) for k in keys], np.float32)
     np.testing.assert_array_equal(vmap.log_odds(queries), expected)
-    np.testing.assert_allclose(vmap.probability(queries), 1 - 1 / (1 + np.exp(expected.astype(float))),
-                               rtol=1e-6)
+    np.testing.assert_allclose(vmap.probability(queries), 1 - 1 / (1 + np.exp(expected.astype(float))), rtol=1e-6)
     states = np.array([ref.state_of(cells.get(k), cfg) for k in keys])
     np.testing.assert_array_equal(vmap.state(queries), states)
     assert {0, 1, 2} <= set(states.tolist())
@@ -83,8 +82,9 @@ def test_raycast_of_rays_on_the_device_matches_reference():
             for name in ("hit", "distance", "num_unknown", "num_free"):
                 np.testing.assert_array_equal(getattr(result, name).numpy(), getattr(host, name))
             if m is vmap:
-                expected = [ref.raycast(cells, o, d, r if per_ray else 4.0, cfg)
-                            for o, d, r in zip(origins, directions, ranges)]
+                expected = [
+                    ref.raycast(cells, o, d, r if per_ray else 4.0, cfg) for o, d, r in zip(origins, directions, ranges)
+                ]
                 hit, distance, unknown, free = (np.array(x) for x in zip(*expected))
                 np.testing.assert_array_equal(result.hit.numpy(), hit)
                 np.testing.assert_allclose(result.distance.numpy(), distance, rtol=1e-6, atol=1e-6)
@@ -109,13 +109,24 @@ def _bad_rays(fault: str, rng, device):
         ranges[31] = 0.0
     elif fault == "nan range":
         ranges[31] = np.nan
-    return (wp.array(origins, dtype=wp.float64, device=device), wp.array(directions, dtype=wp.float64, device=device),
-            wp.array(ranges, dtype=wp.float64, device=device))
+    return (
+        wp.array(origins, dtype=wp.float64, device=device),
+        wp.array(directions, dtype=wp.float64, device=device),
+        wp.array(ranges, dtype=wp.float64, device=device),
+    )
 
 
-@pytest.mark.parametrize("fault, message", [
-    ("nan origin", "origins: ray 31"), ("far origin", "origins: ray 31"), ("infinite direction", "directions: ray 31"),
-    ("zero direction", "directions: ray 31"), ("zero range", "max_range: ray 31"), ("nan range", "max_range: ray 31")])
+@pytest.mark.parametrize(
+    "fault, message",
+    [
+        ("nan origin", "origins: ray 31"),
+        ("far origin", "origins: ray 31"),
+        ("infinite direction", "directions: ray 31"),
+        ("zero direction", "directions: ray 31"),
+        ("zero range", "max_range: ray 31"),
+        ("nan range", "max_range: ray 31"),
+    ],
+)
 def test_raycast_on_the_device_refuses_bad_rays_naming_the_first(fault, message):
     vmap, _, _, rng = mapped_scene(seed=4)
     with pytest.raises(ValueError, match=message):
@@ -128,15 +139,24 @@ def test_raycast_on_the_device_refuses_wrong_arrays():
     cases = [
         ((good, good, np.ones(20)), "max_range must be a number or a float64 Warp array"),
         ((good, good, [3.0]), "max_range must be a number or a float64 Warp array"),
-        ((wp.array(rng.normal(size=(20, 3)), dtype=wp.float32, device=vmap.device), good, 1.0),
-         "origins must be a contiguous float64"),
-        ((good, wp.array(rng.normal(size=(19, 3)), dtype=wp.float64, device=vmap.device), 1.0),
-         r"directions must .* shape \(20, 3\)"),
+        (
+            (wp.array(rng.normal(size=(20, 3)), dtype=wp.float32, device=vmap.device), good, 1.0),
+            "origins must be a contiguous float64",
+        ),
+        (
+            (good, wp.array(rng.normal(size=(19, 3)), dtype=wp.float64, device=vmap.device), 1.0),
+            r"directions must .* shape \(20, 3\)",
+        ),
         ((good, rng.normal(size=(20, 3)), 1.0), "directions must be a Warp array too"),
         ((rng.normal(size=(20, 3)), good, 1.0), "origins must be a Warp array too"),
-        ((good, good, wp.array(np.ones(19), dtype=wp.float64, device=vmap.device)),
-         "max_range must be a float64 Warp array of shape"),
-        ((good, good, wp.array(np.ones(20), dtype=wp.float32, device=vmap.device)), "max_range must be a float64 Warp array"),
+        (
+            (good, good, wp.array(np.ones(19), dtype=wp.float64, device=vmap.device)),
+            "max_range must be a float64 Warp array of shape",
+        ),
+        (
+            (good, good, wp.array(np.ones(20), dtype=wp.float32, device=vmap.device)),
+            "max_range must be a float64 Warp array",
+        ),
         ((good, good, float("nan")), "max_range must be positive"),
         ((good[::2], good[::2], 1.0), "origins must be a contiguous"),
     ]
@@ -159,8 +179,11 @@ def test_raycast_on_the_device_draws_the_key_range_where_the_numpy_path_does():
         except ValueError:
             host = None
         try:
-            device = vmap.raycast(wp.array(origin, dtype=wp.float64, device=vmap.device),
-                                  wp.array(direction, dtype=wp.float64, device=vmap.device), 2.0)
+            device = vmap.raycast(
+                wp.array(origin, dtype=wp.float64, device=vmap.device),
+                wp.array(direction, dtype=wp.float64, device=vmap.device),
+                2.0,
+            )
         except ValueError as error:
             assert "origins: ray 0" in str(error)
             device = None
@@ -198,7 +221,7 @@ def test_line_query_matches_reference():
         expected = ref.line_values(cells, starts[i], ends[i], cfg)
         assert lengths[i] == len(expected)
         np.testing.assert_array_equal(values[i, : lengths[i]], np.float32(expected))
-        assert np.all(np.isnan(values[i, lengths[i]:]))
+        assert np.all(np.isnan(values[i, lengths[i] :]))
     assert lengths[0] == 1
 
 

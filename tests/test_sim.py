@@ -8,17 +8,19 @@ import warp as wp
 
 import vogjax as vj
 from vogjax import cli, scenes
+from vogjax.geometry import pose_from_xyz_yaw as pose
+from vogjax.geometry import yaw_pitch_roll
 from vogjax.io.dataset import Dataset
 from vogjax.scenes import analytic
-from vogjax.geometry import pose_from_xyz_yaw as pose
 from vogjax.sim import drifting_navigation, scan, simulate, simulate_batch, simulate_run
-from vogjax.geometry import yaw_pitch_roll
 
 
 def warp_mesh(mesh):
     vj.devices.init()
-    return wp.Mesh(points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
-                   indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"))
+    return wp.Mesh(
+        points=wp.array(mesh.vertices, dtype=wp.vec3, device="cpu"),
+        indices=wp.array(mesh.faces.reshape(-1), dtype=wp.int32, device="cpu"),
+    )
 
 
 def test_sonar_ranges_match_analytic_box_and_cylinder():
@@ -34,8 +36,9 @@ def test_sonar_ranges_match_analytic_box_and_cylinder():
         poses[i, :3, :3] = pose(0, 0, 0, np.arctan2(d[1], d[0]))[:3, :3]
     scans = scan(warp_mesh(box), poses, config)
     starts = np.repeat(scans.origins, config.beams, axis=0)
-    truth = analytic._box(starts, scans.directions.reshape(-1, 3), np.array([-1.0, -1.5, -0.75]),
-                          np.array([1.0, 1.5, 0.75]))
+    truth = analytic._box(
+        starts, scans.directions.reshape(-1, 3), np.array([-1.0, -1.5, -0.75]), np.array([1.0, 1.5, 0.75])
+    )
     hit = np.isfinite(truth)
     assert 0.2 < hit.mean() < 1.0
     np.testing.assert_array_equal(~scans.no_return.reshape(-1), hit)
@@ -62,8 +65,9 @@ def test_sonar_misses_and_aperture():
     # With an aperture, a beam aimed just beside the box still returns from its edge.
     beside = pose(-5.0, 0.6, 0, 0)
     narrow = scan(warp_mesh(box), beside[None], vj.SonarConfig(beams=1, fov_deg=1.0, tilt_deg=0.0))
-    wide = scan(warp_mesh(box), beside[None], vj.SonarConfig(beams=1, fov_deg=1.0, tilt_deg=0.0,
-                                                             aperture_deg=4.0, subrays=9))
+    wide = scan(
+        warp_mesh(box), beside[None], vj.SonarConfig(beams=1, fov_deg=1.0, tilt_deg=0.0, aperture_deg=4.0, subrays=9)
+    )
     assert narrow.no_return.all() and not wide.no_return.any()
 
 
@@ -87,8 +91,10 @@ def test_controller_reaches_waypoints_within_the_limits():
     poses, index = simulate(pose(0, 0, 1, 0), waypoints, 400)
     assert index[-1] == 2
     np.testing.assert_allclose(poses[-1, :3, 3], waypoints[-1, :3], atol=0.15)
-    assert abs(yaw_pitch_roll(poses[-1, :3, :3])[0] - np.pi) % (2 * np.pi) < 0.05 or \
-        abs(abs(yaw_pitch_roll(poses[-1, :3, :3])[0]) - np.pi) < 0.05
+    assert (
+        abs(yaw_pitch_roll(poses[-1, :3, :3])[0] - np.pi) % (2 * np.pi) < 0.05
+        or abs(abs(yaw_pitch_roll(poses[-1, :3, :3])[0]) - np.pi) < 0.05
+    )
     speed = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) * 5.0
     yaws = np.unwrap([yaw_pitch_roll(p[:3, :3])[0] for p in poses])
     assert speed.max() < 0.25 * 1.02 and np.abs(np.diff(yaws) * 5.0).max() < 0.15 * 1.02
@@ -97,8 +103,7 @@ def test_controller_reaches_waypoints_within_the_limits():
 
 def test_batched_vehicles_equal_one_at_a_time():
     starts = np.stack([pose(0, 0, 1, 0), pose(1, -1, 2, 1.0)])
-    waypoints = np.stack([[[1.0, 1.0, 1.0, 0.5], [0.0, 1.0, 1.5, 1.0]],
-                          [[2.0, -1.0, 2.0, 0.0], [2.0, 0.0, 1.0, -1.0]]])
+    waypoints = np.stack([[[1.0, 1.0, 1.0, 0.5], [0.0, 1.0, 1.5, 1.0]], [[2.0, -1.0, 2.0, 0.0], [2.0, 0.0, 1.0, -1.0]]])
     batch, batch_index = simulate_batch(starts, waypoints, 60)
     for v in range(2):
         alone, index = simulate(starts[v], waypoints[v], 60)
@@ -106,8 +111,7 @@ def test_batched_vehicles_equal_one_at_a_time():
         np.testing.assert_array_equal(batch_index[v], index)
 
 
-@pytest.mark.parametrize("name, voxel_size", [("boxes", 0.1), ("tank", 0.1), ("propeller", 0.1),
-                                              ("pilings", 0.2)])
+@pytest.mark.parametrize("name, voxel_size", [("boxes", 0.1), ("tank", 0.1), ("propeller", 0.1), ("pilings", 0.2)])
 def test_scenes_are_sane(name, voxel_size):
     scene = scenes.load(name)
     assert scene.mesh.is_watertight
@@ -134,8 +138,12 @@ def test_scenes_are_sane(name, voxel_size):
 
 def test_run_round_trip_cli_and_damaged_files(tmp_path, capsys):
     out = tmp_path / "run.h5"
-    assert cli.main(["simulate", "--scene", "boxes", "--out", str(out), "--scans", "300", "--laps", "1",
-                     "--range-noise", "0"]) == 0
+    assert (
+        cli.main(
+            ["simulate", "--scene", "boxes", "--out", str(out), "--scans", "300", "--laps", "1", "--range-noise", "0"]
+        )
+        == 0
+    )
     assert "300 scans" in capsys.readouterr().out
     with Dataset(out) as ds:
         assert len(ds) == 300 and ds.metadata["scene"] == "boxes"
@@ -162,9 +170,13 @@ def test_run_round_trip_cli_and_damaged_files(tmp_path, capsys):
     missing.write_bytes(data)
     with h5py.File(missing, "a") as f:
         del f["ranges"]
-    for path, message in [(tmp_path / "truncated.h5", "truncated or corrupt"),
-                          (tmp_path / "text.h5", "truncated or corrupt"),
-                          (newer, "version 99"), (missing, "damaged"), (tmp_path / "nope.h5", "does not exist")]:
+    for path, message in [
+        (tmp_path / "truncated.h5", "truncated or corrupt"),
+        (tmp_path / "text.h5", "truncated or corrupt"),
+        (newer, "version 99"),
+        (missing, "damaged"),
+        (tmp_path / "nope.h5", "does not exist"),
+    ]:
         with pytest.raises(ValueError, match=message):
             Dataset(path)
 

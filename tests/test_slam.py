@@ -3,14 +3,14 @@
 import sys
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 import pytest
+from scipy.spatial.transform import Rotation
 
 import vogjax as vj
 from vogjax import slam
+from vogjax.geometry import exp_se3 as _exp
 from vogjax.geometry import inverse, log_se3
 from vogjax.slam import factors
-from vogjax.geometry import exp_se3 as _exp
 
 from .submap_helpers import random_pose
 
@@ -104,11 +104,13 @@ def test_partial_factor_leaves_the_degenerate_direction_to_odometry():
 
 def structured_cloud(rng, n=3000):
     """Three walls, a floor and some boxes: constrains every direction."""
-    parts = [np.c_[rng.uniform(0, 6, n // 5), rng.uniform(0, 4, n // 5), np.zeros(n // 5)],
-             np.c_[np.zeros(n // 5), rng.uniform(0, 4, n // 5), rng.uniform(0, 3, n // 5)],
-             np.c_[rng.uniform(0, 6, n // 5), np.zeros(n // 5), rng.uniform(0, 3, n // 5)],
-             np.c_[rng.uniform(2, 3, n // 5), rng.uniform(1, 2, n // 5), np.full(n // 5, 1.0)],
-             np.c_[np.full(n // 5, 4.0), rng.uniform(2, 3, n // 5), rng.uniform(0, 1.5, n // 5)]]
+    parts = [
+        np.c_[rng.uniform(0, 6, n // 5), rng.uniform(0, 4, n // 5), np.zeros(n // 5)],
+        np.c_[np.zeros(n // 5), rng.uniform(0, 4, n // 5), rng.uniform(0, 3, n // 5)],
+        np.c_[rng.uniform(0, 6, n // 5), np.zeros(n // 5), rng.uniform(0, 3, n // 5)],
+        np.c_[rng.uniform(2, 3, n // 5), rng.uniform(1, 2, n // 5), np.full(n // 5, 1.0)],
+        np.c_[np.full(n // 5, 4.0), rng.uniform(2, 3, n // 5), rng.uniform(0, 1.5, n // 5)],
+    ]
     return np.concatenate(parts)
 
 
@@ -178,7 +180,9 @@ def test_prepared_targets_give_the_same_alignments(monkeypatch):
 
     calls = []
     real = slam.loop_closure.prepare_target
-    monkeypatch.setattr(slam.loop_closure, "prepare_target", lambda cloud, config: calls.append(1) or real(cloud, config))
+    monkeypatch.setattr(
+        slam.loop_closure, "prepare_target", lambda cloud, config: calls.append(1) or real(cloud, config)
+    )
     bounds = (target.min(axis=0) - 0.1, target.max(axis=0) + 0.1)
     poses = np.stack([np.eye(4)] * 4)
     clouds = [target, sources[1], sources[0], sources[1]]
@@ -199,8 +203,9 @@ def test_prepared_targets_give_the_same_alignments(monkeypatch):
     clouds[0] += 0.01  # changed in place: prepared again
     detector.detect(2, clouds, all_bounds, poses, poses, times)
     assert len(calls) == 5
-    detector.config = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="translation",
-                                                                normal_neighbours=8))
+    detector.config = slam.LoopClosureConfig(
+        icp=slam.IcpConfig(max_correspondence_m=0.3, free="translation", normal_neighbours=8)
+    )
     detector.detect(2, clouds, all_bounds, poses, poses, times)  # other ICP settings: prepared again
     assert len(calls) == 6
     # a hand-made IcpTarget whose parts do not belong together is refused
@@ -282,7 +287,9 @@ def test_icp_at_a_fixed_point_converges_below_the_held_rotations_round_off(monke
     source = source[source[:, 0] > 0.5]
     config = slam.IcpConfig(free="translation", tolerance=1e-9)
     stopping = slam.icp(source, target, start, config=config)
-    monkeypatch.setattr(sys.modules["vogjax.slam.icp"], "_returned", lambda cycles, pairs, *_: np.zeros(len(pairs), bool))
+    monkeypatch.setattr(
+        sys.modules["vogjax.slam.icp"], "_returned", lambda cycles, pairs, *_: np.zeros(len(pairs), bool)
+    )
     running_on = slam.icp(source, target, start, config=config)
     assert stopping.converged and running_on.converged and stopping.iterations == running_on.iterations
     assert np.array_equal(stopping.T_target_source, running_on.T_target_source)
@@ -291,10 +298,13 @@ def test_icp_at_a_fixed_point_converges_below_the_held_rotations_round_off(monke
 def test_degenerate_scenes_give_a_reduced_basis():
     rng = np.random.default_rng(2)
     plane = np.c_[rng.uniform(0, 10, 2000), rng.uniform(0, 10, 2000), rng.normal(0, 0.002, 2000)]
-    corridor = np.concatenate([
-        np.c_[rng.uniform(0, 30, 1500), np.zeros(1500), rng.uniform(0, 3, 1500)],
-        np.c_[rng.uniform(0, 30, 1500), np.full(1500, 2.0), rng.uniform(0, 3, 1500)],
-        np.c_[rng.uniform(0, 30, 1500), rng.uniform(0, 2, 1500), np.zeros(1500)]])
+    corridor = np.concatenate(
+        [
+            np.c_[rng.uniform(0, 30, 1500), np.zeros(1500), rng.uniform(0, 3, 1500)],
+            np.c_[rng.uniform(0, 30, 1500), np.full(1500, 2.0), rng.uniform(0, 3, 1500)],
+            np.c_[rng.uniform(0, 30, 1500), rng.uniform(0, 2, 1500), np.zeros(1500)],
+        ]
+    )
     shift = np.eye(4)
     shift[:3, 3] = [0.3, 0.05, 0.05]
     for cloud, free_directions in ((plane, 3), (corridor, 1)):
@@ -345,8 +355,9 @@ def test_default_closures_constrain_translation_only_with_the_estimated_rotation
     poses[1, :3, 3] = [20.0, 0, 0]
     estimate = poses.copy()
     estimate[2, :3, 3] += [0.25, -0.15, 0.05]  # the rotation estimate is right, the position off
-    accepted, rejected = slam.LoopClosureDetector().detect(2, clouds, [bounds, None, bounds], estimate, poses,
-                                                           np.array([0.0, 600.0, 1200.0]))
+    accepted, rejected = slam.LoopClosureDetector().detect(
+        2, clouds, [bounds, None, bounds], estimate, poses, np.array([0.0, 600.0, 1200.0])
+    )
     assert [(c.i, c.k) for c in accepted] == [(0, 2)] and not rejected
     closure = accepted[0]
     # a partial factor over translation directions only: rotation rows of the basis are zero
@@ -405,6 +416,7 @@ def direct_correlation(source, target, T_init, radius_m, yaw_radius_rad, config)
     whole of it, and every yaw and x-y offset scored by summing the field under the moved source
     points one by one. Returns (best score, its yaw, its offset in cells, runner-up)."""
     from scipy import ndimage
+
     res = config.resolution_m
     moved = source @ T_init[:3, :3].T + T_init[:3, 3]
     pivot = moved.mean(axis=0)
@@ -429,8 +441,9 @@ def direct_correlation(source, target, T_init, radius_m, yaw_radius_rad, config)
         c, s = np.cos(yaw), np.sin(yaw)
         points = (moved - pivot) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + pivot
         cells = np.floor((points - lo) / res).astype(int)
-        window = np.array([[field[cells[:, 0] + dx, cells[:, 1] + dy, cells[:, 2]].sum() for dy in offsets]
-                           for dx in offsets]) / len(points)
+        window = np.array(
+            [[field[cells[:, 0] + dx, cells[:, 1] + dy, cells[:, 2]].sum() for dy in offsets] for dx in offsets]
+        ) / len(points)
         peak = np.unravel_index(np.argmax(window), window.shape)
         if window[peak] > best[0]:
             best = (window[peak], yaw, peak, window)
@@ -471,31 +484,34 @@ def test_correlative_search_reports_ambiguity_along_a_wall():
     assert match.ratio > 0.85  # sliding along the wall scores nearly as well as the answer
 
 
-@pytest.mark.parametrize("call, argument", [
-    (lambda pg: pg.add_submap(np.eye(3), 1.0), "T_world_submap_nav"),
-    (lambda pg: pg.add_submap(np.diag([1, 1, 2, 1.0]), 1.0), "T_world_submap_nav"),
-    (lambda pg: pg.add_submap(np.eye(4), 0.0), "duration_s"),
-    (lambda pg: pg.add_loop_closure(0, 5, np.eye(4), np.eye(6)), "k"),
-    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), -np.eye(6)), "covariance"),
-    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.triu(np.ones((6, 6)))), "covariance"),
-    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(5)), "covariance"),
-    (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(6), basis=np.ones((6, 2))), "basis"),
-    (lambda pg: pg.add_loop_closure(0, 1, np.ones((4, 4)), np.eye(6)), "T_i_k"),
-    (lambda pg: pg.marginals([7]), "ids"),
-    (lambda pg: slam.icp(np.zeros((0, 3)), np.ones((10, 3))), "source"),
-    (lambda pg: slam.icp(np.ones((10, 3)), np.full((10, 3), np.nan)), "target"),
-    (lambda pg: slam.icp(np.ones((10, 3)), np.ones((10, 3)), method="magic"), "method"),
-    (lambda pg: slam.correlative_xyh(np.zeros((0, 3)), np.ones((10, 3)), np.eye(4), 1.0, 0.0), "source"),
-    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 2)), np.eye(4), 1.0, 0.0), "target"),
-    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.ones((4, 4)), 1.0, 0.0), "T_init"),
-    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), -1.0, 0.0), "radius_m"),
-    (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), 1.0, np.inf), "yaw_radius_rad"),
-    (lambda pg: slam.CorrelativeConfig(resolution_m=0.0), "resolution_m"),
-    (lambda pg: slam.LoopClosureConfig(max_candidates=-1), "max_candidates"),
-    (lambda pg: slam.IcpConfig(lambda_min=0.0), "lambda_min"),
-    (lambda pg: slam.LoopClosureConfig(min_overlap_score=float("nan")), "min_overlap_score"),
-    (lambda pg: slam.LoopClosureConfig(method="magic"), "method"),
-])
+@pytest.mark.parametrize(
+    "call, argument",
+    [
+        (lambda pg: pg.add_submap(np.eye(3), 1.0), "T_world_submap_nav"),
+        (lambda pg: pg.add_submap(np.diag([1, 1, 2, 1.0]), 1.0), "T_world_submap_nav"),
+        (lambda pg: pg.add_submap(np.eye(4), 0.0), "duration_s"),
+        (lambda pg: pg.add_loop_closure(0, 5, np.eye(4), np.eye(6)), "k"),
+        (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), -np.eye(6)), "covariance"),
+        (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.triu(np.ones((6, 6)))), "covariance"),
+        (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(5)), "covariance"),
+        (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(6), basis=np.ones((6, 2))), "basis"),
+        (lambda pg: pg.add_loop_closure(0, 1, np.ones((4, 4)), np.eye(6)), "T_i_k"),
+        (lambda pg: pg.marginals([7]), "ids"),
+        (lambda pg: slam.icp(np.zeros((0, 3)), np.ones((10, 3))), "source"),
+        (lambda pg: slam.icp(np.ones((10, 3)), np.full((10, 3), np.nan)), "target"),
+        (lambda pg: slam.icp(np.ones((10, 3)), np.ones((10, 3)), method="magic"), "method"),
+        (lambda pg: slam.correlative_xyh(np.zeros((0, 3)), np.ones((10, 3)), np.eye(4), 1.0, 0.0), "source"),
+        (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 2)), np.eye(4), 1.0, 0.0), "target"),
+        (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.ones((4, 4)), 1.0, 0.0), "T_init"),
+        (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), -1.0, 0.0), "radius_m"),
+        (lambda pg: slam.correlative_xyh(np.ones((10, 3)), np.ones((10, 3)), np.eye(4), 1.0, np.inf), "yaw_radius_rad"),
+        (lambda pg: slam.CorrelativeConfig(resolution_m=0.0), "resolution_m"),
+        (lambda pg: slam.LoopClosureConfig(max_candidates=-1), "max_candidates"),
+        (lambda pg: slam.IcpConfig(lambda_min=0.0), "lambda_min"),
+        (lambda pg: slam.LoopClosureConfig(min_overlap_score=float("nan")), "min_overlap_score"),
+        (lambda pg: slam.LoopClosureConfig(method="magic"), "method"),
+    ],
+)
 def test_bad_input(call, argument):
     pg = slam.PoseGraph()
     pg.add_submap(np.eye(4))

@@ -63,8 +63,10 @@ def test_device_correlative_searches_find_the_host_peaks(seed):
         np.testing.assert_allclose(window, expected, rtol=0, atol=1e-5 * max(expected.max(), 1.0))
 
 
-@pytest.mark.parametrize("budget, value", [("MAX_LAUNCH_CELLS", 1), ("MAX_LAUNCH_CELLS", 3000),
-                                           ("MAX_LAUNCH_SCORES", 700), ("MAX_FIELD_FLOATS", 1)])
+@pytest.mark.parametrize(
+    "budget, value",
+    [("MAX_LAUNCH_CELLS", 1), ("MAX_LAUNCH_CELLS", 3000), ("MAX_LAUNCH_SCORES", 700), ("MAX_FIELD_FLOATS", 1)],
+)
 def test_device_searches_split_over_launches_give_the_same_peaks(monkeypatch, budget, value):
     """Budgets too small for one launch: every (search, yaw) slot is scored once, in order, in
     launches within the budget (but those of a single slot), with the bits of one launch."""
@@ -73,16 +75,22 @@ def test_device_searches_split_over_launches_give_the_same_peaks(monkeypatch, bu
     whole = slam.correlative_xyh_batch(searches, config, device=DEVICE)
     launches = []
     real = correlative._correlate_on_device
-    monkeypatch.setattr(correlative, "_correlate_on_device",
-                        lambda plans, slots, device: launches.append((plans, list(slots))) or real(plans, slots, device))
+    monkeypatch.setattr(
+        correlative,
+        "_correlate_on_device",
+        lambda plans, slots, device: launches.append((plans, list(slots))) or real(plans, slots, device),
+    )
     monkeypatch.setattr(correlative, budget, value)
     split = slam.correlative_xyh_batch(searches, config, device=DEVICE)
     plans = launches[0][0]
-    assert [slot for _, slots in launches for slot in slots] == [(p, n) for p, plan in enumerate(plans)
-                                                                 for n in range(len(plan.yaws))]
-    use = {"MAX_LAUNCH_CELLS": lambda slots: sum(len(plans[p].moved) for p, _ in slots),
-           "MAX_LAUNCH_SCORES": lambda slots: sum((2 * plans[p].shift_cells + 1) ** 2 for p, _ in slots),
-           "MAX_FIELD_FLOATS": lambda slots: sum(plans[p].field.size for p in {p for p, _ in slots})}[budget]
+    assert [slot for _, slots in launches for slot in slots] == [
+        (p, n) for p, plan in enumerate(plans) for n in range(len(plan.yaws))
+    ]
+    use = {
+        "MAX_LAUNCH_CELLS": lambda slots: sum(len(plans[p].moved) for p, _ in slots),
+        "MAX_LAUNCH_SCORES": lambda slots: sum((2 * plans[p].shift_cells + 1) ** 2 for p, _ in slots),
+        "MAX_FIELD_FLOATS": lambda slots: sum(plans[p].field.size for p in {p for p, _ in slots}),
+    }[budget]
     assert len(launches) > 2 and all(len(slots) == 1 or use(slots) <= value for _, slots in launches)
     assert any(len(slots) > 1 for _, slots in launches) == (value > 1)
     for a, b in zip(whole, split, strict=True):
@@ -100,8 +108,11 @@ def test_searches_beyond_the_direct_work_bound_run_on_the_host(monkeypatch):
     monkeypatch.setattr(correlative, "MAX_DIRECT_WORK", works[1])  # the largest one is too much
     launched = []
     real = correlative._correlate_on_device
-    monkeypatch.setattr(correlative, "_correlate_on_device",
-                        lambda plans, slots, device: launched.extend(plans) or real(plans, slots, device))
+    monkeypatch.setattr(
+        correlative,
+        "_correlate_on_device",
+        lambda plans, slots, device: launched.extend(plans) or real(plans, slots, device),
+    )
     mixed = slam.correlative_xyh_batch(searches, config, device=DEVICE)
     largest = int(np.argmax([correlative._direct_work(plan) for plan in plans]))
     assert len({id(plan) for plan in launched}) == 2
@@ -114,17 +125,23 @@ def brute_force_nearest(points, queries, max_distance):
     """The lowest index among the points nearest each query, strictly within max_distance; -1 when none."""
     d2 = ((queries[:, None, :] - points[None, :, :]) ** 2).sum(axis=2)
     nearest = np.argmin(d2, axis=1)  # argmin keeps the first of equal values
-    return np.where(d2[np.arange(len(queries)), nearest] < max_distance ** 2, nearest, -1)
+    return np.where(d2[np.arange(len(queries)), nearest] < max_distance**2, nearest, -1)
 
 
 def test_device_neighbours_are_the_nearest_points_with_ties_to_the_lowest_index():
     """On a lattice many points are equally near; far out (1e6 m) and between targets that
     overlap in space, each pair still finds only its own target's points."""
     rng = np.random.default_rng(2)
-    targets = [rng.integers(-5, 6, (400, 3)) * 0.1, rng.integers(-5, 6, (300, 3)) * 0.1 + 1e6,
-               rng.uniform(-0.5, 0.5, (500, 3))]
-    queries = [rng.integers(-12, 13, (600, 3)) * 0.05, rng.integers(-12, 13, (200, 3)) * 0.05 + 1e6,
-               rng.uniform(-0.7, 0.7, (300, 3))]
+    targets = [
+        rng.integers(-5, 6, (400, 3)) * 0.1,
+        rng.integers(-5, 6, (300, 3)) * 0.1 + 1e6,
+        rng.uniform(-0.5, 0.5, (500, 3)),
+    ]
+    queries = [
+        rng.integers(-12, 13, (600, 3)) * 0.05,
+        rng.integers(-12, 13, (200, 3)) * 0.05 + 1e6,
+        rng.uniform(-0.7, 0.7, (300, 3)),
+    ]
     grid = _GridNeighbours(targets, 0.15, devices.resolve(DEVICE))
     for pairs in ([0, 1, 2], [2, 0]):
         found = grid(pairs, [queries[p] for p in pairs])
@@ -141,16 +158,22 @@ def test_device_icp_equals_the_host_icp_bit_for_bit(method):
     rng = np.random.default_rng(11)
     targets = [structured_cloud(rng, 1500), structured_cloud(rng, 2500), structured_cloud(rng, 900)]
     truths = [small_motion(rng, planar=method != "point_to_plane") for _ in targets]
-    sources = [((t - m[:3, 3]) @ m[:3, :3])[::k] + rng.normal(0, 0.003, ((len(t) + k - 1) // k, 3))
-               for t, m, k in zip(targets, truths, (1, 2, 3))]
+    sources = [
+        ((t - m[:3, 3]) @ m[:3, :3])[::k] + rng.normal(0, 0.003, ((len(t) + k - 1) // k, 3))
+        for t, m, k in zip(targets, truths, (1, 2, 3))
+    ]
     config = slam.IcpConfig(max_correspondence_m=0.4)
     prepared = [slam.prepare_target(t, config) for t in targets]
     host = slam.icp_batch(sources, prepared, None, method, config)
     device = slam.icp_batch(sources, prepared, None, method, config, device=DEVICE)
     for h, d in zip(host, device, strict=True):
         assert np.array_equal(h.T_target_source, d.T_target_source) and np.array_equal(h.hessian, d.hessian)
-        assert (h.converged, h.iterations, h.num_inliers, h.fitness) == (d.converged, d.iterations, d.num_inliers,
-                                                                          d.fitness)
+        assert (h.converged, h.iterations, h.num_inliers, h.fitness) == (
+            d.converged,
+            d.iterations,
+            d.num_inliers,
+            d.fitness,
+        )
     assert all(h.converged for h in host)
 
 
@@ -159,8 +182,10 @@ def test_detector_on_a_device_accepts_the_host_closures():
     closure home as on the host."""
     clouds, bounds, nav, times, truth_k = revisit_beyond_icps_reach()
     config = slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3, free="all"))
-    results = [slam.LoopClosureDetector(config=config, device=device).detect(2, clouds, bounds, nav, nav, times)
-               for device in (None, DEVICE)]
+    results = [
+        slam.LoopClosureDetector(config=config, device=device).detect(2, clouds, bounds, nav, nav, times)
+        for device in (None, DEVICE)
+    ]
     (host, host_rejected), (device, device_rejected) = results
     assert [(c.i, c.k) for c in host] == [(c.i, c.k) for c in device] == [(0, 2)]
     assert not host_rejected and not device_rejected

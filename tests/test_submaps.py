@@ -49,20 +49,23 @@ def test_empty_vog_answers_unknown():
     assert not r.hit[0] and r.num_unknown[0] == 11  # its own voxel, then ten entered by 0.95 m
 
 
-@pytest.mark.parametrize("call, argument", [
-    (lambda v: v.add_submap(np.eye(3)), "pose"),
-    (lambda v: v.add_submap(np.diag([1.0, 1.0, -1.0, 1.0])), "pose"),
-    (lambda v: v.add_submap(np.diag([2.0, 1.0, 1.0, 1.0])), "pose"),
-    (lambda v: v.add_submap(np.full((4, 4), np.nan)), "pose"),
-    (lambda v: v.set_poses([5], np.eye(4)[None]), "ids"),
-    (lambda v: v.set_poses([-1], np.eye(4)[None]), "ids"),
-    (lambda v: v.set_poses([0, 1], np.eye(4)[None]), "poses"),
-    (lambda v: v.set_poses([0], np.ones((1, 4, 4))), "poses"),
-    (lambda v: v.submap(2), "i"),
-    (lambda v: v.poses([0.5]), "ids"),
-    (lambda v: v.state(np.full((1, 3), np.inf)), "points"),
-    (lambda v: v.raycast(np.zeros((1, 3)), np.zeros((1, 3)), 1.0), "directions"),
-])
+@pytest.mark.parametrize(
+    "call, argument",
+    [
+        (lambda v: v.add_submap(np.eye(3)), "pose"),
+        (lambda v: v.add_submap(np.diag([1.0, 1.0, -1.0, 1.0])), "pose"),
+        (lambda v: v.add_submap(np.diag([2.0, 1.0, 1.0, 1.0])), "pose"),
+        (lambda v: v.add_submap(np.full((4, 4), np.nan)), "pose"),
+        (lambda v: v.set_poses([5], np.eye(4)[None]), "ids"),
+        (lambda v: v.set_poses([-1], np.eye(4)[None]), "ids"),
+        (lambda v: v.set_poses([0, 1], np.eye(4)[None]), "poses"),
+        (lambda v: v.set_poses([0], np.ones((1, 4, 4))), "poses"),
+        (lambda v: v.submap(2), "i"),
+        (lambda v: v.poses([0.5]), "ids"),
+        (lambda v: v.state(np.full((1, 3), np.inf)), "points"),
+        (lambda v: v.raycast(np.zeros((1, 3)), np.zeros((1, 3)), 1.0), "directions"),
+    ],
+)
 def test_bad_input(call, argument):
     vog = vj.VogMap()
     vog.add_submap(np.eye(4))

@@ -34,8 +34,10 @@ def report_folder(tmp_path_factory):
     run = root / "boxes.h5"
     simulate_run("boxes", run, laps=1, num_scans=400, progress=False)
     (root / "settings.toml").write_text(SETTINGS)
-    assert cli.main(["map", str(run), "--out", str(root / "maps"), "--config", str(root / "settings.toml"),
-                     "--quiet"]) == 0
+    assert (
+        cli.main(["map", str(run), "--out", str(root / "maps"), "--config", str(root / "settings.toml"), "--quiet"])
+        == 0
+    )
     folder = root / "maps" / "boxes"
     # what `vogjax map` is to write beside trajectories.csv: one row per accepted closure
     (folder / "loop_closures.csv").write_text("i,k\n" + "".join(f"{i},{k}\n" for i, k in CLOSURES))

@@ -38,8 +38,20 @@ def runs(tmp_path_factory):
 
 
 # every report entry that does not depend on wall time
-COMPARED = ("run", "scene", "scans", "duration_s", "submaps", "auc", "rmse_m", "agreement", "trajectory_rmse_m",
-            "loop_closures", "config", "device")
+COMPARED = (
+    "run",
+    "scene",
+    "scans",
+    "duration_s",
+    "submaps",
+    "auc",
+    "rmse_m",
+    "agreement",
+    "trajectory_rmse_m",
+    "loop_closures",
+    "config",
+    "device",
+)
 
 
 def without_wall_time(report):
@@ -55,8 +67,21 @@ def test_two_workers_give_the_reports_of_one_by_one_and_a_failure_stays_alone(ru
     broken.write_bytes(paths[0].read_bytes()[:4000])
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_info:
-        cli.main(["map", str(paths[0]), str(broken), str(paths[1]), "--out", str(root / "parallel"),
-                  "--config", settings, "--workers", "2", "--quiet"])
+        cli.main(
+            [
+                "map",
+                str(paths[0]),
+                str(broken),
+                str(paths[1]),
+                "--out",
+                str(root / "parallel"),
+                "--config",
+                settings,
+                "--workers",
+                "2",
+                "--quiet",
+            ]
+        )
     assert exit_info.value.code == 2
     captured = capsys.readouterr()
     errors = captured.err.strip().splitlines()
@@ -71,8 +96,9 @@ def test_two_workers_give_the_reports_of_one_by_one_and_a_failure_stays_alone(ru
         a = vj.GlobalMap.load(root / "serial" / path.stem / "global_map.vog").sums()
         b = vj.GlobalMap.load(root / "parallel" / path.stem / "global_map.vog").sums()
         assert all(np.array_equal(x, y) for x, y in zip(a, b))
-        assert (root / "serial" / path.stem / "trajectories.csv").read_bytes() == \
-            (root / "parallel" / path.stem / "trajectories.csv").read_bytes()
+        assert (root / "serial" / path.stem / "trajectories.csv").read_bytes() == (
+            root / "parallel" / path.stem / "trajectories.csv"
+        ).read_bytes()
     assert sorted(p.name for p in (root / "parallel").iterdir()) == sorted(p.stem for p in paths)
 
 

@@ -1,13 +1,36 @@
 """vogjax: GPU/JAX-accelerated batch occupancy mapping for SLAM-corrected robots."""
 
 from vogjax.config import CrmConfig, MapConfig, NavNoise, PipelineConfig, SonarConfig
-from vogjax.maps import (FREE, OCCUPIED, UNKNOWN, ConfidenceMap, GlobalMap, RaycastResult, Submap, UpdateReport, VogMap,
-                         VoxelMap)
+from vogjax.maps import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    ConfidenceMap,
+    GlobalMap,
+    RaycastResult,
+    Submap,
+    UpdateReport,
+    VogMap,
+    VoxelMap,
+)
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("config", "devices", "geometry", "io", "kernels", "maps", "pipeline", "planner", "report", "scenes",
-                "sensors", "sim", "slam")
+_SUBPACKAGES = (
+    "config",
+    "devices",
+    "geometry",
+    "io",
+    "kernels",
+    "maps",
+    "pipeline",
+    "planner",
+    "report",
+    "scenes",
+    "sensors",
+    "sim",
+    "slam",
+)
 
 
 def __getattr__(name):

@@ -7,8 +7,15 @@ import importlib
 import sys
 
 # command name -> module in vogjax.commands
-COMMANDS = {"simulate": "simulation", "map": "mapping", "demo": "demo", "export": "export", "import": "importing",
-            "view": "view", "explore": "explore"}
+COMMANDS = {
+    "simulate": "simulation",
+    "map": "mapping",
+    "demo": "demo",
+    "export": "export",
+    "import": "importing",
+    "view": "view",
+    "explore": "explore",
+}
 
 
 def main(argv=None) -> int:

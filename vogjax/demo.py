@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from vogjax import report as reporting
-from vogjax.config import SonarConfig
 from vogjax import scenes
+from vogjax.config import SonarConfig
 from vogjax.io.atomic import check_writable
 from vogjax.sim import simulate_run
 from vogjax.sim.mission import MAX_LAPS
@@ -23,8 +23,9 @@ def run(out: Path, scene: str = "propeller", laps: int = 2, progress: bool = Tru
     out.mkdir(parents=True, exist_ok=True)
     # 1. simulate the survey: MJX vehicle, sonar with 2 cm range noise, drifting navigation
     run_path = out / f"{scene}.h5"
-    summary = simulate_run(scene, run_path, laps=laps, sensor=SonarConfig(range_noise_m=0.02), overwrite=True,
-                           progress=progress)
+    summary = simulate_run(
+        scene, run_path, laps=laps, sensor=SonarConfig(range_noise_m=0.02), overwrite=True, progress=progress
+    )
     print(f"simulated {summary.scans} scans ({summary.duration_s:.0f} s of survey) of the {scene} scene")
     # 2. map it: submaps, loop closures, iSAM2, the online global map; evaluate and draw
     report = reporting.map_runs([run_path], out, progress=progress)[0]

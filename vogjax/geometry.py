@@ -72,9 +72,14 @@ def log_so3(rotations: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3) of rotation matrices (..., 3, 3)."""
     cos = np.clip((np.trace(rotations, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     angle = np.arccos(cos)
-    skew = np.stack([rotations[..., 2, 1] - rotations[..., 1, 2],
-                     rotations[..., 0, 2] - rotations[..., 2, 0],
-                     rotations[..., 1, 0] - rotations[..., 0, 1]], axis=-1)
+    skew = np.stack(
+        [
+            rotations[..., 2, 1] - rotations[..., 1, 2],
+            rotations[..., 0, 2] - rotations[..., 2, 0],
+            rotations[..., 1, 0] - rotations[..., 0, 1],
+        ],
+        axis=-1,
+    )
     sin = np.sin(angle)
     small = sin < 1e-9
     scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, sin)))
@@ -93,8 +98,14 @@ def skew(vectors: np.ndarray) -> np.ndarray:
     """(..., 3, 3) cross-product matrices of vectors (..., 3)."""
     v = np.asarray(vectors, dtype=np.float64)
     z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], axis=-2)
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], -1),
+            np.stack([v[..., 2], z, -v[..., 0]], -1),
+            np.stack([-v[..., 1], v[..., 0], z], -1),
+        ],
+        axis=-2,
+    )
 
 
 def exp_se3(twists: np.ndarray) -> np.ndarray:
@@ -126,8 +137,9 @@ def log_se3(poses: np.ndarray) -> np.ndarray:
     small = theta < 1e-4
     safe = np.where(small, 1.0, theta)
     # V^-1 = I - W/2 + (1/theta^2)(1 - theta sin / (2 (1 - cos))) W^2
-    coefficient = np.where(small, 1.0 / 12.0 + theta**2 / 720.0,
-                           (1.0 - safe * np.sin(safe) / (2.0 * (1.0 - np.cos(safe)))) / safe**2)
+    coefficient = np.where(
+        small, 1.0 / 12.0 + theta**2 / 720.0, (1.0 - safe * np.sin(safe) / (2.0 * (1.0 - np.cos(safe)))) / safe**2
+    )
     w_t = np.cross(omega, t)
     w_w_t = np.cross(omega, w_t)
     rho = t - 0.5 * w_t + coefficient[..., None] * w_w_t
@@ -202,9 +214,7 @@ def euler_rates(rotation: np.ndarray) -> np.ndarray:
     _, pitch, roll = yaw_pitch_roll(rotation)
     sr, cr = np.sin(roll), np.cos(roll)
     cp, tp = np.cos(pitch), np.tan(pitch)
-    return np.array([[0.0, sr / cp, cr / cp],
-                     [0.0, cr, -sr],
-                     [1.0, sr * tp, cr * tp]])
+    return np.array([[0.0, sr / cp, cr / cp], [0.0, cr, -sr], [1.0, sr * tp, cr * tp]])
 
 
 def align_xy_yaw(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -236,9 +246,13 @@ def rotation_from_quaternion(q, xp=np):
     """(3,3) rotation of a unit quaternion (w, x, y, z); `xp`: the array module (NumPy or
     jax.numpy, so the simulator's jitted controller shares it)."""
     w, x, y, z = q[0], q[1], q[2], q[3]
-    return xp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return xp.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def yaw_of_quaternion(q, xp=np):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from vogjax.config.schema import finite_real
@@ -36,8 +35,11 @@ def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
 
 def positive_number(name: str, value) -> float:
     """A positive finite real number (a bool is not one), as a float."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or \
-            not (finite_real(value) and value > 0):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not (finite_real(value) and value > 0)
+    ):
         raise ValueError(f"{name} must be positive and finite (a real number), got {value!r}")
     return float(value)
 
@@ -76,5 +78,7 @@ def within_key_range(name: str, array: np.ndarray, voxel_size: float, limit: int
     else:
         extent = np.abs(array).max()
     if extent / voxel_size >= limit - 2:
-        raise ValueError(f"{name} lies too far from the origin for voxel size {voxel_size} m "
-                         f"(at most {(limit - 2) * voxel_size:.0f} m per axis)")
+        raise ValueError(
+            f"{name} lies too far from the origin for voxel size {voxel_size} m "
+            f"(at most {(limit - 2) * voxel_size:.0f} m per axis)"
+        )

@@ -9,11 +9,16 @@ FORMATS = ("bt", "ot", "ply")
 
 def add_parser(commands) -> None:
     export = commands.add_parser("export", help="write a map as OctoMap .bt/.ot or a PLY point cloud")
-    export.add_argument("map", type=Path,
-                        help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)")
-    export.add_argument("--format", choices=FORMATS, default=None,
-                        help="bt: OctoMap max-likelihood, ot: OctoMap with every log-odds, ply: occupied voxel "
-                             "centres coloured by height (default: the suffix of --out)")
+    export.add_argument(
+        "map", type=Path, help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)"
+    )
+    export.add_argument(
+        "--format",
+        choices=FORMATS,
+        default=None,
+        help="bt: OctoMap max-likelihood, ot: OctoMap with every log-odds, ply: occupied voxel "
+        "centres coloured by height (default: the suffix of --out)",
+    )
     export.add_argument("--out", type=Path, required=True, help="file to write")
 
 
@@ -30,5 +35,7 @@ def run(args) -> None:
         print(f"wrote {args.out}: {count} occupied voxels of {len(voxels)} observed")
     else:
         nodes = octomap.save(voxels, args.out, format)
-        print(f"wrote {args.out}: OctoMap {format} tree of {nodes} nodes, {len(voxels)} observed voxels, "
-              f"resolution {voxels.voxel_size} m")
+        print(
+            f"wrote {args.out}: OctoMap {format} tree of {nodes} nodes, {len(voxels)} observed voxels, "
+            f"resolution {voxels.voxel_size} m"
+        )

@@ -11,11 +11,18 @@ def add_parser(commands) -> None:
     bag.add_argument("--points", required=True, help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
     bag.add_argument("--odometry", required=True, help="topic of nav_msgs/Odometry (the vehicle's poses)")
     bag.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
-    bag.add_argument("--frame", default=None,
-                     help="the sensor frame the points are in; its mount on the odometry's child frame comes from "
-                          "/tf_static or /tf (default: the points are in the child frame)")
-    bag.add_argument("--max-range", type=float, default=None,
-                     help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)")
+    bag.add_argument(
+        "--frame",
+        default=None,
+        help="the sensor frame the points are in; its mount on the odometry's child frame comes from "
+        "/tf_static or /tf (default: the points are in the child frame)",
+    )
+    bag.add_argument(
+        "--max-range",
+        type=float,
+        default=None,
+        help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)",
+    )
     bag.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     bag.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -27,11 +34,20 @@ def run(args) -> None:
     # then checks, with io.atomic.check_writable, that --out can be published)
     if args.out.exists() and not args.overwrite:
         raise ValueError(f"out {str(args.out)!r} exists (pass --overwrite to replace it)")
-    summary = import_bag(args.bag, args.out, args.points, args.odometry, frame=args.frame,
-                         max_range_m=args.max_range, progress=not args.quiet)
+    summary = import_bag(
+        args.bag,
+        args.out,
+        args.points,
+        args.odometry,
+        frame=args.frame,
+        max_range_m=args.max_range,
+        progress=not args.quiet,
+    )
     dropped = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in summary.dropped.items()) or "none"
     frames = summary.metadata["source"]["frames"]
-    print(f"wrote {summary.path}: {summary.scans} of {summary.scans_read} scans ({summary.beams} beams each, "
-          f"{summary.padded_beams} padding copies), scans dropped: {dropped}; {summary.invalid_beams} invalid beams "
-          f"dropped; frames {frames['world']} <- {frames['vehicle']} <- {frames['sensor']}; "
-          f"max range {summary.metadata['sensor_config']['max_range_m']:g} m")
+    print(
+        f"wrote {summary.path}: {summary.scans} of {summary.scans_read} scans ({summary.beams} beams each, "
+        f"{summary.padded_beams} padding copies), scans dropped: {dropped}; {summary.invalid_beams} invalid beams "
+        f"dropped; frames {frames['world']} <- {frames['vehicle']} <- {frames['sensor']}; "
+        f"max range {summary.metadata['sensor_config']['max_range_m']:g} m"
+    )

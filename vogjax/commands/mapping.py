@@ -11,16 +11,26 @@ def add_parser(commands) -> None:
     mapping.add_argument("runs", nargs="+", type=Path, help="run files (HDF5, from `vogjax simulate` or a logger)")
     mapping.add_argument("--out", type=Path, required=True, help="output folder: one sub-folder per run")
     mapping.add_argument("--config", type=Path, default=None, help="TOML settings (see README)")
-    mapping.add_argument("--preset", default=None, help="settings to start from: default or paper (--config "
-                                                         "overrides them)")
-    mapping.add_argument("--workers", type=int, default=None,
-                         help="map this many runs at once with Ray, each in its own process; a run that fails "
-                              "fails alone (pip install 'vogjax[workers]')")
-    mapping.add_argument("--address", default=None,
-                         help="with --workers: an existing Ray cluster (e.g. ray://head:10001, or auto); default: a "
-                              "local one")
-    mapping.add_argument("--crm", action="store_true",
-                         help="also build a confidence-rich map of each run ([pipeline] confidence_map = true)")
+    mapping.add_argument(
+        "--preset", default=None, help="settings to start from: default or paper (--config overrides them)"
+    )
+    mapping.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="map this many runs at once with Ray, each in its own process; a run that fails "
+        "fails alone (pip install 'vogjax[workers]')",
+    )
+    mapping.add_argument(
+        "--address",
+        default=None,
+        help="with --workers: an existing Ray cluster (e.g. ray://head:10001, or auto); default: a local one",
+    )
+    mapping.add_argument(
+        "--crm",
+        action="store_true",
+        help="also build a confidence-rich map of each run ([pipeline] confidence_map = true)",
+    )
     mapping.add_argument("--quiet", action="store_true", help="no progress bars")
 
 

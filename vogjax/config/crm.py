@@ -61,9 +61,11 @@ class CrmConfig(Config):
         if not self.bin_floor * self.num_bins < 0.5:
             raise ValueError("CrmConfig.bin_floor times CrmConfig.num_bins must stay below 0.5")
         if self.max_range > MAX_RANGE_VOXELS * self.voxel_size:
-            raise ValueError(f"CrmConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
-                             f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
-                             f"each beam's cone is stored voxel by voxel, got {self.max_range!r}")
+            raise ValueError(
+                f"CrmConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
+                f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
+                f"each beam's cone is stored voxel by voxel, got {self.max_range!r}"
+            )
 
     # ---------------------------------------------------------------- the discretisation
     @functools.cached_property
@@ -98,5 +100,6 @@ def moments(bins: np.ndarray, centres: np.ndarray) -> tuple[np.float32, np.float
     for k in range(bins.shape[-1]):
         d = m[k] - mean
         variance = variance + bins[..., k] * d * d
-    return np.float32(mean) if np.ndim(mean) == 0 else mean.astype(np.float32), \
-        np.float32(variance) if np.ndim(variance) == 0 else variance.astype(np.float32)
+    return np.float32(mean) if np.ndim(mean) == 0 else mean.astype(np.float32), np.float32(variance) if np.ndim(
+        variance
+    ) == 0 else variance.astype(np.float32)

@@ -9,7 +9,6 @@ import numpy as np
 
 from vogjax.config.schema import Config, number, positive, probability
 
-
 # A beam crosses at most this many voxels: integration's scratch grows with it (4096 voxels at
 # 0.1 m: 410 m, beyond any sonar or most lidars).
 MAX_RANGE_VOXELS = 4096
@@ -48,11 +47,21 @@ class MapConfig(Config):
     max_range: float = positive(11.0)
 
     @classmethod
-    def paper(cls, **changes) -> "MapConfig":
+    def paper(cls, **changes) -> MapConfig:
         """Sodhi et al. IV-C: 10 cm voxels, hit/miss 0.75/0.2, thresholds 0.7/0.3, and no clamping
         (p_min = 0, p_max = 1), which keeps every update invertible."""
-        return cls(**{"voxel_size": 0.1, "prob_hit": 0.75, "prob_miss": 0.2, "occupied_threshold": 0.7,
-                      "free_threshold": 0.3, "clamp_min": 0.0, "clamp_max": 1.0, **changes})
+        return cls(
+            **{
+                "voxel_size": 0.1,
+                "prob_hit": 0.75,
+                "prob_miss": 0.2,
+                "occupied_threshold": 0.7,
+                "free_threshold": 0.3,
+                "clamp_min": 0.0,
+                "clamp_max": 1.0,
+                **changes,
+            }
+        )
 
     def check(self) -> None:
         if not self.prob_miss < 0.5 < self.prob_hit:
@@ -62,9 +71,11 @@ class MapConfig(Config):
         if not self.clamp_min < self.clamp_max:
             raise ValueError("MapConfig.clamp_min must lie below MapConfig.clamp_max")
         if self.max_range > MAX_RANGE_VOXELS * self.voxel_size:
-            raise ValueError(f"MapConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
-                             f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
-                             f"integration allocates per beam for every block a beam may cross, got {self.max_range!r}")
+            raise ValueError(
+                f"MapConfig.max_range must be at most {MAX_RANGE_VOXELS} voxels "
+                f"({MAX_RANGE_VOXELS * self.voxel_size:g} m at voxel_size {self.voxel_size:g} m): "
+                f"integration allocates per beam for every block a beam may cross, got {self.max_range!r}"
+            )
 
     # Log-odds forms, float32 like the stored values.
     @property

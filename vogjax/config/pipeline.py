@@ -52,14 +52,22 @@ class PipelineConfig(Config):
     confidence_map: bool = flag(False)
 
     @classmethod
-    def paper(cls, **changes) -> "PipelineConfig":
+    def paper(cls, **changes) -> PipelineConfig:
         """Sodhi et al. IV-C: 200 scans per submap, `MapConfig.paper()` (hit/miss 0.75/0.2,
         thresholds 0.7/0.3, no clamping), eps_rot 1e-2 rad and eps_trans 2e-3 m, eps_cov the
         largest uncertainty among the first ten submaps; with our eps_move_m kept at its
         default (half a voxel), which bounds the online map's updates the paper's thresholds
         alone do not. `paper(eps_move_m=0.0)` is Algorithm 1 to the letter."""
-        return cls(**{"map": MapConfig.paper(), "scans_per_submap": 200, "eps_rot": 1e-2, "eps_trans": 2e-3,
-                      "eps_cov": "auto", **changes})
+        return cls(
+            **{
+                "map": MapConfig.paper(),
+                "scans_per_submap": 200,
+                "eps_rot": 1e-2,
+                "eps_trans": 2e-3,
+                "eps_cov": "auto",
+                **changes,
+            }
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +87,7 @@ class JobConfig(Config):
     report: ReportConfig = section(ReportConfig())
 
     @classmethod
-    def preset(cls, name: str | None) -> "JobConfig":
+    def preset(cls, name: str | None) -> JobConfig:
         """The defaults (None or "default") or a named preset ("paper": `PipelineConfig.paper()`)."""
         if name in (None, "default"):
             return cls()

@@ -13,7 +13,6 @@ from vogjax.config.pipeline import PipelineConfig
 from vogjax.config.schema import Config, integer, non_negative, number, positive, section
 from vogjax.config.sim import ControllerConfig
 
-
 # The most nodes a tree may grow to: each round finds its samples' nearest nodes among all of
 # them, and the work grows with the square of the tree (the papers use N_tol of 60 or so).
 MAX_TREE_NODES = 10_000

@@ -56,8 +56,10 @@ class Rule:
             if self.low is not None:
                 words += f" {'>' if self.low_open else '>='} {self._bound(self.low)}"
             if self.high is not None:
-                words += (f"{' and' if self.low is not None else ''} {'<' if self.high_open else '<='} "
-                          f"{self._bound(self.high)}")
+                words += (
+                    f"{' and' if self.low is not None else ''} {'<' if self.high_open else '<='} "
+                    f"{self._bound(self.high)}"
+                )
         choices = [repr(o) for o in self.options] + (["None"] if self.none_spelled else [])
         return " or ".join(choices + [words])
 
@@ -102,8 +104,9 @@ def _setting(default, rule: Rule, doc: str):
     return dataclasses.field(default=default, metadata={"rule": rule, "doc": doc})
 
 
-def number(default, *, low=None, high=None, low_open=False, high_open=False, options=(),
-           none_spelled=None, doc: str = ""):
+def number(
+    default, *, low=None, high=None, low_open=False, high_open=False, options=(), none_spelled=None, doc: str = ""
+):
     """A finite real number within the bounds (or one of `options`, or None if `none_spelled`)."""
     return _setting(default, Rule("number", low, high, low_open, high_open, tuple(options), none_spelled), doc)
 
@@ -132,11 +135,12 @@ def text(default: str, options, doc: str = ""):
     return _setting(default, Rule("text", options=tuple(options)), doc)
 
 
-def section(default: "Config", *, flatten: bool = False, doc: str = ""):
+def section(default: Config, *, flatten: bool = False, doc: str = ""):
     """A nested Config. `flatten`: in a settings file its own sections sit at the top level
     beside it, and its plain settings in a table named after the field."""
-    return dataclasses.field(default_factory=lambda: default,
-                             metadata={"rule": Rule("section"), "flatten": flatten, "doc": doc})
+    return dataclasses.field(
+        default_factory=lambda: default, metadata={"rule": Rule("section"), "flatten": flatten, "doc": doc}
+    )
 
 
 def rule_of(field: dataclasses.Field) -> Rule:
@@ -161,8 +165,10 @@ class Config:
             rule = rule_of(field)
             if rule.kind == "section":
                 if not isinstance(value, type(field.default_factory())):
-                    raise ValueError(f"{where}.{field.name} must be a {type(field.default_factory()).__name__}, "
-                                     f"got {type(value).__name__}")
+                    raise ValueError(
+                        f"{where}.{field.name} must be a {type(field.default_factory()).__name__}, "
+                        f"got {type(value).__name__}"
+                    )
             else:
                 rule.check(f"{where}.{field.name}", value)
                 # NumPy scalars, Fractions and the like stored as plain float/int: they compare,
@@ -177,7 +183,7 @@ class Config:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
-    def replace(self, **changes) -> "Config":
+    def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -186,7 +192,7 @@ class Config:
         return _replaced(cls(), values, where or cls.__name__)
 
     @classmethod
-    def from_toml(cls, path, base: "Config | None" = None):
+    def from_toml(cls, path, base: Config | None = None):
         """This Config from a TOML file (see `from_document`)."""
         path = Path(path)
         try:
@@ -200,7 +206,7 @@ class Config:
         return cls.from_document(document, base)
 
     @classmethod
-    def from_document(cls, document: dict, base: "Config | None" = None):
+    def from_document(cls, document: dict, base: Config | None = None):
         """From a settings document: one table per section (`[map]`, `[loop_closure.icp]`, ...),
         each setting given replacing that of `base` (default: the defaults)."""
         tables = {}  # table name -> (path of fields to the Config it sets)

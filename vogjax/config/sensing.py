@@ -58,5 +58,7 @@ class SonarConfig(Config):
         if not self.min_range_m < self.max_range_m:
             raise ValueError("SonarConfig.min_range_m must lie in [0, max_range_m)")
         if self.beams * self.subrays > MAX_BEAMS:  # every sub-ray is cast: simulation and view gain
-            raise ValueError(f"SonarConfig.beams times SonarConfig.subrays must be at most {MAX_BEAMS}, "
-                             f"got {self.beams} x {self.subrays}")
+            raise ValueError(
+                f"SonarConfig.beams times SonarConfig.subrays must be at most {MAX_BEAMS}, "
+                f"got {self.beams} x {self.subrays}"
+            )

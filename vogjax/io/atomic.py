@@ -112,8 +112,9 @@ def check_writable(target, folder: bool = False) -> None:
         with tempfile.TemporaryFile(dir=ancestor):
             pass
     except OSError as error:
-        raise ValueError(f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} "
-                         f"({error.strerror or error})") from None
+        raise ValueError(
+            f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} ({error.strerror or error})"
+        ) from None
 
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?P<old>\.old)?\.tmp$")
@@ -135,9 +136,13 @@ def remove_stale(target) -> list[Path]:
     except OSError:
         return removed
     stale = [(entry, _LEFTOVER.match(entry.name)) for entry in entries]
-    stale = [(entry, match) for entry, match in stale
-             if match and match["name"] == target.name
-             and (int(match["pid"]) == os.getpid() or not _alive(int(match["pid"])))]
+    stale = [
+        (entry, match)
+        for entry, match in stale
+        if match
+        and match["name"] == target.name
+        and (int(match["pid"]) == os.getpid() or not _alive(int(match["pid"])))
+    ]
     for entry, match in stale:
         if match["old"] and not target.exists():
             new = entry.with_name(f".{target.name}.{match['pid']}.tmp")

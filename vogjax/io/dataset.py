@@ -61,24 +61,25 @@ class ScanBatch:
     def __len__(self) -> int:
         return len(self.time_s)
 
-    def rows(self, lo: int, hi: int) -> "ScanBatch":
+    def rows(self, lo: int, hi: int) -> ScanBatch:
         """Scans lo to hi of this batch."""
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "first"}
         return ScanBatch(self.first + lo, **{k: None if v is None else v[lo:hi] for k, v in fields.items()})
 
     @staticmethod
-    def concatenate(batches: list) -> "ScanBatch":
+    def concatenate(batches: list) -> ScanBatch:
         """Consecutive batches as one (the first scan index of the first)."""
         names = [f.name for f in dataclasses.fields(ScanBatch) if f.name != "first"]
-        fields = {name: (None if getattr(batches[0], name) is None
-                         else np.concatenate([getattr(b, name) for b in batches])) for name in names}
+        fields = {
+            name: (None if getattr(batches[0], name) is None else np.concatenate([getattr(b, name) for b in batches]))
+            for name in names
+        }
         return ScanBatch(batches[0].first, **fields)
 
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Sensor origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
         Beams without a return end past max_range_m (free space up to it, no hit)."""
-        return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return,
-                          max_range_m)
+        return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m)
 
 
 def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf, truth: bool = True) -> None:
@@ -88,8 +89,9 @@ def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.
     for name in _FIELDS:
         if (fields.get(name) is None) != (name == "pose_truth" and not truth):
             raise ValueError(f"{where}: {name} is {'missing' if fields.get(name) is None else 'not expected'}")
-        if fields.get(name) is not None and (np.ndim(fields[name]) == 0 or
-                                             np.asarray(fields[name]).dtype.kind not in "fiub"):
+        if fields.get(name) is not None and (
+            np.ndim(fields[name]) == 0 or np.asarray(fields[name]).dtype.kind not in "fiub"
+        ):
             raise ValueError(f"{where}: {name} must be an array with a leading scan axis")
     count = len(fields["time_s"])
     for name, (shape, _) in _FIELDS.items():
@@ -109,8 +111,11 @@ def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.
             raise ValueError(f"{where}: {name} holds NaN or infinite values")
         rotations = poses[:, :3, :3]
         error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
-        if error > 1e3 * RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0) or \
-                np.any(poses[:, 3] != [0.0, 0.0, 0.0, 1.0]):
+        if (
+            error > 1e3 * RIGID_TOLERANCE
+            or np.any(np.linalg.det(rotations) < 0)
+            or np.any(poses[:, 3] != [0.0, 0.0, 0.0, 1.0])
+        ):
             raise ValueError(f"{where}: {name} holds transforms that are not rigid")
     origin = np.asarray(fields["sonar_origin"], dtype=np.float64)
     if not np.all(np.isfinite(origin)) or np.abs(origin).max(initial=0.0) > MAX_RANGE_M:
@@ -126,8 +131,9 @@ def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.
     if not np.all(np.isnan(ranges[no_return])) or not np.all(np.isfinite(returned)):
         raise ValueError(f"{where}: ranges must be NaN exactly where no_return is set")
     if returned.size and (returned.min() < 0 or returned.max() > MAX_RANGE_M):
-        raise ValueError(f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found "
-                         f"[{returned.min():.3g}, {returned.max():.3g}]")
+        raise ValueError(
+            f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found [{returned.min():.3g}, {returned.max():.3g}]"
+        )
 
 
 class DatasetWriter:
@@ -160,8 +166,16 @@ class DatasetWriter:
             tail = shape(beams)
             # NaN where HDF5 has no chunk to read (a damaged chunk index): the checks then fail
             fill = np.nan if np.dtype(dtype).kind == "f" else None
-            self._file.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail), dtype=dtype,
-                                      chunks=(256, *tail), compression="lzf", fletcher32=True, fillvalue=fill)
+            self._file.create_dataset(
+                name,
+                shape=(0, *tail),
+                maxshape=(None, *tail),
+                dtype=dtype,
+                chunks=(256, *tail),
+                compression="lzf",
+                fletcher32=True,
+                fillvalue=fill,
+            )
 
     def _fields(self) -> dict:
         return {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
@@ -172,8 +186,9 @@ class DatasetWriter:
         expected = set(self._fields())
         if set(fields) != expected:
             missing, extra = expected - set(fields), set(fields) - expected
-            raise ValueError(f"fields missing: {', '.join(sorted(missing)) or '-'}; unexpected: "
-                             f"{', '.join(sorted(extra)) or '-'}")
+            raise ValueError(
+                f"fields missing: {', '.join(sorted(missing)) or '-'}; unexpected: {', '.join(sorted(extra)) or '-'}"
+            )
         check_scans(fields, self.beams, f"scans for {str(self.path)!r}", self._last_time_s, self.truth)
         count = len(fields["time_s"])
         if count == 0:
@@ -226,8 +241,10 @@ class Dataset:
             if version < 1:
                 raise ValueError(f"{where} is damaged: format_version {version} (no vogjax wrote it)")
             if version > FORMAT_VERSION:
-                raise ValueError(f"{where} has run format version {version}; this vogjax reads up to "
-                                 f"{FORMAT_VERSION}: upgrade vogjax")
+                raise ValueError(
+                    f"{where} has run format version {version}; this vogjax reads up to "
+                    f"{FORMAT_VERSION}: upgrade vogjax"
+                )
             has_truth = attrs.get("has_truth", True)
             if not isinstance(has_truth, (bool, np.bool_)):
                 raise ValueError(f"{where} is damaged: has_truth {has_truth!r} is no boolean")
@@ -249,8 +266,10 @@ class Dataset:
             for name in names:
                 shape, dtype = _FIELDS[name]
                 if self._file[name].shape[1:] != shape(self.beams) or self._file[name].dtype != dtype:
-                    raise ValueError(f"{where} is damaged: field {name} has shape {self._file[name].shape} "
-                                     f"and type {self._file[name].dtype}")
+                    raise ValueError(
+                        f"{where} is damaged: field {name} has shape {self._file[name].shape} "
+                        f"and type {self._file[name].dtype}"
+                    )
         except (KeyError, TypeError, IndexError, OSError, json.JSONDecodeError, UnicodeError, RecursionError) as error:
             self._file.close()
             raise ValueError(f"{where} is damaged: {error}") from None
@@ -270,8 +289,10 @@ class Dataset:
         """Scans first to last, checked (ValueError naming the file when damaged)."""
         where = f"path {str(self.path)!r}"
         try:
-            fields = {name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
-                      for name in _FIELDS}
+            fields = {
+                name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
+                for name in _FIELDS
+            }
         except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
             raise ValueError(f"{where} is damaged: {error}") from None
         before = self._last_time_s.get(first, -np.inf)

@@ -38,8 +38,14 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     payload = buffer.getvalue()
-    header = json.dumps({"kind": kind, "metadata": metadata, "payload_bytes": len(payload),
-                         "payload_sha256": hashlib.sha256(payload).hexdigest()}).encode()
+    header = json.dumps(
+        {
+            "kind": kind,
+            "metadata": metadata,
+            "payload_bytes": len(payload),
+            "payload_sha256": hashlib.sha256(payload).hexdigest(),
+        }
+    ).encode()
     contents = _PREFIX.pack(MAGIC, FORMAT_VERSION, len(header)) + header + payload
     with AtomicPath(path) as temporary, open(temporary, "wb") as f:
         f.write(contents)
@@ -83,8 +89,10 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
     if version < 1:
         raise ValueError(f"path {str(path)!r} has map format version {version}, which no vogjax wrote")
     if version > FORMAT_VERSION:
-        raise ValueError(f"path {str(path)!r} has map format version {version}; this vogjax reads "
-                         f"up to version {FORMAT_VERSION}: upgrade vogjax")
+        raise ValueError(
+            f"path {str(path)!r} has map format version {version}; this vogjax reads "
+            f"up to version {FORMAT_VERSION}: upgrade vogjax"
+        )
     if version >= 2:  # the whole file is checksummed: a damaged header is caught too
         if len(data) < _PREFIX.size + _DIGEST or hashlib.sha256(data[:-_DIGEST]).digest() != data[-_DIGEST:]:
             raise ValueError(f"path {str(path)!r} is corrupt, truncated or has trailing data: checksum mismatch")
@@ -93,7 +101,7 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
     if end_of_header > len(data):
         raise ValueError(f"path {str(path)!r} is truncated (header incomplete)")
     try:
-        header = json.loads(data[_PREFIX.size:end_of_header])
+        header = json.loads(data[_PREFIX.size : end_of_header])
         payload_bytes = int(header["payload_bytes"])
         checksum = header["payload_sha256"]
         metadata = header["metadata"]
@@ -103,8 +111,10 @@ def read_map_file(path, kind: str) -> tuple[dict, dict]:
         raise ValueError(f"path {str(path)!r} has a damaged header") from None
     payload = data[end_of_header:]
     if len(payload) != payload_bytes:
-        raise ValueError(f"path {str(path)!r} is truncated or has trailing data "
-                         f"({len(payload)} payload bytes, expected {payload_bytes})")
+        raise ValueError(
+            f"path {str(path)!r} is truncated or has trailing data "
+            f"({len(payload)} payload bytes, expected {payload_bytes})"
+        )
     if hashlib.sha256(payload).hexdigest() != checksum:
         raise ValueError(f"path {str(path)!r} is corrupt: checksum mismatch")
     if header.get("kind") != kind:
@@ -138,5 +148,7 @@ def _check_members(payload: bytes) -> None:
                 shape, _, dtype = _NPY_HEADERS[version](member)
                 needed = math.prod(shape) * dtype.itemsize
                 if needed > info.file_size - member.tell():
-                    raise ValueError(f"array {info.filename!r} declares shape {shape} of {dtype}, "
-                                     f"more than its {info.file_size} bytes")
+                    raise ValueError(
+                        f"array {info.filename!r} declares shape {shape} of {dtype}, "
+                        f"more than its {info.file_size} bytes"
+                    )

@@ -92,8 +92,10 @@ def octomap_keys(voxels: VoxelSet) -> np.ndarray:
     keys = voxels.keys() + KEY_OFFSET
     if len(keys) and (keys.min() < 0 or keys.max() >= 2 * KEY_OFFSET):
         limit = KEY_OFFSET * voxels.voxel_size
-        raise ValueError(f"centres reach {np.abs(voxels.centres).max():.6g} m from the origin: OctoMap's 16-bit keys "
-                         f"hold coordinates in [-{limit:.6g}, {limit:.6g}) m at voxel size {voxels.voxel_size} m")
+        raise ValueError(
+            f"centres reach {np.abs(voxels.centres).max():.6g} m from the origin: OctoMap's 16-bit keys "
+            f"hold coordinates in [-{limit:.6g}, {limit:.6g}) m at voxel size {voxels.voxel_size} m"
+        )
     return keys
 
 
@@ -133,8 +135,14 @@ def build_tree(keys: np.ndarray, values: np.ndarray) -> Tree:
     values = np.asarray(values, dtype=np.float32)
     if len(keys) == 0:
         empty = np.zeros(0)
-        return Tree(empty.astype(np.int8), empty.astype(np.int64), empty.astype(np.float32), empty.astype(bool),
-                    empty.astype(np.uint8), empty.astype(np.uint16))
+        return Tree(
+            empty.astype(np.int8),
+            empty.astype(np.int64),
+            empty.astype(np.float32),
+            empty.astype(bool),
+            empty.astype(np.uint8),
+            empty.astype(np.uint16),
+        )
     code = morton(keys)
     order = np.argsort(code, kind="stable")
     code, value = code[order], values[order]
@@ -153,8 +161,12 @@ def build_tree(keys: np.ndarray, values: np.ndarray) -> Tree:
         index = (code & 7).astype(np.uint8)
         top = np.maximum.reduceat(value, starts)
         # eight leaves with one value collapse into their parent (never into the root)
-        collapse = (counts == 8) & np.logical_and.reduceat(leaf, starts) & \
-            (np.minimum.reduceat(value, starts) == top) & (level > 1)
+        collapse = (
+            (counts == 8)
+            & np.logical_and.reduceat(leaf, starts)
+            & (np.minimum.reduceat(value, starts) == top)
+            & (level > 1)
+        )
         keep = ~np.repeat(collapse, counts)
         levels.append((level, code[keep], value[keep], leaf[keep], children[keep], binary[keep]))
         bits = np.where(leaf, np.where(value >= 0, _OCCUPIED, _FREE), _INNER).astype(np.uint16)

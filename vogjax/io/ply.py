@@ -25,8 +25,17 @@ COORDINATE_TOLERANCE = 1e-3
 
 
 def vertex_dtype(coordinate: str) -> np.dtype:
-    return np.dtype([("x", coordinate), ("y", coordinate), ("z", coordinate), ("red", "u1"), ("green", "u1"),
-                     ("blue", "u1"), ("probability", "<f4")])
+    return np.dtype(
+        [
+            ("x", coordinate),
+            ("y", coordinate),
+            ("z", coordinate),
+            ("red", "u1"),
+            ("green", "u1"),
+            ("blue", "u1"),
+            ("probability", "<f4"),
+        ]
+    )
 
 
 def height_colours(z: np.ndarray, low: float | None = None, high: float | None = None) -> np.ndarray:
@@ -59,9 +68,11 @@ def save(source, path) -> int:
     vertices["probability"] = voxels.probability()[occupied]
     z_range = f"{centres[:, 2].min():.6g} {centres[:, 2].max():.6g}" if len(centres) else "none"
     properties = "".join(f"property {_PLY_TYPES[vertex[n].str]} {n}\n" for n in vertex.names)
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment occupied voxels written by vogjax\n"
-              f"comment voxel_size {voxels.voxel_size!r}\ncomment colour viridis over z {z_range}\n"
-              f"element vertex {len(vertices)}\n{properties}end_header\n")
+    header = (
+        f"ply\nformat binary_little_endian 1.0\ncomment occupied voxels written by vogjax\n"
+        f"comment voxel_size {voxels.voxel_size!r}\ncomment colour viridis over z {z_range}\n"
+        f"element vertex {len(vertices)}\n{properties}end_header\n"
+    )
     with AtomicPath(Path(path)) as temporary, open(temporary, "wb") as f:
         f.write(header.encode("ascii"))
         f.write(vertices.tobytes())

@@ -94,15 +94,23 @@ class Scan:
     range_max: float | None = None
 
 
-def import_bag(bag, out, points_topic: str, odometry_topic: str, frame: str | None = None,
-               max_range_m: float | None = None, progress: bool = True) -> ImportSummary:
+def import_bag(
+    bag,
+    out,
+    points_topic: str,
+    odometry_topic: str,
+    frame: str | None = None,
+    max_range_m: float | None = None,
+    progress: bool = True,
+) -> ImportSummary:
     """Convert a bag into a run file at `out` (published whole, or not at all)."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
     bag, out = Path(bag), Path(out)
-    if max_range_m is not None and (isinstance(max_range_m, bool) or not isinstance(max_range_m, (int, float))
-                                    or not 0 < max_range_m <= MAX_RANGE_M):
+    if max_range_m is not None and (
+        isinstance(max_range_m, bool) or not isinstance(max_range_m, (int, float)) or not 0 < max_range_m <= MAX_RANGE_M
+    ):
         raise ValueError(f"max_range_m must be a number in (0, {MAX_RANGE_M:g}], got {max_range_m!r}")
     if not bag.exists():
         raise ValueError(f"bag {str(bag)!r} does not exist")
@@ -112,8 +120,14 @@ def import_bag(bag, out, points_topic: str, odometry_topic: str, frame: str | No
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
             return _import(reader, bag, out, points_topic, odometry_topic, frame, max_range_m, progress)
-    except (AnyReaderError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,
-            UnicodeError) as error:
+    except (
+        AnyReaderError,
+        FileNotFoundError,
+        NotADirectoryError,
+        IsADirectoryError,
+        PermissionError,
+        UnicodeError,
+    ) as error:
         # rosbags reads a folder without metadata.yaml as a ROS 2 bag and fails opening it; a
         # damaged MCAP summary can hold undecodable text
         raise ValueError(f"bag {str(bag)!r} cannot be read as a ROS 1, ROS 2 or MCAP bag: {error}") from None
@@ -180,33 +194,51 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
         raise _Damaged(f"topic {points_topic!r} declares {declared} messages, {scans_read} could be read")
     if not kept:
         raise ValueError(f"no scan on {points_topic!r} can be imported: {_reasons(dropped)}")
-    sensor_frame = _check_frames(frames - {""}, None if frame is None else _frame(frame), vehicle_frame,
-                                 points_topic)
-    T_vehicle_sensor, mount = ((np.eye(4), "identity: points in the vehicle frame") if sensor_frame == vehicle_frame
-                               else read_mount(reader, vehicle_frame, sensor_frame))
+    sensor_frame = _check_frames(frames - {""}, None if frame is None else _frame(frame), vehicle_frame, points_topic)
+    T_vehicle_sensor, mount = (
+        (np.eye(4), "identity: points in the vehicle frame")
+        if sensor_frame == vehicle_frame
+        else read_mount(reader, vehicle_frame, sensor_frame)
+    )
     # the sensor's reach: what the caller says, LaserScan's range_max, or the farthest return (cm up)
-    reach = float(max_range_m or min(range_max if message == "LaserScan" else np.ceil(longest * 100 + 1) / 100,
-                                     MAX_RANGE_M))
+    reach = float(
+        max_range_m or min(range_max if message == "LaserScan" else np.ceil(longest * 100 + 1) / 100, MAX_RANGE_M)
+    )
     beams = int(max(counts))
     if beams > MAX_BEAMS:
-        raise ValueError(f"--points topic {points_topic!r}: a scan holds {beams} valid beams, more than the "
-                         f"{MAX_BEAMS} a run file takes")
+        raise ValueError(
+            f"--points topic {points_topic!r}: a scan holds {beams} valid beams, more than the "
+            f"{MAX_BEAMS} a run file takes"
+        )
     duration_s = (stamps[-1] - stamps[0]) * 1e-9
-    config = PointCloudConfig(message=message, beams=beams,
-                              rate_hz=float((len(kept) - 1) / duration_s) if duration_s > 0 else 10.0,
-                              min_range_m=float(range_min) if message == "LaserScan" and range_min < reach else 0.0,
-                              max_range_m=reach)
+    config = PointCloudConfig(
+        message=message,
+        beams=beams,
+        rate_hz=float((len(kept) - 1) / duration_s) if duration_s > 0 else 10.0,
+        min_range_m=float(range_min) if message == "LaserScan" and range_min < reach else 0.0,
+        max_range_m=reach,
+    )
     sensor = PointCloudSensor(config, T_vehicle_sensor)
     metadata = {
         **sensor.metadata(),
-        "source": {"bag": str(bag), "storage": "ros2" if reader.is2 else "ros1", "points_topic": points_topic,
-                   "points_type": f"sensor_msgs/{message}", "odometry_topic": odometry_topic,
-                   "frames": {"world": world_frame, "vehicle": vehicle_frame, "sensor": sensor_frame},
-                   "mount": mount},
-        "import": {"scans_read": scans_read, "scans_written": len(kept), "dropped": dict(dropped),
-                   "invalid_beams": invalid, "padded_beams": int(beams * len(kept) - sum(counts)),
-                   "odometry_messages": len(odometry.stamps_ns),
-                   "odometry_span_s": [odometry.stamps_ns[0] * 1e-9, odometry.stamps_ns[-1] * 1e-9]},
+        "source": {
+            "bag": str(bag),
+            "storage": "ros2" if reader.is2 else "ros1",
+            "points_topic": points_topic,
+            "points_type": f"sensor_msgs/{message}",
+            "odometry_topic": odometry_topic,
+            "frames": {"world": world_frame, "vehicle": vehicle_frame, "sensor": sensor_frame},
+            "mount": mount,
+        },
+        "import": {
+            "scans_read": scans_read,
+            "scans_written": len(kept),
+            "dropped": dict(dropped),
+            "invalid_beams": invalid,
+            "padded_beams": int(beams * len(kept) - sum(counts)),
+            "odometry_messages": len(odometry.stamps_ns),
+            "odometry_span_s": [odometry.stamps_ns[0] * 1e-9, odometry.stamps_ns[-1] * 1e-9],
+        },
     }
     # pass 2: the kept scans, padded, at their interpolated poses
     wanted = set(kept)
@@ -214,8 +246,10 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
     # every scan is padded to the largest: batches of at most BATCH_BEAMS beams bound the memory
     batch_scans = max(1, min(BATCH_SCANS, BATCH_BEAMS // beams))
     written = 0
-    with DatasetWriter(out, beams, metadata, truth=False) as writer, \
-            tqdm(total=len(kept), unit="scan", desc="importing", disable=not progress) as bar:
+    with (
+        DatasetWriter(out, beams, metadata, truth=False) as writer,
+        tqdm(total=len(kept), unit="scan", desc="importing", disable=not progress) as bar,
+    ):
         rows = []
         for ordinal, scan in enumerate(_scans(reader, scan_connections, message, points_topic)):
             if ordinal not in wanted:
@@ -224,14 +258,19 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
             rows.append(_padded(scan, beams, rotation))
             if len(rows) == batch_scans or written == len(kept):
                 batch_ns = np.array([r[0] for r in rows], dtype=np.int64)
-                writer.append(time_s=batch_ns * 1e-9, pose_nav=odometry.at(batch_ns),
-                              sonar_origin=np.tile(origin, (len(rows), 1)).astype(np.float32),
-                              sonar_directions=np.stack([r[1] for r in rows]),
-                              ranges=np.stack([r[2] for r in rows]), no_return=np.stack([r[3] for r in rows]))
+                writer.append(
+                    time_s=batch_ns * 1e-9,
+                    pose_nav=odometry.at(batch_ns),
+                    sonar_origin=np.tile(origin, (len(rows), 1)).astype(np.float32),
+                    sonar_directions=np.stack([r[1] for r in rows]),
+                    ranges=np.stack([r[2] for r in rows]),
+                    no_return=np.stack([r[3] for r in rows]),
+                )
                 bar.update(len(rows))
                 rows = []
-    return ImportSummary(out, len(kept), scans_read, beams, dict(dropped), invalid,
-                         metadata["import"]["padded_beams"], metadata)
+    return ImportSummary(
+        out, len(kept), scans_read, beams, dict(dropped), invalid, metadata["import"]["padded_beams"], metadata
+    )
 
 
 def _padded(scan: Scan, beams: int, rotation: np.ndarray):
@@ -259,8 +298,9 @@ def _topic(reader, topic: str, argument: str, types: set) -> tuple[list, str]:
         raise ValueError(f"{argument}: the bag has no topic {topic!r} (topics: {available})")
     found = {c.msgtype for c in connections}
     if not found <= types:
-        raise ValueError(f"{argument}: topic {topic!r} carries {', '.join(sorted(found))}, not "
-                         f"{' or '.join(sorted(types))}")
+        raise ValueError(
+            f"{argument}: topic {topic!r} carries {', '.join(sorted(found))}, not {' or '.join(sorted(types))}"
+        )
     if len(found) > 1:
         raise ValueError(f"{argument}: topic {topic!r} carries several message types: {', '.join(sorted(found))}")
     return connections, found.pop().rsplit("/", 1)[-1]
@@ -286,8 +326,14 @@ def cloud_beams(msg, topic: str = "") -> Scan:
     ranges = np.linalg.norm(points, axis=1)
     valid = np.isfinite(ranges) & (ranges >= _MIN_RANGE) & (ranges <= MAX_RANGE_M)
     points, ranges = points[valid], ranges[valid]
-    return Scan(_stamp_ns(msg.header), _frame(msg.header.frame_id), points / ranges[:, None], ranges,
-                np.zeros(len(ranges), dtype=bool), int(np.count_nonzero(~valid)))
+    return Scan(
+        _stamp_ns(msg.header),
+        _frame(msg.header.frame_id),
+        points / ranges[:, None],
+        ranges,
+        np.zeros(len(ranges), dtype=bool),
+        int(np.count_nonzero(~valid)),
+    )
 
 
 def cloud_points(msg, topic: str = "") -> np.ndarray:
@@ -306,20 +352,27 @@ def cloud_points(msg, topic: str = "") -> np.ndarray:
     for name in "xyz":
         field = fields[name]
         if field.datatype not in _FLOAT_TYPES or field.count not in (0, 1):
-            raise ValueError(f"{where} field {name} must be one float32 or float64, got datatype "
-                             f"{field.datatype} x {field.count}")
+            raise ValueError(
+                f"{where} field {name} must be one float32 or float64, got datatype {field.datatype} x {field.count}"
+            )
         formats.append(order + _FLOAT_TYPES[field.datatype])
         offsets.append(int(field.offset))
     step, width, height, row_step = int(msg.point_step), int(msg.width), int(msg.height), int(msg.row_step)
     if width * height > MAX_BEAMS:  # a run holds no more beams per scan; refused before converting
         raise ValueError(f"{where} holds {height} x {width} points, more than the {MAX_BEAMS} beams a scan may have")
     data = np.asarray(msg.data, dtype=np.uint8)
-    if step <= 0 or any(o < 0 or o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats)) or \
-            row_step < width * step or len(data) < height * row_step:
-        raise ValueError(f"{where} is malformed: {height} x {width} points of {step} bytes, rows of {row_step} "
-                         f"bytes, fields x, y, z at bytes {offsets}, {len(data)} bytes of data")
+    if (
+        step <= 0
+        or any(o < 0 or o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats))
+        or row_step < width * step
+        or len(data) < height * row_step
+    ):
+        raise ValueError(
+            f"{where} is malformed: {height} x {width} points of {step} bytes, rows of {row_step} "
+            f"bytes, fields x, y, z at bytes {offsets}, {len(data)} bytes of data"
+        )
     dtype = np.dtype({"names": list("xyz"), "formats": formats, "offsets": offsets, "itemsize": step})
-    rows = data[:height * row_step].reshape(height, row_step)[:, :width * step]
+    rows = data[: height * row_step].reshape(height, row_step)[:, : width * step]
     points = np.ascontiguousarray(rows).view(dtype).reshape(-1)
     return np.stack([points[n].astype(np.float64) for n in "xyz"], axis=1)
 
@@ -330,17 +383,32 @@ def laser_beams(msg, topic: str = "") -> Scan:
     angles = float(msg.angle_min) + np.arange(len(ranges)) * float(msg.angle_increment)
     directions = np.stack([np.cos(angles), np.sin(angles), np.zeros(len(ranges))], axis=1)
     low, high = float(msg.range_min), float(msg.range_max)
-    if not (np.isfinite(low) and np.isfinite(high) and 0 <= low < high and np.isfinite(msg.angle_min)
-            and np.isfinite(msg.angle_increment)):
-        raise ValueError(f"--points topic {topic!r}: LaserScan has range_min {low}, range_max {high}, "
-                         f"angle_min {msg.angle_min}, angle_increment {msg.angle_increment}")
+    if not (
+        np.isfinite(low)
+        and np.isfinite(high)
+        and 0 <= low < high
+        and np.isfinite(msg.angle_min)
+        and np.isfinite(msg.angle_increment)
+    ):
+        raise ValueError(
+            f"--points topic {topic!r}: LaserScan has range_min {low}, range_max {high}, "
+            f"angle_min {msg.angle_min}, angle_increment {msg.angle_increment}"
+        )
     with np.errstate(invalid="ignore"):
         no_return = ranges > high
         # a return farther than any range sensor reaches is damage, as in a cloud
         invalid = np.isnan(ranges) | (ranges < low) | (~no_return & (ranges > MAX_RANGE_M))
     keep = ~invalid
-    return Scan(_stamp_ns(msg.header), _frame(msg.header.frame_id), directions[keep],
-                np.where(no_return, np.nan, ranges)[keep], no_return[keep], int(np.count_nonzero(invalid)), low, high)
+    return Scan(
+        _stamp_ns(msg.header),
+        _frame(msg.header.frame_id),
+        directions[keep],
+        np.where(no_return, np.nan, ranges)[keep],
+        no_return[keep],
+        int(np.count_nonzero(invalid)),
+        low,
+        high,
+    )
 
 
 # ------------------------------------------------------------------ poses
@@ -376,8 +444,9 @@ class Odometry:
         """(M,4,4) poses at stamps within the span: positions linear, rotations slerped."""
         # relative nanoseconds to seconds: stamps since 1970 would lose microseconds as floats
         start = self.stamps_ns[0]
-        return interpolate_poses((self.stamps_ns - start) * 1e-9, self.poses,
-                                 (np.asarray(stamps_ns, dtype=np.int64) - start) * 1e-9)
+        return interpolate_poses(
+            (self.stamps_ns - start) * 1e-9, self.poses, (np.asarray(stamps_ns, dtype=np.int64) - start) * 1e-9
+        )
 
 
 def read_odometry(reader, connections, topic: str) -> Odometry:
@@ -415,8 +484,10 @@ def _check_frames(frames: set, frame: str | None, vehicle: str, topic: str) -> s
     if frame is None:
         others = sorted(frames - {vehicle})
         if others:
-            raise ValueError(f"--points topic {topic!r} is in frame {others[0]!r}, the odometry's child frame is "
-                             f"{vehicle!r}: pass --frame {others[0]} to place the sensor with TF")
+            raise ValueError(
+                f"--points topic {topic!r} is in frame {others[0]!r}, the odometry's child frame is "
+                f"{vehicle!r}: pass --frame {others[0]} to place the sensor with TF"
+            )
         return vehicle
     others = sorted(frames - {frame})
     if others:
@@ -449,26 +520,36 @@ def read_mount(reader, vehicle: str, sensor: str) -> tuple[np.ndarray, str]:
     path = _tf_path(links, vehicle, sensor)
     if path is None:
         known = sorted({f for key in links for f in key})
-        raise ValueError(f"--frame {sensor!r}: TF (/tf_static, /tf) does not connect it to the odometry's child "
-                         f"frame {vehicle!r} (frames in TF: {', '.join(known) or 'none'})")
+        raise ValueError(
+            f"--frame {sensor!r}: TF (/tf_static, /tf) does not connect it to the odometry's child "
+            f"frame {vehicle!r} (frames in TF: {', '.join(known) or 'none'})"
+        )
     T_vehicle_sensor = np.eye(4)
     sources = set()
     for parent, child, forward in path:
         static, samples = links[(parent, child)]
         sources.add("/tf_static" if static else "/tf")
         if any(not np.all(np.isfinite(T)) for T in samples):
-            raise ValueError(f"--frame {sensor!r}: the TF link {parent} -> {child} holds non-finite values or a "
-                             "quaternion that is not of unit length")
+            raise ValueError(
+                f"--frame {sensor!r}: the TF link {parent} -> {child} holds non-finite values or a "
+                "quaternion that is not of unit length"
+            )
         if (child, parent) in links:
-            raise ValueError(f"--frame {sensor!r}: TF links {parent} -> {child} and {child} -> {parent} both exist; "
-                             "which one holds is ambiguous")
+            raise ValueError(
+                f"--frame {sensor!r}: TF links {parent} -> {child} and {child} -> {parent} both exist; "
+                "which one holds is ambiguous"
+            )
         first = samples[0]
         for T in samples[1:]:
             moved = inverse(first) @ T
-            if np.abs(moved[:3, 3]).max() > _MOUNT_TOLERANCE or \
-                    np.linalg.norm(Rotation.from_matrix(moved[:3, :3]).as_rotvec()) > _MOUNT_TOLERANCE:
-                raise ValueError(f"--frame {sensor!r}: the TF link {parent} -> {child} moves during the bag; only a "
-                                 "fixed sensor mount is supported")
+            if (
+                np.abs(moved[:3, 3]).max() > _MOUNT_TOLERANCE
+                or np.linalg.norm(Rotation.from_matrix(moved[:3, :3]).as_rotvec()) > _MOUNT_TOLERANCE
+            ):
+                raise ValueError(
+                    f"--frame {sensor!r}: the TF link {parent} -> {child} moves during the bag; only a "
+                    "fixed sensor mount is supported"
+                )
         T_vehicle_sensor = T_vehicle_sensor @ (first if forward else inverse(first))
     T_vehicle_sensor = rigid_pose("T_vehicle_sensor", _orthonormal(T_vehicle_sensor))
     return T_vehicle_sensor, " + ".join(sorted(sources))

@@ -44,8 +44,9 @@ def load_tum(path) -> tuple[np.ndarray, np.ndarray]:
     norms = np.linalg.norm(table[:, 4:], axis=1)
     if not np.all(np.abs(norms - 1.0) < 1e-3):  # written with 9 digits, a unit quaternion is within 1e-8
         line = int(np.argmax(np.abs(norms - 1.0) >= 1e-3)) + 1
-        raise ValueError(f"path {str(path)!r}: pose {line} has a quaternion of norm {norms[line - 1]:.6g}, "
-                         "not a unit quaternion")
+        raise ValueError(
+            f"path {str(path)!r}: pose {line} has a quaternion of norm {norms[line - 1]:.6g}, not a unit quaternion"
+        )
     poses = np.tile(np.eye(4), (len(table), 1, 1))
     poses[:, :3, :3] = rotations_from_quaternions(table[:, [7, 4, 5, 6]])
     poses[:, :3, 3] = table[:, 1:4]

@@ -46,8 +46,9 @@ class VoxelSet:
             raise ValueError(f"centres must be real numbers of shape (K, 3), got {centres.dtype} {centres.shape}")
         values = np.asarray(self.log_odds)
         if values.shape != (len(centres),) or values.dtype.kind not in "fi":
-            raise ValueError(f"log_odds must be real numbers of shape ({len(centres)},), got {values.dtype} "
-                             f"{values.shape}")
+            raise ValueError(
+                f"log_odds must be real numbers of shape ({len(centres)},), got {values.dtype} {values.shape}"
+            )
         if not (np.all(np.isfinite(centres)) and np.all(np.isfinite(values))):
             raise ValueError("centres and log_odds must be finite (unobserved voxels do not belong in a VoxelSet)")
         size = positive_number("voxel_size", self.voxel_size)
@@ -72,7 +73,7 @@ class VoxelSet:
             raise ValueError("centres must name each voxel once")
 
     @classmethod
-    def from_map(cls, voxel_map) -> "VoxelSet":
+    def from_map(cls, voxel_map) -> VoxelSet:
         """The observed voxels of a VoxelMap or GlobalMap (log-odds) or a ConfidenceMap (its
         mean occupancy, states as it classifies them)."""
         config = getattr(voxel_map, "config", None)
@@ -83,20 +84,22 @@ class VoxelSet:
 
         if isinstance(voxel_map, ConfidenceMap):
             centres, mean, _ = voxel_map.voxels()
-            return cls.from_probabilities(centres, mean, config.voxel_size, config.occupied_threshold,
-                                          config.free_threshold)
-        raise ValueError(f"map must be a vj.VoxelMap, vj.GlobalMap or vj.ConfidenceMap, got "
-                         f"{type(voxel_map).__name__}")
+            return cls.from_probabilities(
+                centres, mean, config.voxel_size, config.occupied_threshold, config.free_threshold
+            )
+        raise ValueError(f"map must be a vj.VoxelMap, vj.GlobalMap or vj.ConfidenceMap, got {type(voxel_map).__name__}")
 
     @classmethod
-    def from_log_odds(cls, centres, log_odds, voxel_size: float, occupied_threshold: float = 0.7,
-                      free_threshold: float = 0.3) -> "VoxelSet":
+    def from_log_odds(
+        cls, centres, log_odds, voxel_size: float, occupied_threshold: float = 0.7, free_threshold: float = 0.3
+    ) -> VoxelSet:
         """Voxels with log-odds; thresholds are probabilities, as in MapConfig."""
         return cls(centres, log_odds, voxel_size, *_thresholds(occupied_threshold, free_threshold))
 
     @classmethod
-    def from_probabilities(cls, centres, probabilities, voxel_size: float, occupied_threshold: float = 0.7,
-                           free_threshold: float = 0.3) -> "VoxelSet":
+    def from_probabilities(
+        cls, centres, probabilities, voxel_size: float, occupied_threshold: float = 0.7, free_threshold: float = 0.3
+    ) -> VoxelSet:
         """Voxels with occupancy probabilities in (0, 1) (e.g. a confidence-rich map's mean),
         classified by comparing the probabilities themselves with the thresholds."""
         given = np.asarray(probabilities)

@@ -6,11 +6,23 @@
 - `ConfidenceMap`: a distribution over the occupancy level per voxel (Agha-mohammadi).
 """
 
-from vogjax.maps.confidence import ConfidenceMap, ConfidenceRaycast
 from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN, BlockMap, RaycastResult
+from vogjax.maps.confidence import ConfidenceMap, ConfidenceRaycast
 from vogjax.maps.globalmap import GlobalMap, UpdateReport
 from vogjax.maps.submaps import Submap, VogMap
 from vogjax.maps.voxelmap import VoxelMap
 
-__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "BlockMap", "ConfidenceMap", "ConfidenceRaycast", "GlobalMap", "RaycastResult", "Submap", "UpdateReport",
-           "VogMap", "VoxelMap"]
+__all__ = [
+    "FREE",
+    "OCCUPIED",
+    "UNKNOWN",
+    "BlockMap",
+    "ConfidenceMap",
+    "ConfidenceRaycast",
+    "GlobalMap",
+    "RaycastResult",
+    "Submap",
+    "UpdateReport",
+    "VogMap",
+    "VoxelMap",
+]

@@ -10,10 +10,10 @@ import numpy as np
 import warp as wp
 
 from vogjax import devices
-from vogjax.maps import parallel
-from vogjax.maps.blocks import BLOCK_VOXELS, GRID_CELLS, BlockGrid, BlockStore, voxel_keys
 from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
+from vogjax.maps import parallel
+from vogjax.maps.blocks import BLOCK_VOXELS, GRID_CELLS, BlockGrid, BlockStore, voxel_keys
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.validation import float_array, positive_range, within_key_range
 
@@ -137,10 +137,20 @@ class BlockMap:
             corner = wp.vec3i(*((g - 1) * 8 for g in grid.lo))
 
             def fill(part: int, lo: int, hi: int) -> None:
-                wp.launch(queries.fill_dense_states, dim=(hi - lo) * 64,
-                          inputs=[log_odds[lo * BLOCK_VOXELS:hi * BLOCK_VOXELS], store.slot_keys[lo:hi],
-                                  cfg.log_occupied, cfg.log_free, corner, wp.vec3i(*dims)],
-                          outputs=[columns], device=device)
+                wp.launch(
+                    queries.fill_dense_states,
+                    dim=(hi - lo) * 64,
+                    inputs=[
+                        log_odds[lo * BLOCK_VOXELS : hi * BLOCK_VOXELS],
+                        store.slot_keys[lo:hi],
+                        cfg.log_occupied,
+                        cfg.log_free,
+                        corner,
+                        wp.vec3i(*dims),
+                    ],
+                    outputs=[columns],
+                    device=device,
+                )
 
             parallel.split_launch(fill, blocks, parts)
             return RayTables("dense", store, grid, padded, columns, *empty(wp.int32, wp.uint32))
@@ -148,16 +158,24 @@ class BlockMap:
         states = wp.zeros(empty_base + 32, dtype=wp.uint32, device=device)
 
         def classify(part: int, lo: int, hi: int) -> None:
-            wp.launch(queries.classify_blocks, dim=hi - lo,
-                      inputs=[log_odds[lo * 16:hi * 16], cfg.log_occupied, cfg.log_free],
-                      outputs=[states[lo:hi]], device=device)
+            wp.launch(
+                queries.classify_blocks,
+                dim=hi - lo,
+                inputs=[log_odds[lo * 16 : hi * 16], cfg.log_occupied, cfg.log_free],
+                outputs=[states[lo:hi]],
+                device=device,
+            )
 
         parallel.split_launch(classify, blocks * 32, parts)
         if on_cpu and math.prod(padded) <= 2 * GRID_CELLS:
             bases = wp.empty(math.prod(padded), dtype=wp.int32, device=device)
-            wp.launch(queries.fill_ray_bases, dim=bases.shape[0],
-                      inputs=[grid.cells, wp.vec3i(*grid.dims), wp.vec3i(*padded), empty_base],
-                      outputs=[bases], device=device)
+            wp.launch(
+                queries.fill_ray_bases,
+                dim=bases.shape[0],
+                inputs=[grid.cells, wp.vec3i(*grid.dims), wp.vec3i(*padded), empty_base],
+                outputs=[bases],
+                device=device,
+            )
             return RayTables("grid", store, grid, padded, *empty(wp.uint16), bases, states)
         return RayTables("device", store, grid, padded, *empty(wp.uint16, wp.int32), states)
 
@@ -174,12 +192,19 @@ class BlockMap:
     def _lookup_unlocked(self, points: np.ndarray) -> np.ndarray:
         values = wp.empty(points.shape[0], dtype=wp.float32, device=self.device)
         if points.shape[0]:
-            wp.launch(queries.lookup_log_odds, dim=points.shape[0],
-                      inputs=[wp.array(points, dtype=wp.vec3f, device=self.device),
-                              np.float64(1.0 / self.config.voxel_size),
-                              self._store.table_keys, self._store.table_slots,
-                              self._store.layers["log_odds"]],
-                      outputs=[values], device=self.device)
+            wp.launch(
+                queries.lookup_log_odds,
+                dim=points.shape[0],
+                inputs=[
+                    wp.array(points, dtype=wp.vec3f, device=self.device),
+                    np.float64(1.0 / self.config.voxel_size),
+                    self._store.table_keys,
+                    self._store.table_slots,
+                    self._store.layers["log_odds"],
+                ],
+                outputs=[values],
+                device=self.device,
+            )
         return values.numpy()
 
     def log_odds(self, points) -> np.ndarray:
@@ -219,9 +244,11 @@ class BlockMap:
         shared = np.isscalar(max_range) and origins.shape[0] > 1
         device = self.device
         # on the CPU, Warp arrays over the NumPy ones (no copies)
-        out = self._cast(wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
-                         wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
-                         wp.array(ranges[:1] if shared else ranges, dtype=wp.float64, device=device, copy=False))
+        out = self._cast(
+            wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
+            wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
+            wp.array(ranges[:1] if shared else ranges, dtype=wp.float64, device=device, copy=False),
+        )
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
     def _raycast_on_device(self, origins, directions, max_range) -> RaycastResult:
@@ -230,28 +257,44 @@ class BlockMap:
         directions = device_rays("directions", directions, count, self.device)
         if isinstance(max_range, wp.array):
             if max_range.device != self.device or max_range.dtype != wp.float64 or max_range.shape != (count,):
-                raise ValueError(f"max_range must be a float64 Warp array of shape ({count},) on {self.device}, got "
-                                 f"{wp.types.type_repr(max_range.dtype)} {max_range.shape} on {max_range.device}")
+                raise ValueError(
+                    f"max_range must be a float64 Warp array of shape ({count},) on {self.device}, got "
+                    f"{wp.types.type_repr(max_range.dtype)} {max_range.shape} on {max_range.device}"
+                )
             ranges = max_range
         elif np.isscalar(max_range):
             ranges = wp.array(positive_range("max_range", max_range, 1), dtype=wp.float64, device=self.device)
         else:
-            raise ValueError(f"max_range must be a number or a float64 Warp array of ({count},) when the rays are "
-                             f"Warp arrays, got {type(max_range).__name__}")
+            raise ValueError(
+                f"max_range must be a number or a float64 Warp array of ({count},) when the rays are "
+                f"Warp arrays, got {type(max_range).__name__}"
+            )
         if count == 0:
-            return RaycastResult(*(wp.empty(0, dtype=t, device=self.device)
-                                   for t in (wp.bool, wp.float32, wp.int32, wp.int32)))
+            return RaycastResult(
+                *(wp.empty(0, dtype=t, device=self.device) for t in (wp.bool, wp.float32, wp.int32, wp.int32))
+            )
         # the host checks of the NumPy path, in one launch and one read-back of three numbers
         first_bad = wp.full(3, count, dtype=wp.int32, device=self.device)
         voxel_size, key_limit = self.config.voxel_size, hashing.VOXEL_KEY_LIMIT - 2
-        wp.launch(queries.check_rays, dim=count,
-                  inputs=[origins, directions, ranges, np.float64(voxel_size), np.float64(key_limit)],
-                  outputs=[first_bad], device=self.device)
+        wp.launch(
+            queries.check_rays,
+            dim=count,
+            inputs=[origins, directions, ranges, np.float64(voxel_size), np.float64(key_limit)],
+            outputs=[first_bad],
+            device=self.device,
+        )
         bad = first_bad.numpy()
-        for fault, (name, what) in enumerate((
-                ("origins", f"NaN, infinite or {key_limit} voxels ({key_limit * voxel_size:g} m) or farther from "
-                            "the origin on an axis"),
-                ("directions", "NaN, infinite or zero"), ("max_range", "NaN, infinite or not positive"))):
+        for fault, (name, what) in enumerate(
+            (
+                (
+                    "origins",
+                    f"NaN, infinite or {key_limit} voxels ({key_limit * voxel_size:g} m) or farther from "
+                    "the origin on an axis",
+                ),
+                ("directions", "NaN, infinite or zero"),
+                ("max_range", "NaN, infinite or not positive"),
+            )
+        ):
             if bad[fault] < count:
                 raise ValueError(f"{name}: ray {bad[fault]} is {what}")
         out = self._cast(origins, directions, ranges)
@@ -272,19 +315,48 @@ class BlockMap:
         }
 
         def launch(part: int, lo: int, hi: int) -> None:
-            rays = [origins[lo:hi], directions[lo:hi], ranges if shared else ranges[lo:hi],
-                    np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)]
+            rays = [
+                origins[lo:hi],
+                directions[lo:hi],
+                ranges if shared else ranges[lo:hi],
+                np.float64(cfg.voxel_size),
+                np.float64(1.0 / cfg.voxel_size),
+            ]
             outputs = [a[lo:hi] for a in out.values()]
             if tables.kind != "device":
                 kernel = queries.cast_rays_dense if tables.kind == "dense" else queries.cast_rays_on_grid
-                wp.launch(kernel, dim=hi - lo,
-                          inputs=[*rays, box_lo, box_hi, wp.vec3i(*tables.padded_dims), tables.columns,
-                                  tables.bases, tables.states], outputs=outputs, device=device)
+                wp.launch(
+                    kernel,
+                    dim=hi - lo,
+                    inputs=[
+                        *rays,
+                        box_lo,
+                        box_hi,
+                        wp.vec3i(*tables.padded_dims),
+                        tables.columns,
+                        tables.bases,
+                        tables.states,
+                    ],
+                    outputs=outputs,
+                    device=device,
+                )
             else:
-                wp.launch(queries.cast_rays, dim=hi - lo,
-                          inputs=[*rays, tables.store.table_keys, tables.store.table_slots, box_lo, box_hi,
-                                  wp.vec3i(*tables.grid.dims), tables.grid.cells, tables.states],
-                          outputs=outputs, device=device)
+                wp.launch(
+                    queries.cast_rays,
+                    dim=hi - lo,
+                    inputs=[
+                        *rays,
+                        tables.store.table_keys,
+                        tables.store.table_slots,
+                        box_lo,
+                        box_hi,
+                        wp.vec3i(*tables.grid.dims),
+                        tables.grid.cells,
+                        tables.states,
+                    ],
+                    outputs=outputs,
+                    device=device,
+                )
 
         with self._lock.reading():
             tables = self._ray_tables()
@@ -305,11 +377,21 @@ class BlockMap:
         d_starts, d_ends, lengths = _line_lengths(self.config, device, starts, ends)
         values = wp.full((count, int(lengths.max())), math.nan, dtype=wp.float32, device=device)
         with self._lock.reading():
-            wp.launch(queries.fill_line_values, dim=count,
-                      inputs=[d_starts, d_ends, np.float64(self.config.voxel_size),
-                              np.float64(1.0 / self.config.voxel_size), self._store.table_keys,
-                              self._store.table_slots, self._store.layers["log_odds"]],
-                      outputs=[values], device=device)
+            wp.launch(
+                queries.fill_line_values,
+                dim=count,
+                inputs=[
+                    d_starts,
+                    d_ends,
+                    np.float64(self.config.voxel_size),
+                    np.float64(1.0 / self.config.voxel_size),
+                    self._store.table_keys,
+                    self._store.table_slots,
+                    self._store.layers["log_odds"],
+                ],
+                outputs=[values],
+                device=device,
+            )
         return values.numpy(), lengths
 
     # ---------------------------------------------------------------- contents
@@ -332,8 +414,10 @@ class BlockMap:
         return self._store.memory_bytes() + (cached[1].memory_bytes() if cached else 0)
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(voxel_size={self.config.voxel_size}, blocks={self.num_blocks}, "
-                f"device={self.device}, memory={self.memory_bytes() / 2**20:.1f} MiB)")
+        return (
+            f"{type(self).__name__}(voxel_size={self.config.voxel_size}, blocks={self.num_blocks}, "
+            f"device={self.device}, memory={self.memory_bytes() / 2**20:.1f} MiB)"
+        )
 
 
 def probability_from_log_odds(log_odds: np.ndarray) -> np.ndarray:
@@ -400,8 +484,10 @@ def device_rays(name: str, array, count: int, device) -> wp.array:
         array = array.view(wp.vec3d)
     if array.dtype != wp.vec3d or array.ndim != 1 or not array.is_contiguous or count not in (-1, array.shape[0]):
         wanted = "R" if count == -1 else str(count)
-        raise ValueError(f"{name} must be a contiguous float64 Warp array of shape ({wanted}, 3) or a vec3d one of "
-                         f"shape ({wanted},), got {wp.types.type_repr(array.dtype)} {array.shape}")
+        raise ValueError(
+            f"{name} must be a contiguous float64 Warp array of shape ({wanted}, 3) or a vec3d one of "
+            f"shape ({wanted},), got {wp.types.type_repr(array.dtype)} {array.shape}"
+        )
     return array
 
 
@@ -419,9 +505,11 @@ def line_arguments(config: MapConfig, starts, ends) -> tuple[np.ndarray, np.ndar
     span = np.abs(np.floor(ends.astype(np.float64) * inv) - np.floor(starts.astype(np.float64) * inv)).sum(axis=1) + 1
     if starts.shape[0] and span.max() > MAX_LINE_VOXELS:
         i = int(np.argmax(span))
-        raise ValueError(f"ends: line {i} crosses {int(span[i])} voxels; line_query takes at most "
-                         f"{MAX_LINE_VOXELS} voxels per line ({MAX_LINE_VOXELS * config.voxel_size:.0f} m "
-                         "along an axis): split longer lines")
+        raise ValueError(
+            f"ends: line {i} crosses {int(span[i])} voxels; line_query takes at most "
+            f"{MAX_LINE_VOXELS} voxels per line ({MAX_LINE_VOXELS * config.voxel_size:.0f} m "
+            "along an axis): split longer lines"
+        )
     return starts, ends
 
 
@@ -429,9 +517,13 @@ def _line_lengths(config: MapConfig, device, starts: np.ndarray, ends: np.ndarra
     d_starts = wp.array(starts, dtype=wp.vec3f, device=device)
     d_ends = wp.array(ends, dtype=wp.vec3f, device=device)
     lengths = wp.empty(starts.shape[0], dtype=wp.int32, device=device)
-    wp.launch(queries.count_line_voxels, dim=starts.shape[0],
-              inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
-              outputs=[lengths], device=device)
+    wp.launch(
+        queries.count_line_voxels,
+        dim=starts.shape[0],
+        inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+        outputs=[lengths],
+        device=device,
+    )
     return d_starts, d_ends, lengths.numpy()
 
 
@@ -442,7 +534,11 @@ def line_voxels(config: MapConfig, device, starts, ends) -> tuple[np.ndarray, np
         return np.zeros((0, 0, 3), np.int32), np.zeros(0, np.int32)
     d_starts, d_ends, lengths = _line_lengths(config, device, starts, ends)
     voxels = wp.zeros((starts.shape[0], int(lengths.max())), dtype=wp.vec3i, device=device)
-    wp.launch(queries.fill_line_voxels, dim=starts.shape[0],
-              inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
-              outputs=[voxels], device=device)
+    wp.launch(
+        queries.fill_line_voxels,
+        dim=starts.shape[0],
+        inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+        outputs=[voxels],
+        device=device,
+    )
     return voxels.numpy(), lengths

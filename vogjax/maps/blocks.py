@@ -101,8 +101,10 @@ class BlockStore:
         self.table_slots = wp.full(_MIN_TABLE, -1, dtype=wp.int32, device=device)
         capacity = max(block_capacity, _MIN_BLOCKS)
         self.slot_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=device)
-        self.layers = {name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
-                       for name, (dtype, fill) in self.layer_specs.items()}
+        self.layers = {
+            name: wp.full(capacity * BLOCK_VOXELS, fill, dtype=dtype, device=device)
+            for name, (dtype, fill) in self.layer_specs.items()
+        }
         self.version = 0  # counts changes to the set of blocks (BlockGrid follows it)
         self._new_positions = wp.empty(0, dtype=wp.int32, device=device)  # ensure_blocks' scratch
         self._counters = wp.zeros(2, dtype=wp.int32, device=device)
@@ -161,9 +163,13 @@ class BlockStore:
         if int(np.prod(dims)) > GRID_CELLS:
             return BlockGrid(*box, (0, 0, 0), none)
         cells = wp.full(int(np.prod(dims)), -1, dtype=wp.int32, device=self.device)
-        wp.launch(hashing.fill_block_grid, dim=self.num_blocks,
-                  inputs=[self.slot_keys, wp.vec3i(*box[0]), wp.vec3i(*dims.tolist())], outputs=[cells],
-                  device=self.device)
+        wp.launch(
+            hashing.fill_block_grid,
+            dim=self.num_blocks,
+            inputs=[self.slot_keys, wp.vec3i(*box[0]), wp.vec3i(*dims.tolist())],
+            outputs=[cells],
+            device=self.device,
+        )
         return BlockGrid(*box, tuple(dims.tolist()), cells)
 
     def ensure_blocks(self, keys: wp.array) -> None:
@@ -178,19 +184,31 @@ class BlockStore:
             self._reserve_table(self.live_blocks + keys.shape[0])
         while True:
             self._counters.zero_()
-            wp.launch(hashing.insert_keys, dim=keys.shape[0], inputs=[keys],
-                      outputs=[self.table_keys, self._new_positions, self._counters], device=self.device)
+            wp.launch(
+                hashing.insert_keys,
+                dim=keys.shape[0],
+                inputs=[keys],
+                outputs=[self.table_keys, self._new_positions, self._counters],
+                device=self.device,
+            )
             new_blocks, failed = (int(c) for c in self._counters.numpy())
             if new_blocks:
                 reused = self.free_slots[:new_blocks]
                 del self.free_slots[:new_blocks]
                 fresh = new_blocks - len(reused)
                 self._reserve_blocks(self.num_blocks + fresh)
-                reused_slots = (wp.array(np.asarray(reused, np.int32), dtype=wp.int32, device=self.device)
-                                if reused else self._no_slots)
-                wp.launch(hashing.assign_slots, dim=new_blocks,
-                          inputs=[self._new_positions, reused_slots, self.num_blocks],
-                          outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
+                reused_slots = (
+                    wp.array(np.asarray(reused, np.int32), dtype=wp.int32, device=self.device)
+                    if reused
+                    else self._no_slots
+                )
+                wp.launch(
+                    hashing.assign_slots,
+                    dim=new_blocks,
+                    inputs=[self._new_positions, reused_slots, self.num_blocks],
+                    outputs=[self.table_keys, self.table_slots, self.slot_keys],
+                    device=self.device,
+                )
                 self.num_blocks += fresh
                 self.version += 1
             if failed:  # insertions stopped at a full table: four times the room, then again
@@ -204,12 +222,16 @@ class BlockStore:
         """Drop the blocks in `slots` (distinct, live): their slots are reused, their layers reset."""
         if len(slots) == 0:
             return
-        wp.launch(hashing.remove_slots, dim=len(slots),
-                  inputs=[wp.array(np.asarray(slots, np.int32), dtype=wp.int32, device=self.device)],
-                  outputs=[self.table_keys, self.table_slots, self.slot_keys], device=self.device)
+        wp.launch(
+            hashing.remove_slots,
+            dim=len(slots),
+            inputs=[wp.array(np.asarray(slots, np.int32), dtype=wp.int32, device=self.device)],
+            outputs=[self.table_keys, self.table_slots, self.slot_keys],
+            device=self.device,
+        )
         for slot in slots:
             for name, (_, fill) in self.layer_specs.items():
-                self.layers[name][int(slot) * BLOCK_VOXELS:(int(slot) + 1) * BLOCK_VOXELS].fill_(fill)
+                self.layers[name][int(slot) * BLOCK_VOXELS : (int(slot) + 1) * BLOCK_VOXELS].fill_(fill)
         self.free_slots.extend(int(s) for s in slots)
         self.tombstones += len(slots)
         self.version += 1
@@ -220,9 +242,13 @@ class BlockStore:
         """Slots of packed keys, -1 where absent."""
         slots = wp.empty(keys.shape[0], dtype=wp.int32, device=self.device)
         if keys.shape[0]:
-            wp.launch(hashing.resolve_slots, dim=keys.shape[0],
-                      inputs=[keys, self.table_keys, self.table_slots], outputs=[slots],
-                      device=self.device)
+            wp.launch(
+                hashing.resolve_slots,
+                dim=keys.shape[0],
+                inputs=[keys, self.table_keys, self.table_slots],
+                outputs=[slots],
+                device=self.device,
+            )
         return slots
 
     def host_blocks(self) -> tuple[np.ndarray, dict]:
@@ -230,13 +256,14 @@ class BlockStore:
         keys = self.slot_keys.numpy()[: self.num_blocks]
         order = np.argsort(keys, kind="stable")
         order = order[keys[order] != EMPTY_KEY]  # released slots
-        layers = {name: array.numpy()[: self.num_blocks * BLOCK_VOXELS]
-                  .reshape(self.num_blocks, BLOCK_VOXELS)[order]
-                  for name, array in self.layers.items()}
+        layers = {
+            name: array.numpy()[: self.num_blocks * BLOCK_VOXELS].reshape(self.num_blocks, BLOCK_VOXELS)[order]
+            for name, array in self.layers.items()
+        }
         return keys[order], layers
 
     @classmethod
-    def from_host(cls, device, layers: dict, keys: np.ndarray, values: dict) -> "BlockStore":
+    def from_host(cls, device, layers: dict, keys: np.ndarray, values: dict) -> BlockStore:
         """A store holding host blocks: packed keys (K,) and each layer as (K,512)."""
         count = int(keys.shape[0])
         store = cls(device, layers, block_capacity=count)
@@ -245,8 +272,7 @@ class BlockStore:
         store.slot_keys[:count].assign(wp.array(keys.astype(np.int64), dtype=wp.int64, device=device))
         for name, array in values.items():
             flat = np.ascontiguousarray(array).reshape(-1)
-            store.layers[name][: flat.shape[0]].assign(
-                wp.array(flat, dtype=store.layer_specs[name][0], device=device))
+            store.layers[name][: flat.shape[0]].assign(wp.array(flat, dtype=store.layer_specs[name][0], device=device))
         store.num_blocks = count
         capacity = _MIN_TABLE
         while capacity < 2 * count:
@@ -267,8 +293,13 @@ class BlockStore:
         self.table_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=self.device)
         self.table_slots = wp.full(capacity, -1, dtype=wp.int32, device=self.device)
         if self.num_blocks:
-            wp.launch(hashing.reinsert_slots, dim=self.num_blocks, inputs=[self.slot_keys],
-                      outputs=[self.table_keys, self.table_slots], device=self.device)
+            wp.launch(
+                hashing.reinsert_slots,
+                dim=self.num_blocks,
+                inputs=[self.slot_keys],
+                outputs=[self.table_keys, self.table_slots],
+                device=self.device,
+            )
 
     def _reserve_blocks(self, num_blocks: int) -> None:
         old = self.block_capacity
@@ -285,5 +316,5 @@ class BlockStore:
 def _grown(array: wp.array, size: int, fill) -> wp.array:
     grown = wp.empty(size, dtype=array.dtype, device=array.device)
     wp.copy(grown, array, count=array.shape[0])
-    grown[array.shape[0]:].fill_(fill)
+    grown[array.shape[0] :].fill_(fill)
     return grown

@@ -112,12 +112,22 @@ def _compacted(cones: _Cones, filled: np.ndarray, d_filled: wp.array, device) ->
     first_step = np.zeros(len(filled) + 1, np.int64)
     np.cumsum(filled, out=first_step[1:])
     total = int(first_step[-1])
-    compact = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device), cones.returned,
-                     wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
-                     cones.band_start, d_filled)  # counted from each cone's first step: unchanged
-    wp.launch(confidence.compact_cone_steps, dim=len(filled),
-              inputs=[cones.d_first_step, d_filled, compact.d_first_step, cones.step_voxel, cones.step_likelihood],
-              outputs=[compact.step_voxel, compact.step_likelihood], device=device)
+    compact = _Cones(
+        first_step,
+        wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
+        cones.returned,
+        wp.empty(total, dtype=wp.int32, device=device),
+        wp.empty(total, dtype=wp.float64, device=device),
+        cones.band_start,
+        d_filled,
+    )  # counted from each cone's first step: unchanged
+    wp.launch(
+        confidence.compact_cone_steps,
+        dim=len(filled),
+        inputs=[cones.d_first_step, d_filled, compact.d_first_step, cones.step_voxel, cones.step_likelihood],
+        outputs=[compact.step_voxel, compact.step_likelihood],
+        device=device,
+    )
     return compact
 
 
@@ -168,8 +178,12 @@ class ConfidenceMap:
         self.revision = 0  # counts integrations
 
     def _layer_specs(self) -> dict:
-        return {"bins": (self._kernels.Bins, self._prior), "mean": (wp.float32, math.nan),
-                "variance": (wp.float32, math.nan), "pending": (wp.uint8, 0)}
+        return {
+            "bins": (self._kernels.Bins, self._prior),
+            "mean": (wp.float32, math.nan),
+            "variance": (wp.float32, math.nan),
+            "pending": (wp.uint8, 0),
+        }
 
     @property
     def store(self) -> BlockStore:
@@ -225,8 +239,9 @@ class ConfidenceMap:
             raise ValueError("points must differ from their scan's origin (a beam needs a direction)")
         directions /= ranges[:, None]
         returned = ranges <= cfg.max_range
-        lengths = np.where(returned, np.minimum(ranges + cfg.cone_sigmas * cfg.range_sigma_m, cfg.max_range),
-                           cfg.max_range)
+        lengths = np.where(
+            returned, np.minimum(ranges + cfg.cone_sigmas * cfg.range_sigma_m, cfg.max_range), cfg.max_range
+        )
         # a cone reaches cone_sigmas past its reading
         np.multiply(directions, lengths[:, None], out=scratch)
         scratch += starts
@@ -235,9 +250,16 @@ class ConfidenceMap:
         returned = returned.astype(np.int32)
         # on a CPU, Warp arrays over the host arrays (kernels only read them; each array keeps its own)
         copy = self.device.is_cuda
-        on_device = tuple(wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, copy=copy)
-                          for a, dtype in ((starts, wp.vec3d), (directions, wp.vec3d), (lengths, wp.float64),
-                                           (ranges, wp.float64), (returned, wp.int32)))
+        on_device = tuple(
+            wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, copy=copy)
+            for a, dtype in (
+                (starts, wp.vec3d),
+                (directions, wp.vec3d),
+                (lengths, wp.float64),
+                (ranges, wp.float64),
+                (returned, wp.int32),
+            )
+        )
         return _Beams(lengths, scan_ends, on_device)
 
     def _integrate_passes(self, beams: _Beams) -> None:
@@ -273,18 +295,28 @@ class ConfidenceMap:
         resets = int(self._resets.numpy()[0])
         if resets:
             self.prior_resets += resets
-            warnings.warn(f"ConfidenceMap: {resets} voxel update(s) fell back to the prior: so many readings of "
-                          f"one scan in one voxel that its {self.config.num_bins} float32 bins could not hold "
-                          "the evidence (more bins, or fewer readings a scan, avoid it)", RuntimeWarning,
-                          stacklevel=3)
+            warnings.warn(
+                f"ConfidenceMap: {resets} voxel update(s) fell back to the prior: so many readings of "
+                f"one scan in one voxel that its {self.config.num_bins} float32 bins could not hold "
+                "the evidence (more bins, or fewer readings a scan, avoid it)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
 
     def _update_variances(self, slots: wp.array) -> None:
         """Variances of the observed voxels of the blocks in `slots`."""
         layers = self._store.layers
-        parallel.split_launch(lambda part, a, b: wp.launch(
-            self._kernels.variance_of_blocks, dim=(b - a) * BLOCK_VOXELS,
-            inputs=[slots[a:b], layers["bins"], layers["mean"]], outputs=[layers["variance"]], device=self.device),
-            slots.shape[0], parallel.num_parts(self.device, slots.shape[0] * BLOCK_VOXELS))
+        parallel.split_launch(
+            lambda part, a, b: wp.launch(
+                self._kernels.variance_of_blocks,
+                dim=(b - a) * BLOCK_VOXELS,
+                inputs=[slots[a:b], layers["bins"], layers["mean"]],
+                outputs=[layers["variance"]],
+                device=self.device,
+            ),
+            slots.shape[0],
+            parallel.num_parts(self.device, slots.shape[0] * BLOCK_VOXELS),
+        )
 
     def _apply_passes(self, beams: _Beams, passes: list, with_variance: bool) -> None:
         if not passes:
@@ -299,6 +331,7 @@ class ConfidenceMap:
                     # threads then does not contend for the GIL while the update runs
                     def walk_next(following=passes[i + 1]):
                         ahead.append(_background().submit(self._walk_cones, beams, *following, parts=1))
+
                     self._update(beams, *planned, cones, with_variance, before_launch=walk_next)
                     cones = ahead[0].result()
                     continue
@@ -332,11 +365,17 @@ class ConfidenceMap:
             block_counts = wp.empty(count, dtype=wp.int32, device=device)
             step_bounds = wp.empty(count, dtype=wp.int32, device=device)
             recent = wp.full((parts, RECENT_BLOCKS), hashing.EMPTY_KEY, dtype=wp.int64, device=device)
-            parallel.split_launch(lambda part, a, b: wp.launch(
-                confidence.list_cone_blocks, dim=b - a,
-                inputs=[starts[a:b], directions[a:b], lengths[a:b], resolution, inv_resolution, recent[part]],
-                outputs=[block_keys[a:b], block_counts[a:b], step_bounds[a:b]], device=device),
-                count, parts)
+            parallel.split_launch(
+                lambda part, a, b: wp.launch(
+                    confidence.list_cone_blocks,
+                    dim=b - a,
+                    inputs=[starts[a:b], directions[a:b], lengths[a:b], resolution, inv_resolution, recent[part]],
+                    outputs=[block_keys[a:b], block_counts[a:b], step_bounds[a:b]],
+                    device=device,
+                ),
+                count,
+                parts,
+            )
             most = int(block_counts.numpy().max())
             if most <= max_blocks:
                 break
@@ -361,8 +400,9 @@ class ConfidenceMap:
         for first in range(first_scan, end_scan, SCANS_PER_PASS):
             split(first, min(first + SCANS_PER_PASS, end_scan))
 
-    def _walk_cones(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
-                    parts: int | None) -> "_Cones | None":
+    def _walk_cones(
+        self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int, parts: int | None
+    ) -> _Cones | None:
         """Scans [first_scan, end_scan), their blocks allocated: walk the cones again for each
         voxel's slot and likelihood (in `parts` CPU threads; None: as many as worth it)."""
         lo, hi = self._beam_range(beams, first_scan, end_scan)
@@ -375,19 +415,41 @@ class ConfidenceMap:
             return None
         resolution, inv_resolution = np.float64(cfg.voxel_size), np.float64(1.0 / cfg.voxel_size)
         starts, directions, lengths, ranges, returned = (a[lo:hi] for a in beams.on_device)
-        cones = _Cones(first_step, wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
-                       returned,
-                       wp.empty(total, dtype=wp.int32, device=device), wp.empty(total, dtype=wp.float64, device=device),
-                       wp.empty(count, dtype=wp.int32, device=device), wp.empty(count, dtype=wp.int32, device=device))
+        cones = _Cones(
+            first_step,
+            wp.array(first_step.astype(np.int32), dtype=wp.int32, device=device),
+            returned,
+            wp.empty(total, dtype=wp.int32, device=device),
+            wp.empty(total, dtype=wp.float64, device=device),
+            wp.empty(count, dtype=wp.int32, device=device),
+            wp.empty(count, dtype=wp.int32, device=device),
+        )
         filled = cones.filled
-        parallel.split_launch(lambda part, a, b: wp.launch(
-            confidence.fill_cone_steps, dim=b - a,
-            inputs=[starts[a:b], directions[a:b], lengths[a:b], ranges[a:b], cones.returned[a:b],
-                    cones.d_first_step[a:b + 1], resolution, inv_resolution, np.float64(cfg.range_sigma_m),
-                    np.float64(cfg.max_range), int(cfg.cause_range == "centre"), store.table_keys,
-                    store.table_slots],
-            outputs=[cones.step_voxel, cones.step_likelihood, filled[a:b], cones.band_start[a:b]], device=device),
-            count, parallel.num_parts(device, count) if parts is None else parts)
+        parallel.split_launch(
+            lambda part, a, b: wp.launch(
+                confidence.fill_cone_steps,
+                dim=b - a,
+                inputs=[
+                    starts[a:b],
+                    directions[a:b],
+                    lengths[a:b],
+                    ranges[a:b],
+                    cones.returned[a:b],
+                    cones.d_first_step[a : b + 1],
+                    resolution,
+                    inv_resolution,
+                    np.float64(cfg.range_sigma_m),
+                    np.float64(cfg.max_range),
+                    int(cfg.cause_range == "centre"),
+                    store.table_keys,
+                    store.table_slots,
+                ],
+                outputs=[cones.step_voxel, cones.step_likelihood, filled[a:b], cones.band_start[a:b]],
+                device=device,
+            ),
+            count,
+            parallel.num_parts(device, count) if parts is None else parts,
+        )
         counts = filled.numpy().astype(np.int64)
         if np.any(counts < 0):
             raise RuntimeError("internal error: a cone voxel lies in a block its listing missed (please report)")
@@ -399,8 +461,17 @@ class ConfidenceMap:
             return _compacted(cones, counts, filled, device)
         return cones
 
-    def _update(self, beams: _Beams, first_scan: int, end_scan: int, steps: np.ndarray, longest: int,
-                cones: "_Cones | None", with_variance: bool, before_launch=None) -> None:
+    def _update(
+        self,
+        beams: _Beams,
+        first_scan: int,
+        end_scan: int,
+        steps: np.ndarray,
+        longest: int,
+        cones: _Cones | None,
+        with_variance: bool,
+        before_launch=None,
+    ) -> None:
         """Apply scans [first_scan, end_scan), their cones walked, one after the other;
         `before_launch()` is called once, just before the (CPU) update is launched."""
         if cones is None:
@@ -414,22 +485,35 @@ class ConfidenceMap:
         total = int(first_step[-1])
 
         # the scans one after the other: on the CPU in one launch, on CUDA two launches per scan
-        model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability),
-                 np.float64(1.0 / cfg.max_range)]
+        model = [np.float32(cfg.prior_mean), np.float64(cfg.spurious_probability), np.float64(1.0 / cfg.max_range)]
         layers = store.layers
         scan_ends = (beams.scan_ends[first_scan:end_scan] - lo).astype(np.int32)
         if not self._sorted_path:
-            inputs = [wp.array(scan_ends, dtype=wp.int32, device=device), d_first, cones.filled, cones.band_start,
-                      d_returned, step_voxel,
-                      step_likelihood, *model, np.float32(cfg.bin_floor),
-                      wp.empty(longest, dtype=wp.float32, device=device),
-                      wp.empty(longest, dtype=wp.float64, device=device),
-                      wp.empty(total, dtype=wp.int32, device=device), self._free_powers, int(with_variance)]
+            inputs = [
+                wp.array(scan_ends, dtype=wp.int32, device=device),
+                d_first,
+                cones.filled,
+                cones.band_start,
+                d_returned,
+                step_voxel,
+                step_likelihood,
+                *model,
+                np.float32(cfg.bin_floor),
+                wp.empty(longest, dtype=wp.float32, device=device),
+                wp.empty(longest, dtype=wp.float64, device=device),
+                wp.empty(total, dtype=wp.int32, device=device),
+                self._free_powers,
+                int(with_variance),
+            ]
             if before_launch is not None:
                 before_launch()
-            wp.launch(self._kernels.integrate_in_order, dim=1, inputs=inputs,
-                      outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"], self._resets],
-                      device=device)
+            wp.launch(
+                self._kernels.integrate_in_order,
+                dim=1,
+                inputs=inputs,
+                outputs=[layers["bins"], layers["mean"], layers["variance"], layers["pending"], self._resets],
+                device=device,
+            )
             return
         if before_launch is not None:
             before_launch()
@@ -442,34 +526,61 @@ class ConfidenceMap:
         keys = wp.empty(2 * total, dtype=wp.int32, device=device)
         order = wp.empty(2 * total, dtype=wp.int32, device=device)
         wp.launch(confidence.sort_keys_of_steps, dim=total, inputs=[step_voxel], outputs=[keys, order], device=device)
-        wp.utils.radix_sort_pairs(keys, order, total,
-                                  end_bit=max(int(store.block_capacity * BLOCK_VOXELS - 1).bit_length(), 1))
-        step_scan = wp.array(np.repeat(np.arange(num_scans, dtype=np.int32), np.diff(scan_steps)), dtype=wp.int32,
-                             device=device)
+        wp.utils.radix_sort_pairs(
+            keys, order, total, end_bit=max(int(store.block_capacity * BLOCK_VOXELS - 1).bit_length(), 1)
+        )
+        step_scan = wp.array(
+            np.repeat(np.arange(num_scans, dtype=np.int32), np.diff(scan_steps)), dtype=wp.int32, device=device
+        )
         group_scan = wp.empty(2 * total, dtype=wp.int32, device=device)
         group_entry = wp.empty(2 * total, dtype=wp.int32, device=device)
         scan_groups = wp.zeros(num_scans + 1, dtype=wp.int32, device=device)  # the last one stays 0
-        wp.launch(confidence.flag_scan_groups, dim=total, inputs=[keys, order, step_scan, num_scans],
-                  outputs=[group_scan, group_entry, scan_groups], device=device)
+        wp.launch(
+            confidence.flag_scan_groups,
+            dim=total,
+            inputs=[keys, order, step_scan, num_scans],
+            outputs=[group_scan, group_entry, scan_groups],
+            device=device,
+        )
         wp.utils.radix_sort_pairs(group_scan, group_entry, total, end_bit=max(int(num_scans).bit_length(), 1))
         first_group = wp.empty(num_scans + 1, dtype=wp.int32, device=device)
         wp.utils.array_scan(scan_groups, first_group, inclusive=False)
-        scratch = [wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
-                   wp.empty(total, dtype=wp.float64, device=device)]  # S_i
+        scratch = [
+            wp.empty(total, dtype=wp.float32, device=device),  # mean before the scan
+            wp.empty(total, dtype=wp.float64, device=device),
+        ]  # S_i
         factors = wp.empty(total, dtype=wp.vec2f, device=device)
         # Two launches a scan, of the same arguments but the scan's: recorded once, each scan then
         # sets its numbers and dimension (about 5 us a launch instead of 29 for a full wp.launch,
         # the host's share of a scan otherwise).
         factors_of_scan = wp.launch(
-            confidence.compute_beam_factors, dim=1,
+            confidence.compute_beam_factors,
+            dim=1,
             inputs=[0, d_first, d_returned, step_voxel, step_likelihood, layers["mean"], *model],
-            outputs=[*scratch, factors], device=device, record_cmd=True)
+            outputs=[*scratch, factors],
+            device=device,
+            record_cmd=True,
+        )
         groups_of_scan = wp.launch(
-            self._kernels.apply_scan_groups, dim=1,
-            inputs=[0, first_group, group_entry, keys, order, step_scan, total, factors, np.float32(cfg.bin_floor),
-                    self._free_powers, int(with_variance)],
-            outputs=[layers["bins"], layers["mean"], layers["variance"], self._resets], device=device,
-            record_cmd=True)
+            self._kernels.apply_scan_groups,
+            dim=1,
+            inputs=[
+                0,
+                first_group,
+                group_entry,
+                keys,
+                order,
+                step_scan,
+                total,
+                factors,
+                np.float32(cfg.bin_floor),
+                self._free_powers,
+                int(with_variance),
+            ],
+            outputs=[layers["bins"], layers["mean"], layers["variance"], self._resets],
+            device=device,
+            record_cmd=True,
+        )
         beam_lo = 0
         for scan, beam_hi in enumerate(scan_ends.tolist()):
             if beam_hi > beam_lo:
@@ -492,11 +603,20 @@ class ConfidenceMap:
         out_variance = wp.empty(count, dtype=wp.float32, device=device)
         with self._lock.reading():
             if count:
-                wp.launch(confidence_queries.lookup_moments, dim=count,
-                          inputs=[wp.array(points, dtype=wp.vec3f, device=device),
-                                  np.float64(1.0 / self.config.voxel_size), store.table_keys, store.table_slots,
-                                  store.layers["mean"], store.layers["variance"]],
-                          outputs=[out_mean, out_variance], device=device)
+                wp.launch(
+                    confidence_queries.lookup_moments,
+                    dim=count,
+                    inputs=[
+                        wp.array(points, dtype=wp.vec3f, device=device),
+                        np.float64(1.0 / self.config.voxel_size),
+                        store.table_keys,
+                        store.table_slots,
+                        store.layers["mean"],
+                        store.layers["variance"],
+                    ],
+                    outputs=[out_mean, out_variance],
+                    device=device,
+                )
             return out_mean.numpy(), out_variance.numpy()
 
     def mean(self, points) -> np.ndarray:
@@ -529,11 +649,20 @@ class ConfidenceMap:
         values = wp.empty(count, dtype=self._kernels.Bins, device=device)
         with self._lock.reading():
             if count:
-                wp.launch(self._kernels.lookup_bins, dim=count,
-                          inputs=[wp.array(points, dtype=wp.vec3f, device=device),
-                                  np.float64(1.0 / self.config.voxel_size), store.table_keys, store.table_slots,
-                                  store.layers["bins"], self._prior],
-                          outputs=[values], device=device)
+                wp.launch(
+                    self._kernels.lookup_bins,
+                    dim=count,
+                    inputs=[
+                        wp.array(points, dtype=wp.vec3f, device=device),
+                        np.float64(1.0 / self.config.voxel_size),
+                        store.table_keys,
+                        store.table_slots,
+                        store.layers["bins"],
+                        self._prior,
+                    ],
+                    outputs=[values],
+                    device=device,
+                )
             return values.numpy().reshape(count, self.config.num_bins)
 
     # ---------------------------------------------------------------- ray queries
@@ -547,24 +676,44 @@ class ConfidenceMap:
         cfg, device, store = self.config, self.device, self._store
         within_key_range("origins", origins, cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         check_walk_length("max_range", ranges, cfg.voxel_size)
-        within_key_range("max_range", origins + directions * ranges[:, None], cfg.voxel_size,
-                         hashing.VOXEL_KEY_LIMIT)
+        within_key_range("max_range", origins + directions * ranges[:, None], cfg.voxel_size, hashing.VOXEL_KEY_LIMIT)
         count = origins.shape[0]
         d_origins = wp.array(origins, dtype=wp.vec3d, device=device)
         d_directions = wp.array(directions, dtype=wp.vec3d, device=device)
         d_ranges = wp.array(ranges, dtype=wp.float64, device=device)
-        names = {"hit": wp.bool, "distance": wp.float32, "num_unknown": wp.int32, "num_free": wp.int32,
-                 "variance_sum": wp.float32, "variance_max": wp.float32, "reach_probability": wp.float32}
+        names = {
+            "hit": wp.bool,
+            "distance": wp.float32,
+            "num_unknown": wp.int32,
+            "num_free": wp.int32,
+            "variance_sum": wp.float32,
+            "variance_max": wp.float32,
+            "reach_probability": wp.float32,
+        }
         out = {name: wp.empty(count, dtype=dtype, device=device) for name, dtype in names.items()}
 
         def launch(part: int, lo: int, hi: int) -> None:
-            wp.launch(confidence_queries.cast_confidence_rays, dim=hi - lo,
-                      inputs=[d_origins[lo:hi], d_directions[lo:hi], d_ranges[lo:hi], np.float64(cfg.voxel_size),
-                              np.float64(1.0 / cfg.voxel_size), store.table_keys, store.table_slots,
-                              store.layers["mean"], store.layers["variance"], np.float32(cfg.prior_mean),
-                              np.float32(cfg.prior_variance), np.float32(cfg.occupied_threshold),
-                              np.float32(cfg.free_threshold)],
-                      outputs=[a[lo:hi] for a in out.values()], device=device)
+            wp.launch(
+                confidence_queries.cast_confidence_rays,
+                dim=hi - lo,
+                inputs=[
+                    d_origins[lo:hi],
+                    d_directions[lo:hi],
+                    d_ranges[lo:hi],
+                    np.float64(cfg.voxel_size),
+                    np.float64(1.0 / cfg.voxel_size),
+                    store.table_keys,
+                    store.table_slots,
+                    store.layers["mean"],
+                    store.layers["variance"],
+                    np.float32(cfg.prior_mean),
+                    np.float32(cfg.prior_variance),
+                    np.float32(cfg.occupied_threshold),
+                    np.float32(cfg.free_threshold),
+                ],
+                outputs=[a[lo:hi] for a in out.values()],
+                device=device,
+            )
 
         with self._lock.reading():
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
@@ -604,26 +753,32 @@ class ConfidenceMap:
         """Bytes of device memory the map holds (table, block pool, per-block scratch)."""
         return self._store.memory_bytes()
 
-    def copy(self) -> "ConfidenceMap":
+    def copy(self) -> ConfidenceMap:
         """An independent map with the same contents (e.g. to predict future readings on)."""
         with self._lock.reading():
             keys, bins, mean, _ = self._host_blocks()
         return self._from_host(self.config, self.device, keys, bins, ~np.isnan(mean))
 
     def __repr__(self) -> str:
-        return (f"ConfidenceMap(voxel_size={self.config.voxel_size}, bins={self.config.num_bins}, "
-                f"blocks={self.num_blocks}, device={self.device}, memory={self.memory_bytes() / 2**20:.1f} MiB)")
+        return (
+            f"ConfidenceMap(voxel_size={self.config.voxel_size}, bins={self.config.num_bins}, "
+            f"blocks={self.num_blocks}, device={self.device}, memory={self.memory_bytes() / 2**20:.1f} MiB)"
+        )
 
     # ---------------------------------------------------------------- files
     def save(self, path) -> None:
         """Write the map (config included) to one file, atomically."""
         with self._lock.reading():
             keys, bins, mean, _ = self._host_blocks()
-        write_map_file(path, "ConfidenceMap", {"config": self.config.to_dict()},
-                       {"block_keys": keys, "bins": bins, "observed": ~np.isnan(mean)})
+        write_map_file(
+            path,
+            "ConfidenceMap",
+            {"config": self.config.to_dict()},
+            {"block_keys": keys, "bins": bins, "observed": ~np.isnan(mean)},
+        )
 
     @classmethod
-    def load(cls, path, device=None) -> "ConfidenceMap":
+    def load(cls, path, device=None) -> ConfidenceMap:
         """A map written by `save`; ValueError naming the path if the file is not a valid one."""
         metadata, arrays = read_map_file(path, "ConfidenceMap")
         where = f"path {str(path)!r} has invalid map contents"
@@ -638,21 +793,31 @@ class ConfidenceMap:
         return cls._from_host(config, device, keys, bins, observed)
 
     @classmethod
-    def _from_host(cls, config: CrmConfig, device, keys: np.ndarray, bins: np.ndarray,
-                   observed: np.ndarray) -> "ConfidenceMap":
+    def _from_host(
+        cls, config: CrmConfig, device, keys: np.ndarray, bins: np.ndarray, observed: np.ndarray
+    ) -> ConfidenceMap:
         crm = cls(config, device)
         store = BlockStore.from_host(crm.device, crm._layer_specs(), keys, {})
         count = keys.shape[0]
         if count:
             voxels = count * BLOCK_VOXELS
-            store.layers["bins"][:voxels].assign(wp.array(
-                np.ascontiguousarray(bins, np.float32).reshape(voxels, config.num_bins),
-                dtype=crm._kernels.Bins, device=crm.device))
-            wp.launch(crm._kernels.compute_moments, dim=voxels,
-                      inputs=[wp.array(observed.reshape(-1).astype(np.uint8), dtype=wp.uint8, device=crm.device),
-                              store.layers["bins"][:voxels]],
-                      outputs=[store.layers["mean"][:voxels], store.layers["variance"][:voxels]],
-                      device=crm.device)
+            store.layers["bins"][:voxels].assign(
+                wp.array(
+                    np.ascontiguousarray(bins, np.float32).reshape(voxels, config.num_bins),
+                    dtype=crm._kernels.Bins,
+                    device=crm.device,
+                )
+            )
+            wp.launch(
+                crm._kernels.compute_moments,
+                dim=voxels,
+                inputs=[
+                    wp.array(observed.reshape(-1).astype(np.uint8), dtype=wp.uint8, device=crm.device),
+                    store.layers["bins"][:voxels],
+                ],
+                outputs=[store.layers["mean"][:voxels], store.layers["variance"][:voxels]],
+                device=crm.device,
+            )
         crm._store = store
         return crm
 
@@ -663,8 +828,10 @@ def check_walk_length(name: str, lengths_m: np.ndarray, voxel_size: float) -> No
     longest = MAX_LINE_VOXELS * voxel_size
     if len(lengths_m) and not lengths_m.max() <= longest:
         i = int(np.argmax(lengths_m))
-        raise ValueError(f"{name}: {lengths_m[i]:.6g} m (entry {i}) is longer than a confidence-map query walks, "
-                         f"{MAX_LINE_VOXELS} voxels ({longest:g} m at voxel size {voxel_size:g} m): split it")
+        raise ValueError(
+            f"{name}: {lengths_m[i]:.6g} m (entry {i}) is longer than a confidence-map query walks, "
+            f"{MAX_LINE_VOXELS} voxels ({longest:g} m at voxel size {voxel_size:g} m): split it"
+        )
 
 
 def _ordered_bits(values: np.ndarray) -> np.ndarray:
@@ -713,7 +880,9 @@ def _check_contents(config: CrmConfig, keys, bins, observed) -> str | None:
         return "block_keys must be distinct packed block coordinates"
     if not (isinstance(bins, np.ndarray) and bins.dtype == np.float32 and bins.shape == (len(keys), BLOCK_VOXELS, K)):
         return f"bins must be float32 of shape ({len(keys)}, {BLOCK_VOXELS}, {K})"
-    if not (isinstance(observed, np.ndarray) and observed.dtype == np.bool_ and observed.shape == (len(keys), BLOCK_VOXELS)):
+    if not (
+        isinstance(observed, np.ndarray) and observed.dtype == np.bool_ and observed.shape == (len(keys), BLOCK_VOXELS)
+    ):
         return f"observed must be bool of shape ({len(keys)}, {BLOCK_VOXELS})"
     if not np.all(np.isfinite(bins)) or np.any(bins < 0):
         return "bins must be finite and non-negative"

@@ -79,14 +79,25 @@ def edge_risk(crm: ConfidenceMap, starts, ends) -> np.ndarray:
     out = wp.empty(starts.shape[0], dtype=wp.float64, device=device)
     with crm.reading():
         if starts.shape[0]:
-            wp.launch(confidence_queries.sum_segment_costs, dim=starts.shape[0],
-                      inputs=[wp.array(starts, dtype=wp.vec3d, device=device),
-                              wp.array(directions, dtype=wp.vec3d, device=device),
-                              wp.array(lengths, dtype=wp.float64, device=device), np.float64(cfg.voxel_size),
-                              np.float64(1.0 / cfg.voxel_size), store.table_keys, store.table_slots,
-                              store.layers["mean"], store.layers["variance"], np.float32(cfg.prior_mean),
-                              np.float32(cfg.prior_variance)],
-                      outputs=[out], device=device)
+            wp.launch(
+                confidence_queries.sum_segment_costs,
+                dim=starts.shape[0],
+                inputs=[
+                    wp.array(starts, dtype=wp.vec3d, device=device),
+                    wp.array(directions, dtype=wp.vec3d, device=device),
+                    wp.array(lengths, dtype=wp.float64, device=device),
+                    np.float64(cfg.voxel_size),
+                    np.float64(1.0 / cfg.voxel_size),
+                    store.table_keys,
+                    store.table_slots,
+                    store.layers["mean"],
+                    store.layers["variance"],
+                    np.float32(cfg.prior_mean),
+                    np.float32(cfg.prior_variance),
+                ],
+                outputs=[out],
+                device=device,
+            )
         return out.numpy()
 
 
@@ -104,13 +115,23 @@ def most_likely_ranges(crm: ConfidenceMap, origins, directions, max_range) -> np
     out = wp.empty(origins.shape[0], dtype=wp.float64, device=device)
     with crm.reading():
         if origins.shape[0]:
-            wp.launch(confidence_queries.find_likely_causes, dim=origins.shape[0],
-                      inputs=[wp.array(origins, dtype=wp.vec3d, device=device),
-                              wp.array(directions, dtype=wp.vec3d, device=device),
-                              wp.array(ranges, dtype=wp.float64, device=device), np.float64(cfg.voxel_size),
-                              np.float64(1.0 / cfg.voxel_size), store.table_keys, store.table_slots,
-                              store.layers["mean"], np.float32(cfg.prior_mean)],
-                      outputs=[out], device=device)
+            wp.launch(
+                confidence_queries.find_likely_causes,
+                dim=origins.shape[0],
+                inputs=[
+                    wp.array(origins, dtype=wp.vec3d, device=device),
+                    wp.array(directions, dtype=wp.vec3d, device=device),
+                    wp.array(ranges, dtype=wp.float64, device=device),
+                    np.float64(cfg.voxel_size),
+                    np.float64(1.0 / cfg.voxel_size),
+                    store.table_keys,
+                    store.table_slots,
+                    store.layers["mean"],
+                    np.float32(cfg.prior_mean),
+                ],
+                outputs=[out],
+                device=device,
+            )
         result = out.numpy()
     return np.where(result < 0, np.inf, result)
 
@@ -152,8 +173,8 @@ def path_cost(crm: ConfidenceMap, waypoints, *, T_world_sensor=None, sensor=None
             ranges = most_likely_ranges(predicted, np.tile(origin, (len(directions), 1)), directions, reach)
             ranges = np.where(np.isfinite(ranges), ranges, reach * _NO_RETURN_SCALE + predicted.config.voxel_size)
             predicted.integrate_scan(origin, origin + directions * ranges[:, None])
-            mean[n] = predicted.mean(waypoints[n:n + 1])[0]
-            variance[n] = predicted.variance(waypoints[n:n + 1])[0]
+            mean[n] = predicted.mean(waypoints[n : n + 1])[0]
+            variance[n] = predicted.variance(waypoints[n : n + 1])[0]
     step_cost = mean + variance
     return PathCost(float(step_cost.sum()), step_cost, mean, variance)
 
@@ -170,8 +191,14 @@ def choose_path(crm: ConfidenceMap, paths, *, T_world_sensor=None, sensor=None) 
             T_world_sensor = list(T_world_sensor)
         if not isinstance(T_world_sensor, (list, tuple)) or len(T_world_sensor) != len(paths):
             raise ValueError("T_world_sensor must be a sequence of one pose array per path")
-    costs = np.array([path_cost(crm, path, T_world_sensor=None if T_world_sensor is None else T_world_sensor[i],
-                                sensor=sensor).total for i, path in enumerate(paths)])
+    costs = np.array(
+        [
+            path_cost(
+                crm, path, T_world_sensor=None if T_world_sensor is None else T_world_sensor[i], sensor=sensor
+            ).total
+            for i, path in enumerate(paths)
+        ]
+    )
     return int(np.argmin(costs)), costs
 
 

@@ -17,14 +17,14 @@ import time
 import numpy as np
 import warp as wp
 
-from vogjax.maps import parallel
-from vogjax.maps.blockmap import BlockMap
-from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, voxel_keys
 from vogjax.config import MapConfig, PipelineConfig
 from vogjax.config.schema import check_setting
 from vogjax.geometry import confidence_volume, pose_deltas, rigid_pose
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import accumulation, hashing
+from vogjax.maps import parallel
+from vogjax.maps.blockmap import BlockMap
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, voxel_keys
 from vogjax.maps.submaps import VogMap
 from vogjax.maps.views import submap_views
 from vogjax.validation import real_array
@@ -119,8 +119,10 @@ class GlobalMap(BlockMap):
         ids = [int(i) for i in vog.check_ids("ids", ids)]
         already = [i for i in ids if i in self._applied]
         if already or len(set(ids)) != len(ids):
-            raise ValueError(f"ids: submaps {already or ids} are already in the global map (or repeated); "
-                             "moved submaps are re-applied by update_poses")
+            raise ValueError(
+                f"ids: submaps {already or ids} are already in the global map (or repeated); "
+                "moved submaps are re-applied by update_poses"
+            )
         self._check_key_range(vog, ids)
         with self._lock.writing():
             touched = []
@@ -128,9 +130,15 @@ class GlobalMap(BlockMap):
             self._refresh(touched)
         return pulls
 
-    def update_poses(self, vog: VogMap, marginals=None, eps_rot: float = PipelineConfig.eps_rot,
-                     eps_trans: float = PipelineConfig.eps_trans, eps_cov=PipelineConfig.eps_cov,
-                     eps_move_m: float = 0.0) -> UpdateReport:
+    def update_poses(
+        self,
+        vog: VogMap,
+        marginals=None,
+        eps_rot: float = PipelineConfig.eps_rot,
+        eps_trans: float = PipelineConfig.eps_trans,
+        eps_cov=PipelineConfig.eps_cov,
+        eps_move_m: float = 0.0,
+    ) -> UpdateReport:
         """Sodhi et al. Algorithm 1: re-apply the submaps that moved and are uncertain.
 
         S1: applied submaps whose current pose differs from the applied one by a rotation angle
@@ -150,27 +158,35 @@ class GlobalMap(BlockMap):
         """
         start = time.perf_counter()
         self._check_vog(vog)
-        for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_cov", eps_cov),
-                            ("eps_move_m", eps_move_m)):
+        for name, value in (
+            ("eps_rot", eps_rot),
+            ("eps_trans", eps_trans),
+            ("eps_cov", eps_cov),
+            ("eps_move_m", eps_move_m),
+        ):
             check_setting(PipelineConfig, name, value)
-        others = [i for i in self.applied_ids if i >= vog.num_submaps or
-                  self._applied[i].uid not in (None, vog.submap(i).uid)]
+        others = [
+            i for i in self.applied_ids if i >= vog.num_submaps or self._applied[i].uid not in (None, vog.submap(i).uid)
+        ]
         if others:
-            raise ValueError(f"vog holds other submaps than this global map was built from (ids {others[:5]}): "
-                             "update a global map with the VogMap it was merged or added from")
+            raise ValueError(
+                f"vog holds other submaps than this global map was built from (ids {others[:5]}): "
+                "update a global map with the VogMap it was merged or added from"
+            )
         volumes = self._volumes(vog, marginals)
         threshold = self._threshold(volumes, eps_cov)
         uncertain = None if volumes is None else set()
         if threshold is not None:
-            was = np.array([self._applied[i].volume if i in self._applied else 0.0
-                            for i in range(vog.num_submaps)])
+            was = np.array([self._applied[i].volume if i in self._applied else 0.0 for i in range(vog.num_submaps)])
             uncertain = set(np.flatnonzero(np.maximum(volumes, was) > threshold).tolist())
         moved = self._moved(vog, eps_rot, eps_trans, eps_move_m)
         reapply = [i for i in moved if uncertain is None or i in uncertain]
         stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
         if stale:
-            raise ValueError(f"vog: submaps {stale} changed since they were added; their old "
-                             "contribution cannot be undone (add submaps once they are complete)")
+            raise ValueError(
+                f"vog: submaps {stale} changed since they were added; their old "
+                "contribution cannot be undone (add submaps once they are complete)"
+            )
         self._check_key_range(vog, reapply)
         with self._lock.writing():
             touched = []
@@ -178,11 +194,22 @@ class GlobalMap(BlockMap):
             pulls = self._contribute([(vog.submap(i), self._applied[i].pose) for i in reapply], -1, touched)
             pulls += self._apply(vog, reapply, touched, volumes)
             self._refresh(touched, release=True)
-        return UpdateReport(tuple(reapply), moved, None if uncertain is None else tuple(sorted(uncertain)),
-                            threshold, pulls, time.perf_counter() - start)
+        return UpdateReport(
+            tuple(reapply),
+            moved,
+            None if uncertain is None else tuple(sorted(uncertain)),
+            threshold,
+            pulls,
+            time.perf_counter() - start,
+        )
 
-    def moved_submaps(self, vog: VogMap, eps_rot: float = PipelineConfig.eps_rot,
-                      eps_trans: float = PipelineConfig.eps_trans, eps_move_m: float = 0.0) -> tuple:
+    def moved_submaps(
+        self,
+        vog: VogMap,
+        eps_rot: float = PipelineConfig.eps_rot,
+        eps_trans: float = PipelineConfig.eps_trans,
+        eps_move_m: float = 0.0,
+    ) -> tuple:
         """Algorithm 1's S1 as `update_poses` judges it with the same thresholds: the only
         submaps whose marginals it reads (besides submaps 0-9 for eps_cov = "auto"), so a caller
         may compute just those and pass NaN for the rest."""
@@ -216,8 +243,10 @@ class GlobalMap(BlockMap):
         unknown = np.all(np.isnan(marginals), axis=(1, 2))  # "not computed": counts as uncertain
         known = marginals[~unknown]
         if not np.all(np.isfinite(known)):
-            raise ValueError("marginals contains infinite values, or NaN in rows that are not all NaN "
-                             "(a row of NaN means: not computed)")
+            raise ValueError(
+                "marginals contains infinite values, or NaN in rows that are not all NaN "
+                "(a row of NaN means: not computed)"
+            )
         scale = np.abs(known).max(initial=1.0)
         if np.abs(known - known.transpose(0, 2, 1)).max(initial=0.0) > _SYMMETRY_TOLERANCE * scale:
             raise ValueError("marginals must be symmetric")
@@ -264,8 +293,10 @@ class GlobalMap(BlockMap):
         limit_m = (hashing.VOXEL_KEY_LIMIT - _KEY_MARGIN_VOXELS) * size
         if not np.all(reach < limit_m):
             k = int(np.argmax(~(reach < limit_m)))
-            raise ValueError(f"poses: submap {ids[kept[k]]} at its pose reaches {reach[k]:.6g} m from the origin; the "
-                             f"global map's voxel keys reach {limit_m:.0f} m per axis at voxel size {size} m")
+            raise ValueError(
+                f"poses: submap {ids[kept[k]]} at its pose reaches {reach[k]:.6g} m from the origin; the "
+                f"global map's voxel keys reach {limit_m:.0f} m per axis at voxel size {size} m"
+            )
 
     # ---------------------------------------------------------------- contributions
     def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
@@ -274,8 +305,9 @@ class GlobalMap(BlockMap):
         submaps, poses = vog.submaps(ids), vog.poses(ids)
         pulls = self._contribute(list(zip(submaps, poses)), +1, touched)
         for i, submap, pose in zip(ids, submaps, poses):
-            self._applied[i] = Applied(pose.copy(), submap.revision, uid=submap.uid, volume=
-                                       math.inf if volumes is None else float(volumes[i]))
+            self._applied[i] = Applied(
+                pose.copy(), submap.revision, uid=submap.uid, volume=math.inf if volumes is None else float(volumes[i])
+            )
         return pulls
 
     def _contribute(self, items: list, sign: int, touched: list) -> int:
@@ -304,13 +336,24 @@ class GlobalMap(BlockMap):
                 # CPU threads have no atomics between them: order the rows so that each thread
                 # of a phase writes to global blocks no other one touches
                 spans = wp.empty(rows, dtype=wp.vec4i, device=device)
-                wp.launch(accumulation.row_spans, dim=rows,
-                          inputs=[views, *(wp.array(a, dtype=wp.int32, device=device) for a in (row_source, row_slot)),
-                                  scales[0]], outputs=[spans], device=device)
+                wp.launch(
+                    accumulation.row_spans,
+                    dim=rows,
+                    inputs=[
+                        views,
+                        *(wp.array(a, dtype=wp.int32, device=device) for a in (row_source, row_slot)),
+                        scales[0],
+                    ],
+                    outputs=[spans],
+                    device=device,
+                )
                 order, phases = parallel.disjoint_order(spans.numpy().reshape(rows, 2, 2), parts)
                 row_source, row_slot = row_source[order], row_slot[order]
-            common = [views, wp.array(row_source, dtype=wp.int32, device=device),
-                      wp.array(row_slot, dtype=wp.int32, device=device)]
+            common = [
+                views,
+                wp.array(row_source, dtype=wp.int32, device=device),
+                wp.array(row_slot, dtype=wp.int32, device=device),
+            ]
 
             def launch_rows(launch):
                 parallel.split_launch(lambda part, lo, hi: launch(part, lo, hi - lo), rows, parts)
@@ -318,16 +361,27 @@ class GlobalMap(BlockMap):
             # 1. the global blocks each row's block pulls into (created when adding): a mask of
             # its 64 candidates per row, then their keys listed compactly
             row_masks = wp.zeros(rows, dtype=wp.uint64, device=device)
-            launch_rows(lambda part, first, n: wp.launch(
-                accumulation.collect_pull_blocks, dim=(n, span), inputs=[*common, first, *scales],
-                outputs=[row_masks], device=device))
+            launch_rows(
+                lambda part, first, n: wp.launch(
+                    accumulation.collect_pull_blocks,
+                    dim=(n, span),
+                    inputs=[*common, first, *scales],
+                    outputs=[row_masks],
+                    device=device,
+                )
+            )
             per_row = np.bitwise_count(row_masks.numpy()).astype(np.int64)
             row_start = np.zeros(rows, np.int32)
             np.cumsum(per_row[:-1], out=row_start[1:])
             d_row_start = wp.array(row_start, dtype=wp.int32, device=device)
             keys = wp.empty(int(per_row.sum()), dtype=wp.int64, device=device)
-            wp.launch(accumulation.list_pull_blocks, dim=rows, inputs=[*common, scales[0], row_masks, d_row_start],
-                      outputs=[keys], device=device)
+            wp.launch(
+                accumulation.list_pull_blocks,
+                dim=rows,
+                inputs=[*common, scales[0], row_masks, d_row_start],
+                outputs=[keys],
+                device=device,
+            )
             store = self._store
             if sign > 0:
                 store.ensure_blocks(keys)
@@ -335,10 +389,16 @@ class GlobalMap(BlockMap):
             # 2. add or subtract the pulled values, phase after phase
             pulls = wp.zeros(max(len(phase) for phase in phases), dtype=wp.int32, device=device)
             for phase in phases:
-                parallel.launch_ranges(lambda part, lo, hi: wp.launch(
-                    accumulation.accumulate_pulls, dim=(hi - lo, span),
-                    inputs=[*common, lo, *scales, sign, row_masks, d_row_start, slots, part],
-                    outputs=[store.layers["sum"], store.layers["count"], pulls], device=device), phase)
+                parallel.launch_ranges(
+                    lambda part, lo, hi: wp.launch(
+                        accumulation.accumulate_pulls,
+                        dim=(hi - lo, span),
+                        inputs=[*common, lo, *scales, sign, row_masks, d_row_start, slots, part],
+                        outputs=[store.layers["sum"], store.layers["count"], pulls],
+                        device=device,
+                    ),
+                    phase,
+                )
             # 3. which global blocks were touched, flagged on the device (not millions of keys read back)
             flags = wp.zeros(store.block_capacity, dtype=wp.int32, device=device)
             wp.launch(accumulation.flag_slots, dim=slots.shape[0], inputs=[slots], outputs=[flags], device=device)
@@ -356,16 +416,32 @@ class GlobalMap(BlockMap):
         store, device = self._store, self.device
         d_slots = wp.array(slots, dtype=wp.int32, device=device)
         voxels = len(slots) * BLOCK_VOXELS
-        parallel.split_launch(lambda part, lo, hi: wp.launch(
-            accumulation.refresh_log_odds, dim=(hi - lo) * BLOCK_VOXELS,
-            inputs=[d_slots[lo:hi], store.layers["sum"], store.layers["count"],
-                    self.config.log_clamp_min, self.config.log_clamp_max],
-            outputs=[store.layers["log_odds"]], device=device),
-            len(slots), parallel.num_parts(device, voxels // 64))
+        parallel.split_launch(
+            lambda part, lo, hi: wp.launch(
+                accumulation.refresh_log_odds,
+                dim=(hi - lo) * BLOCK_VOXELS,
+                inputs=[
+                    d_slots[lo:hi],
+                    store.layers["sum"],
+                    store.layers["count"],
+                    self.config.log_clamp_min,
+                    self.config.log_clamp_max,
+                ],
+                outputs=[store.layers["log_odds"]],
+                device=device,
+            ),
+            len(slots),
+            parallel.num_parts(device, voxels // 64),
+        )
         if release:
             unused = wp.empty(len(slots), dtype=wp.int32, device=device)
-            wp.launch(accumulation.flag_unused_blocks, dim=len(slots),
-                      inputs=[d_slots, store.layers["count"]], outputs=[unused], device=device)
+            wp.launch(
+                accumulation.flag_unused_blocks,
+                dim=len(slots),
+                inputs=[d_slots, store.layers["count"]],
+                outputs=[unused],
+                device=device,
+            )
             store.release(slots[unused.numpy() == 1])
 
     # ---------------------------------------------------------------- contents and files
@@ -375,27 +451,41 @@ class GlobalMap(BlockMap):
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
         block_index, local = np.nonzero(layers["count"] != 0)
-        return (voxel_keys(keys, block_index, local), layers["sum"][block_index, local],
-                layers["count"][block_index, local])
+        return (
+            voxel_keys(keys, block_index, local),
+            layers["sum"][block_index, local],
+            layers["count"][block_index, local],
+        )
 
     def save(self, path) -> None:
         """One file: config, applied poses and revisions, sums and counts."""
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
-            applied = {str(i): {"pose": a.pose.tolist(), "revision": a.revision,
-                                "volume": None if math.isinf(a.volume) else a.volume}
-                       for i, a in self._applied.items()}
-        write_map_file(path, "GlobalMap", {"config": self.config.to_dict(), "applied": applied},
-                       {"block_keys": keys, "sum": layers["sum"], "count": layers["count"]})
+            applied = {
+                str(i): {
+                    "pose": a.pose.tolist(),
+                    "revision": a.revision,
+                    "volume": None if math.isinf(a.volume) else a.volume,
+                }
+                for i, a in self._applied.items()
+            }
+        write_map_file(
+            path,
+            "GlobalMap",
+            {"config": self.config.to_dict(), "applied": applied},
+            {"block_keys": keys, "sum": layers["sum"], "count": layers["count"]},
+        )
 
     @classmethod
-    def load(cls, path, device=None) -> "GlobalMap":
+    def load(cls, path, device=None) -> GlobalMap:
         metadata, arrays = read_map_file(path, "GlobalMap")
         where = f"path {str(path)!r}"
         try:
             config = MapConfig.from_dict(metadata["config"])
-            applied = {_applied_id(i): _applied_record(a, f"{where}: applied submap {i}")
-                       for i, a in metadata["applied"].items()}
+            applied = {
+                _applied_id(i): _applied_record(a, f"{where}: applied submap {i}")
+                for i, a in metadata["applied"].items()
+            }
             keys, sums, counts = arrays["block_keys"], arrays["sum"], arrays["count"]
         except (KeyError, TypeError, ValueError, AttributeError) as error:
             raise ValueError(f"{where} has invalid map contents: {error}") from None
@@ -406,8 +496,7 @@ class GlobalMap(BlockMap):
         if counts.size and (counts.min() < 0 or counts.max() > len(applied) or np.any(sums[counts == 0] != 0)):
             raise ValueError(f"{where} holds contribution counts that no applied submaps give")
         gmap = cls(config, device)
-        gmap._store = BlockStore.from_host(gmap.device, gmap._store.layer_specs, keys,
-                                           {"sum": sums, "count": counts})
+        gmap._store = BlockStore.from_host(gmap.device, gmap._store.layer_specs, keys, {"sum": sums, "count": counts})
         gmap._applied = applied
         gmap._refresh([np.arange(keys.shape[0], dtype=np.int32)])
         return gmap
@@ -442,7 +531,8 @@ def _applied_record(record: dict, where: str) -> Applied:
     if isinstance(revision, bool) or not isinstance(revision, int) or revision < 0:
         raise ValueError(f"{where}: revision {revision!r} is no non-negative integer")
     volume = record.get("volume")
-    if volume is not None and (isinstance(volume, bool) or not isinstance(volume, (int, float))
-                               or not 0 <= volume < math.inf):
+    if volume is not None and (
+        isinstance(volume, bool) or not isinstance(volume, (int, float)) or not 0 <= volume < math.inf
+    ):
         raise ValueError(f"{where}: volume {volume!r} is no finite number >= 0")
     return Applied(pose, revision, math.inf if volume is None else float(volume))

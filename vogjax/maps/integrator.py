@@ -69,8 +69,14 @@ class Scratch:
         """Part `part`'s rows of the arrays mark_beams writes (views made once per allocation:
         indexing a 2-D Warp array costs more Python time than the launch's other arguments)."""
         if self._rows is None:
-            arrays = (self.table_keys, self.table_index, self.table_position, self.block_keys, self.counters,
-                      self.marks)
+            arrays = (
+                self.table_keys,
+                self.table_index,
+                self.table_position,
+                self.block_keys,
+                self.counters,
+                self.marks,
+            )
             self._rows = [tuple(a[p] for a in arrays) for p in range(self.parts)]
         return self._rows[part]
 
@@ -100,8 +106,7 @@ class Scratch:
         self.counters.zero_()
 
     def memory_bytes(self) -> int:
-        arrays = (self.table_keys, self.table_index, self.block_keys, self.table_position, self.counters,
-                  self.marks)
+        arrays = (self.table_keys, self.table_index, self.block_keys, self.table_position, self.counters, self.marks)
         return int(sum(a.capacity for a in arrays))
 
 
@@ -126,13 +131,17 @@ def beams(device, origins: np.ndarray, points: np.ndarray, scan_index: np.ndarra
     """A validated batch (scan_index sorted) on the device: copies on a GPU; on a CPU, Warp
     arrays over the contiguous float32 / int32 host arrays (the kernels only read them)."""
     copy = device.is_cuda
-    return Beams(wp.array(origins, dtype=wp.vec3f, device=device, copy=copy),
-                 wp.array(points, dtype=wp.vec3f, device=device, copy=copy),
-                 wp.array(scan_index, dtype=wp.int32, device=device, copy=copy), scan_index, points, origins)
+    return Beams(
+        wp.array(origins, dtype=wp.vec3f, device=device, copy=copy),
+        wp.array(points, dtype=wp.vec3f, device=device, copy=copy),
+        wp.array(scan_index, dtype=wp.int32, device=device, copy=copy),
+        scan_index,
+        points,
+        origins,
+    )
 
 
-def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass: int,
-              budget_bytes: int) -> None:
+def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass: int, budget_bytes: int) -> None:
     """Integrate every scan of `batch`, `scans_per_pass` at a time, into `store`."""
     num_scans = batch.host_origins.shape[0]
     if batch.scan_index.shape[0] == 0:
@@ -147,14 +156,36 @@ def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass
         for k, first in enumerate(firsts.tolist()):
             if bounds[k + 1] > bounds[k]:
                 last = min(first + scans_per_pass, num_scans)
-                blocks_per_scan = _pass(store, config, batch, scratch, first, last, int(bounds[k]),
-                                        int(bounds[k + 1]), budget_bytes, boxes[k], blocks_per_scan)
+                blocks_per_scan = _pass(
+                    store,
+                    config,
+                    batch,
+                    scratch,
+                    first,
+                    last,
+                    int(bounds[k]),
+                    int(bounds[k + 1]),
+                    budget_bytes,
+                    boxes[k],
+                    blocks_per_scan,
+                )
     finally:
         _give(scratch)
 
 
-def _pass(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, first: int, last: int,
-          lo: int, hi: int, budget_bytes: int, box: tuple, blocks_per_scan: float = 0.0) -> float:
+def _pass(
+    store: BlockStore,
+    config: MapConfig,
+    batch: Beams,
+    scratch: Scratch,
+    first: int,
+    last: int,
+    lo: int,
+    hi: int,
+    budget_bytes: int,
+    box: tuple,
+    blocks_per_scan: float = 0.0,
+) -> float:
     """Scans [first, last), whose beams are rows [lo, hi) of the batch, inside `box`:
     (lowest block (3,), blocks per axis (3,)), a box holding every block the pass can touch.
 
@@ -181,8 +212,9 @@ def _pass(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, 
             break
         scratch.clear()
         if over_budget:
-            return _halves(store, config, batch, scratch, first, last, lo, hi, budget_bytes, box,
-                           numbered / (last - first))
+            return _halves(
+                store, config, batch, scratch, first, last, lo, hi, budget_bytes, box, numbered / (last - first)
+            )
         if missed and dense:
             dense = False  # a walk left the box (round-off past its margin): look blocks up by hash
         blocks = numbered + numbered // 4 + (capacity if missed else 0)
@@ -190,13 +222,23 @@ def _pass(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, 
     return numbered / (last - first)
 
 
-def _halves(store: BlockStore, config: MapConfig, batch: Beams, scratch: Scratch, first: int, last: int,
-            lo: int, hi: int, budget_bytes: int, box: tuple, blocks_per_scan: float) -> float:
+def _halves(
+    store: BlockStore,
+    config: MapConfig,
+    batch: Beams,
+    scratch: Scratch,
+    first: int,
+    last: int,
+    lo: int,
+    hi: int,
+    budget_bytes: int,
+    box: tuple,
+    blocks_per_scan: float,
+) -> float:
     """The pass as two half passes: the same map, as the scans replay in order either way."""
     middle = (first + last) // 2
     split = lo + int(np.searchsorted(batch.scan_index[lo:hi], middle))
-    blocks_per_scan = _pass(store, config, batch, scratch, first, middle, lo, split, budget_bytes, box,
-                            blocks_per_scan)
+    blocks_per_scan = _pass(store, config, batch, scratch, first, middle, lo, split, budget_bytes, box, blocks_per_scan)
     return _pass(store, config, batch, scratch, middle, last, split, hi, budget_bytes, box, blocks_per_scan)
 
 
@@ -240,25 +282,27 @@ def _extremes(array: np.ndarray, lo: int, hi: int) -> tuple:
     return stacked.min(axis=0), stacked.max(axis=0)
 
 
-def _mark(config: MapConfig, batch: Beams, scratch: Scratch, first: int, lo: int, hi: int, capacity: int,
-          box) -> None:
+def _mark(config: MapConfig, batch: Beams, scratch: Scratch, first: int, lo: int, hi: int, capacity: int, box) -> None:
     device = scratch.device
-    scalars = [first, np.float64(config.max_range), np.float64(config.voxel_size),
-               np.float64(1.0 / config.voxel_size)]
+    scalars = [first, np.float64(config.max_range), np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)]
     box_lo, box_dims = box if box is not None else ((0, 0, 0), (0, 0, 0))
     scalars += [wp.vec3i(*box_lo), wp.vec3i(*box_dims)]
 
     def launch(part: int, a: int, b: int) -> None:
-        wp.launch(integration.mark_beams, dim=b - a,
-                  inputs=[batch.origins, batch.points[lo + a:lo + b], batch.ray_scan[lo + a:lo + b], *scalars,
-                          capacity],
-                  outputs=scratch.part_rows(part), device=device)
+        wp.launch(
+            integration.mark_beams,
+            dim=b - a,
+            inputs=[batch.origins, batch.points[lo + a : lo + b], batch.ray_scan[lo + a : lo + b], *scalars, capacity],
+            outputs=scratch.part_rows(part),
+            device=device,
+        )
 
     parallel.split_launch(launch, hi - lo, scratch.parts)
 
 
-def _apply(store: BlockStore, config: MapConfig, scratch: Scratch, numbered: np.ndarray, words: int,
-           capacity: int) -> None:
+def _apply(
+    store: BlockStore, config: MapConfig, scratch: Scratch, numbered: np.ndarray, words: int, capacity: int
+) -> None:
     device, parts = scratch.device, scratch.parts
     if parts == 1:
         keys = scratch.part_rows(0)[3][: int(numbered[0])]
@@ -271,7 +315,7 @@ def _apply(store: BlockStore, config: MapConfig, scratch: Scratch, numbered: np.
         part_blocks = np.full((unique.shape[0], parts), -1, dtype=np.int32)
         offsets = np.concatenate([[0], np.cumsum(numbered)])
         for p in range(parts):
-            part_blocks[inverse[offsets[p]:offsets[p + 1]], p] = np.arange(numbered[p], dtype=np.int32)
+            part_blocks[inverse[offsets[p] : offsets[p + 1]], p] = np.arange(numbered[p], dtype=np.int32)
         keys = wp.array(unique, dtype=wp.int64, device=device)
         d_part_blocks = wp.array(part_blocks, dtype=wp.int32, device=device)
     count = d_part_blocks.shape[0]
@@ -280,15 +324,36 @@ def _apply(store: BlockStore, config: MapConfig, scratch: Scratch, numbered: np.
         return
     store.ensure_blocks(keys)
     slots = store.find(keys)
-    inputs = [words, capacity, config.log_hit, config.log_miss, config.log_clamp_min, config.log_clamp_max,
-              scratch.marks, scratch.table_keys, scratch.table_index, scratch.table_position]
+    inputs = [
+        words,
+        capacity,
+        config.log_hit,
+        config.log_miss,
+        config.log_clamp_min,
+        config.log_clamp_max,
+        scratch.marks,
+        scratch.table_keys,
+        scratch.table_index,
+        scratch.table_position,
+    ]
     voxels = count * BLOCK_VOXELS
     # on a GPU, passes have many words per voxel, and a thread's registers are few
-    kernel = integration.apply_marks_few_words if words <= integration.FEW_WORDS and not device.is_cuda \
+    kernel = (
+        integration.apply_marks_few_words
+        if words <= integration.FEW_WORDS and not device.is_cuda
         else integration.apply_marks
-    parallel.split_launch(lambda part, a, b: wp.launch(
-        kernel, dim=b - a, inputs=[slots, d_part_blocks, a, *inputs],
-        outputs=[store.layers["log_odds"]], device=device), voxels, parallel.num_parts(device, voxels))
+    )
+    parallel.split_launch(
+        lambda part, a, b: wp.launch(
+            kernel,
+            dim=b - a,
+            inputs=[slots, d_part_blocks, a, *inputs],
+            outputs=[store.layers["log_odds"]],
+            device=device,
+        ),
+        voxels,
+        parallel.num_parts(device, voxels),
+    )
     scratch.counters.zero_()
 
 

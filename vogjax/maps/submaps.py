@@ -10,17 +10,22 @@ import numpy as np
 import warp as wp
 
 from vogjax import devices
-from vogjax.maps import parallel
-from vogjax.maps.blockmap import (RaycastResult, check_extent, classify, line_voxels, probability_from_log_odds,
-                                  ray_arguments)
 from vogjax.config import MapConfig
 from vogjax.geometry import rigid_pose, rigid_poses
 from vogjax.kernels import fixed_point, virtual
+from vogjax.maps import parallel
+from vogjax.maps.blockmap import (
+    RaycastResult,
+    check_extent,
+    classify,
+    line_voxels,
+    probability_from_log_odds,
+    ray_arguments,
+)
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.maps.views import submap_views
-from vogjax.validation import float_array
 from vogjax.maps.voxelmap import VoxelMap
-
+from vogjax.validation import float_array
 
 _SUBMAP_UIDS = itertools.count(1)
 
@@ -42,8 +47,7 @@ class Submap(VoxelMap):
             return
         centres, log_odds = self.voxels()
         half = self.config.voxel_size / 2
-        self._bounds = ((centres.min(axis=0) - half, centres.max(axis=0) + half) if len(centres)
-                        else None)
+        self._bounds = (centres.min(axis=0) - half, centres.max(axis=0) + half) if len(centres) else None
         self._occupied = centres[log_odds >= self.config.log_occupied]
         self._derived_revision = self.revision
 
@@ -111,7 +115,7 @@ class VogMap:
         with self._lock.writing():
             self._poses[ids] = poses
 
-    def view(self, ids=None, poses=None) -> "VogMap":
+    def view(self, ids=None, poses=None) -> VogMap:
         """A VogMap over the same submap objects (no copies): `ids` of them (all when None), at
         `poses` (their own when None). Handy for "the map without loop closures"."""
         ids = np.arange(self.num_submaps) if ids is None else self.check_ids("ids", ids)
@@ -156,10 +160,17 @@ class VogMap:
         inv_resolution = np.float64(1.0 / self.config.voxel_size)
         with self._views() as views:
             if views.shape[0]:
-                parallel.split_launch(lambda part, lo, hi: wp.launch(
-                    virtual.sum_at_points, dim=(hi - lo, views.shape[0]),
-                    inputs=[d_points, lo, views, inv_resolution], outputs=[sums, counts],
-                    device=self.device), count, parallel.num_parts(self.device, count))
+                parallel.split_launch(
+                    lambda part, lo, hi: wp.launch(
+                        virtual.sum_at_points,
+                        dim=(hi - lo, views.shape[0]),
+                        inputs=[d_points, lo, views, inv_resolution],
+                        outputs=[sums, counts],
+                        device=self.device,
+                    ),
+                    count,
+                    parallel.num_parts(self.device, count),
+                )
         return fixed_point_values(sums.numpy(), counts.numpy(), self.config)
 
     def log_odds(self, points) -> np.ndarray:
@@ -181,21 +192,33 @@ class VogMap:
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         check_extent(self.config, origins=origins)
         cfg, device, count = self.config, self.device, origins.shape[0]
-        rays = [wp.array(origins, dtype=wp.vec3d, device=device),
-                wp.array(directions, dtype=wp.vec3d, device=device),
-                wp.array(ranges, dtype=wp.float64, device=device)]
-        out = {"hit": wp.zeros(count, dtype=wp.bool, device=device),
-               "distance": wp.zeros(count, dtype=wp.float32, device=device),  # every ray writes its own
-               "num_unknown": wp.zeros(count, dtype=wp.int32, device=device),
-               "num_free": wp.zeros(count, dtype=wp.int32, device=device)}
+        rays = [
+            wp.array(origins, dtype=wp.vec3d, device=device),
+            wp.array(directions, dtype=wp.vec3d, device=device),
+            wp.array(ranges, dtype=wp.float64, device=device),
+        ]
+        out = {
+            "hit": wp.zeros(count, dtype=wp.bool, device=device),
+            "distance": wp.zeros(count, dtype=wp.float32, device=device),  # every ray writes its own
+            "num_unknown": wp.zeros(count, dtype=wp.int32, device=device),
+            "num_free": wp.zeros(count, dtype=wp.int32, device=device),
+        }
         parts = parallel.num_parts(device, count)
         with self._views() as views:
             n = views.shape[0]
             # 1. per ray, the submaps whose box it crosses, with the crossing interval
             counts = wp.zeros(count, dtype=wp.int32, device=device)
-            parallel.split_launch(lambda part, lo, hi: wp.launch(
-                virtual.count_ray_candidates, dim=(hi - lo, n), inputs=[*rays, lo, views],
-                outputs=[counts], device=device), count if n else 0, parts)
+            parallel.split_launch(
+                lambda part, lo, hi: wp.launch(
+                    virtual.count_ray_candidates,
+                    dim=(hi - lo, n),
+                    inputs=[*rays, lo, views],
+                    outputs=[counts],
+                    device=device,
+                ),
+                count if n else 0,
+                parts,
+            )
             offsets_host = np.zeros(count + 1, np.int32)
             np.cumsum(counts.numpy(), out=offsets_host[1:])
             offsets = wp.array(offsets_host, dtype=wp.int32, device=device)
@@ -203,16 +226,42 @@ class VogMap:
             candidates = wp.empty(max(total, 1), dtype=wp.int32, device=device)
             spans = wp.empty(max(total, 1), dtype=wp.vec2d, device=device)
             fill = wp.zeros(count, dtype=wp.int32, device=device)
-            parallel.split_launch(lambda part, lo, hi: wp.launch(
-                virtual.list_ray_candidates, dim=(hi - lo, n), inputs=[*rays, lo, views, offsets],
-                outputs=[fill, candidates, spans], device=device), count if n else 0, parts)
+            parallel.split_launch(
+                lambda part, lo, hi: wp.launch(
+                    virtual.list_ray_candidates,
+                    dim=(hi - lo, n),
+                    inputs=[*rays, lo, views, offsets],
+                    outputs=[fill, candidates, spans],
+                    device=device,
+                ),
+                count if n else 0,
+                parts,
+            )
             # 2. walk each ray, summing its candidates at every voxel centre
-            parallel.split_launch(lambda part, lo, hi: wp.launch(
-                virtual.cast_virtual_rays, dim=hi - lo,
-                inputs=[*rays, lo, views, offsets, candidates, spans, np.float64(cfg.voxel_size),
-                        np.float64(1.0 / cfg.voxel_size), cfg.log_clamp_min, cfg.log_clamp_max,
-                        cfg.log_occupied, cfg.log_free],
-                outputs=list(out.values()), device=device), count, parts)
+            parallel.split_launch(
+                lambda part, lo, hi: wp.launch(
+                    virtual.cast_virtual_rays,
+                    dim=hi - lo,
+                    inputs=[
+                        *rays,
+                        lo,
+                        views,
+                        offsets,
+                        candidates,
+                        spans,
+                        np.float64(cfg.voxel_size),
+                        np.float64(1.0 / cfg.voxel_size),
+                        cfg.log_clamp_min,
+                        cfg.log_clamp_max,
+                        cfg.log_occupied,
+                        cfg.log_free,
+                    ],
+                    outputs=list(out.values()),
+                    device=device,
+                ),
+                count,
+                parts,
+            )
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
     def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,6 @@ import warp as wp
 
 from vogjax.kernels.submap_view import SubmapView
 
-
 _DTYPE = None  # SubmapView's NumPy dtype, parsed once (NumPy parses a dtype spec per use)
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from vogjax.config import MapConfig
+from vogjax.io import read_map_file, write_map_file
 from vogjax.maps import integrator
 from vogjax.maps.blockmap import BlockMap
 from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys
-from vogjax.config import MapConfig
-from vogjax.io import read_map_file, write_map_file
 from vogjax.validation import float_array, index_array
 
 # Scans integrated per pass: each voxel a pass touches carries two bits per scan. A GPU takes
@@ -66,9 +66,13 @@ class VoxelMap(BlockMap):
         batch = integrator.beams(self.device, origins, points, scan_index)
         cuda = self.device.is_cuda
         with self._lock.writing():
-            integrator.integrate(self._store, self.config, batch, SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
-                                 min(MARK_BUDGET_BYTES_CUDA, self.device.total_memory // 32) if cuda
-                                 else MARK_BUDGET_BYTES)
+            integrator.integrate(
+                self._store,
+                self.config,
+                batch,
+                SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
+                min(MARK_BUDGET_BYTES_CUDA, self.device.total_memory // 32) if cuda else MARK_BUDGET_BYTES,
+            )
             self.revision += 1
             self._values_changed()
 
@@ -77,11 +81,12 @@ class VoxelMap(BlockMap):
         """Write the map (config included) to one file, atomically."""
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
-        write_map_file(path, "VoxelMap", {"config": self.config.to_dict()},
-                       {"block_keys": keys, "log_odds": layers["log_odds"]})
+        write_map_file(
+            path, "VoxelMap", {"config": self.config.to_dict()}, {"block_keys": keys, "log_odds": layers["log_odds"]}
+        )
 
     @classmethod
-    def load(cls, path, device=None) -> "VoxelMap":
+    def load(cls, path, device=None) -> VoxelMap:
         metadata, arrays = read_map_file(path, "VoxelMap")
         try:
             config = MapConfig.from_dict(metadata["config"])
@@ -91,14 +96,16 @@ class VoxelMap(BlockMap):
         where = f"path {str(path)!r}"
         check_block_keys(keys, where)
         if values.dtype != np.float32 or values.shape != (keys.shape[0], BLOCK_VOXELS):
-            raise ValueError(f"{where} has invalid map contents (log-odds of type {values.dtype}, shape {values.shape})")
+            raise ValueError(
+                f"{where} has invalid map contents (log-odds of type {values.dtype}, shape {values.shape})"
+            )
         observed = values[~np.isnan(values)]
-        if observed.size and (observed.min() < config.log_clamp_min or observed.max() > config.log_clamp_max
-                              or not np.all(np.isfinite(observed))):
+        if observed.size and (
+            observed.min() < config.log_clamp_min
+            or observed.max() > config.log_clamp_max
+            or not np.all(np.isfinite(observed))
+        ):
             raise ValueError(f"{where} holds log-odds outside its clamping range")
         vmap = cls(config, device)
-        vmap._store = BlockStore.from_host(vmap.device, vmap._store.layer_specs, keys,
-                                           {"log_odds": values})
+        vmap._store = BlockStore.from_host(vmap.device, vmap._store.layer_specs, keys, {"log_odds": values})
         return vmap
-
-

@@ -10,8 +10,10 @@ class SubmapCutter:
         self.scans_per_submap = config.scans_per_submap
         noise = config.nav_noise
         # Eq. 2: the variances grow linearly in time, so the bound is a longest duration.
-        self.max_duration_s = min(config.max_xy_variance_m2 / max(noise.sigma2_x, noise.sigma2_y),
-                                  config.max_yaw_variance_rad2 / noise.sigma2_yaw)
+        self.max_duration_s = min(
+            config.max_xy_variance_m2 / max(noise.sigma2_x, noise.sigma2_y),
+            config.max_yaw_variance_rad2 / noise.sigma2_yaw,
+        )
 
     def ends_before(self, scans_in_submap: int, elapsed_s: float) -> bool:
         """Should a submap that holds `scans_in_submap` scans over `elapsed_s` end before the next?"""

@@ -59,8 +59,9 @@ class Mapper:
         self.confidence_map = self._confidence_map() if config.confidence_map else None
         self.graph: PoseGraph | None = None
         # on a GPU the front end's searches run beside the maps; on the CPU the FFTs and trees win
-        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure,
-                                            self.global_map.device if self.global_map.device.is_cuda else None)
+        self.detector = LoopClosureDetector(
+            config.nav_noise, config.loop_closure, self.global_map.device if self.global_map.device.is_cuda else None
+        )
         self.cutter = SubmapCutter(config)
         self.timings = defaultdict(list)
         self.submaps: list[SubmapRecord] = []
@@ -94,8 +95,9 @@ class Mapper:
         for name, whole_map in (("standard_map", self.standard_map), ("confidence_map", self.confidence_map)):
             if whole_map is not None:
                 start = time.perf_counter()
-                whole_map.integrate_scans(origins, endpoints.reshape(-1, 3),
-                                          np.repeat(np.arange(len(batch)), endpoints.shape[1]))
+                whole_map.integrate_scans(
+                    origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(batch)), endpoints.shape[1])
+                )
                 self.timings[name].append(time.perf_counter() - start)
         # 2. cut into submaps, holding each one's scans until it is complete
         first = 0
@@ -150,8 +152,8 @@ class Mapper:
         start = time.perf_counter()
         submaps = [self.vog.submap(i) for i in range(k + 1)]
         accepted, rejected = self.detector.detect(
-            k, self.clouds, [s.bounds() for s in submaps], poses,
-            nav_bases, np.array([s.time_s for s in self.submaps]))
+            k, self.clouds, [s.bounds() for s in submaps], poses, nav_bases, np.array([s.time_s for s in self.submaps])
+        )
         self.accepted += accepted
         self.rejected += rejected
         self.timings["loop_closure"].append(time.perf_counter() - start)
@@ -178,8 +180,9 @@ class Mapper:
         self.timings["isam2"][-1] += time.perf_counter() - start
         # e. undo/redo what moved in the global map, then add the new submap
         start = time.perf_counter()
-        report = self.global_map.update_poses(self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov,
-                                              cfg.eps_move_m)
+        report = self.global_map.update_poses(
+            self.vog, marginals, cfg.eps_rot, cfg.eps_trans, cfg.eps_cov, cfg.eps_move_m
+        )
         self.timings["undo_redo"].append(time.perf_counter() - start)
         self.timings["reapplied"].append(len(report.reapplied))
         start = time.perf_counter()
@@ -199,27 +202,40 @@ class Mapper:
     def result(self) -> Result:
         """The maps and poses so far (every submap finished)."""
         self.finish_submap()
-        if self.config.timing.every_submaps and self.submaps and \
-                (not self.probes or self.probes[-1]["submaps"] != len(self.submaps)):
+        if (
+            self.config.timing.every_submaps
+            and self.submaps
+            and (not self.probes or self.probes[-1]["submaps"] != len(self.submaps))
+        ):
             self._probe()
         has_truth = all(t is not None for t in self._scan_truth)
-        return Result(config=self.config, global_map=self.global_map, vog=self.vog,
-                      standard_map=self.standard_map, confidence_map=self.confidence_map,
-                      submaps=tuple(self.submaps),
-                      optimized=self.vog.poses(), loop_closures=tuple(self.accepted),
-                      rejected=tuple(self.rejected), timings=dict(self.timings), metadata=self.metadata,
-                      scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
-                      scan_navigation=_stack(self._scan_nav),
-                      scan_truth=_stack(self._scan_truth) if has_truth else None,
-                      truth_vog=self.truth_vog if has_truth else None, probes=tuple(self.probes))
+        return Result(
+            config=self.config,
+            global_map=self.global_map,
+            vog=self.vog,
+            standard_map=self.standard_map,
+            confidence_map=self.confidence_map,
+            submaps=tuple(self.submaps),
+            optimized=self.vog.poses(),
+            loop_closures=tuple(self.accepted),
+            rejected=tuple(self.rejected),
+            timings=dict(self.timings),
+            metadata=self.metadata,
+            scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
+            scan_navigation=_stack(self._scan_nav),
+            scan_truth=_stack(self._scan_truth) if has_truth else None,
+            truth_vog=self.truth_vog if has_truth else None,
+            probes=tuple(self.probes),
+        )
 
     def _confidence_map(self) -> ConfidenceMap:
         """A confidence-rich map beside the standard one: the same voxels and reach; range noise
         from the sensor, at least half a voxel (the sensor model's spread over a voxel)."""
         cfg = self.config.map
         noise = sensors.from_metadata(self.metadata).range_noise_m
-        return ConfidenceMap(CrmConfig(voxel_size=cfg.voxel_size, max_range=self.reach_m,
-                                       range_sigma_m=max(noise, cfg.voxel_size / 2)))
+        return ConfidenceMap(
+            CrmConfig(voxel_size=cfg.voxel_size, max_range=self.reach_m, range_sigma_m=max(noise, cfg.voxel_size / 2))
+        )
 
     def _integrate_submap(self, scans: ScanBatch) -> None:
         """The complete submap: its base at the middle scan, every scan integrated in that frame."""
@@ -232,19 +248,22 @@ class Mapper:
         # the same beams placed by the truth, in the frame of the base's true pose
         true_rays = None if truth is None else scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
         rigid = None if truth is None else rigid_truth(returns, true_rays[1][~scans.no_return], truth)
-        self.submaps.append(SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]),
-                                         base, truth, rigid))
+        self.submaps.append(
+            SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]), base, truth, rigid)
+        )
         i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
-        self.vog.submap(i).integrate_scans(origins, endpoints.reshape(-1, 3),
-                                           np.repeat(np.arange(len(scans)), endpoints.shape[1]))
+        self.vog.submap(i).integrate_scans(
+            origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(scans)), endpoints.shape[1])
+        )
         self.timings["integration"].append(time.perf_counter() - start)
         self.clouds.append(voxel_means(returns, self.config.map.voxel_size))
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
             j = self.truth_vog.add_submap(truth)
             origins, endpoints = true_rays
-            self.truth_vog.submap(j).integrate_scans(origins, endpoints.reshape(-1, 3),
-                                                     np.repeat(np.arange(len(scans)), endpoints.shape[1]))
+            self.truth_vog.submap(j).integrate_scans(
+                origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(scans)), endpoints.shape[1])
+            )
             self.timings["truth_maps"].append(time.perf_counter() - start)
 
     def _predicted_pose(self, base_nav: np.ndarray) -> np.ndarray:

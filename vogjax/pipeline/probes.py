@@ -45,5 +45,9 @@ def probe(mapper) -> dict:
         start = time.perf_counter()
         m.raycast(origins, directions, cfg.timing.ray_length_m)
         queries[name] = time.perf_counter() - start
-    return {"submaps": mapper.num_submaps, "full_merge_s": merge_s, "query_global_s": queries["global"],
-            "query_virtual_s": queries["virtual"]}
+    return {
+        "submaps": mapper.num_submaps,
+        "full_merge_s": merge_s,
+        "query_global_s": queries["global"],
+        "query_virtual_s": queries["virtual"],
+    }

@@ -121,8 +121,7 @@ class Result:
         rejected = {}
         for r in self.rejected:
             rejected[r.reason] = rejected.get(r.reason, 0) + 1
-        closures = {"accepted": len(self.loop_closures), "rejected": len(self.rejected),
-                    "rejected_by_reason": rejected}
+        closures = {"accepted": len(self.loop_closures), "rejected": len(self.rejected), "rejected_by_reason": rejected}
         if truth is not None:
             closures.update(self.closure_errors())
         return {"trajectory_rmse_m": errors, "loop_closures": closures}
@@ -169,12 +168,17 @@ class Result:
                 error["rotation_deg" + suffix] = float(np.degrees(np.linalg.norm(constrained[:3])))
             errors.append(error)
         out = {}
-        for suffix, name, known in (("", "precision", truth is not None), ("_rigid", "precision_rigid", rigid is not None),
-                                    ("_bend", "precision_ceiling", truth is not None and rigid is not None)):
+        for suffix, name, known in (
+            ("", "precision", truth is not None),
+            ("_rigid", "precision_rigid", rigid is not None),
+            ("_bend", "precision_ceiling", truth is not None and rigid is not None),
+        ):
             if not known:
                 continue
-            good = [e["translation_m" + suffix] <= max_translation_m and
-                    e["rotation_deg" + suffix] <= max_rotation_deg for e in errors]
+            good = [
+                e["translation_m" + suffix] <= max_translation_m and e["rotation_deg" + suffix] <= max_rotation_deg
+                for e in errors
+            ]
             out[name] = float(np.mean(good)) if errors else float("nan")
         return {**out, "errors": errors}
 

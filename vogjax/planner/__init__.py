@@ -12,4 +12,15 @@ from vogjax.planner.gain import ViewGain, discounted, edge_gain, edge_views, vie
 from vogjax.planner.nbv import NbvPlanner, Plan
 from vogjax.planner.source import Overlay
 
-__all__ = ["NbvPlanner", "Overlay", "Plan", "PlannerConfig", "ViewGain", "discounted", "edge_gain", "edge_views", "edges_clear", "view_gain"]
+__all__ = [
+    "NbvPlanner",
+    "Overlay",
+    "Plan",
+    "PlannerConfig",
+    "ViewGain",
+    "discounted",
+    "edge_gain",
+    "edge_views",
+    "edges_clear",
+    "view_gain",
+]

@@ -42,8 +42,9 @@ def edges_clear(map_, starts, ends, box_m, vehicle, clearance_m: float = 0.0) ->
         return clear_edges(source, starts, ends, box_m, vehicle, clearance_m)
 
 
-def clear_edges(source: Source, starts: np.ndarray, ends: np.ndarray, box_m: np.ndarray, vehicle: np.ndarray,
-                clearance_m: float) -> np.ndarray:
+def clear_edges(
+    source: Source, starts: np.ndarray, ends: np.ndarray, box_m: np.ndarray, vehicle: np.ndarray, clearance_m: float
+) -> np.ndarray:
     """`edges_clear` on an opened map."""
     count, device = len(starts), source.device
     if count == 0:
@@ -59,18 +60,36 @@ def clear_edges(source: Source, starts: np.ndarray, ends: np.ndarray, box_m: np.
     swept = sizes.prod(axis=1)
     if swept.max() > MAX_SWEPT_VOXELS:
         i = int(np.argmax(swept))
-        raise ValueError(f"ends: edge {i} sweeps its box through {swept[i]} voxels; at most {MAX_SWEPT_VOXELS} "
-                         "an edge (split long edges)")
+        raise ValueError(
+            f"ends: edge {i} sweeps its box through {swept[i]} voxels; at most {MAX_SWEPT_VOXELS} "
+            "an edge (split long edges)"
+        )
     offsets, candidates = source.candidates(lo, hi)
     unsafe = wp.zeros(count, dtype=wp.int32, device=device)
-    inputs = [wp.array(starts, dtype=wp.vec3d, device=device), wp.array(ends, dtype=wp.vec3d, device=device),
-              wp.vec3d(*half), wp.array(first.astype(np.int32), dtype=wp.vec3i, device=device),
-              wp.array(sizes.astype(np.int32), dtype=wp.vec3i, device=device), source.access, offsets, candidates,
-              wp.vec3d(*vehicle), np.float64(clearance_m)]
+    inputs = [
+        wp.array(starts, dtype=wp.vec3d, device=device),
+        wp.array(ends, dtype=wp.vec3d, device=device),
+        wp.vec3d(*half),
+        wp.array(first.astype(np.int32), dtype=wp.vec3i, device=device),
+        wp.array(sizes.astype(np.int32), dtype=wp.vec3i, device=device),
+        source.access,
+        offsets,
+        candidates,
+        wp.vec3d(*vehicle),
+        np.float64(clearance_m),
+    ]
     columns = int((sizes[:, 0] * sizes[:, 1]).max())
     # launches of at most 2^31 threads (edges x the widest edge's columns)
     parts = max(parallel.num_parts(device, count * columns // 64), -(-count * columns // (1 << 30)))
-    parallel.split_launch(lambda part, lo_, hi_: wp.launch(
-        kernels.count_unsafe_voxels, dim=(hi_ - lo_, columns), inputs=[lo_, *inputs], outputs=[unsafe],
-        device=device), count, min(parts, count))
+    parallel.split_launch(
+        lambda part, lo_, hi_: wp.launch(
+            kernels.count_unsafe_voxels,
+            dim=(hi_ - lo_, columns),
+            inputs=[lo_, *inputs],
+            outputs=[unsafe],
+            device=device,
+        ),
+        count,
+        min(parts, count),
+    )
     return unsafe.numpy() == 0

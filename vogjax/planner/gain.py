@@ -67,8 +67,9 @@ def view_gain(map_, T_world_sensor, sensor, max_range_m: float | None = None, re
     return gain_of(counts, source.config.voxel_size, rays)
 
 
-def edge_views(starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarray, step_m: float,
-               range_m: float) -> tuple[np.ndarray, np.ndarray]:
+def edge_views(
+    starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarray, step_m: float, range_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Sensor poses sampled along edges from vehicle states `starts` to `ends` (E,4: x, y, z,
     yaw; level vehicle), and the edge of each: (V,4,4), (V,) int64.
 
@@ -84,8 +85,10 @@ def edge_views(starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarra
     views = np.maximum(length, np.abs(turn) * range_m) / step_m
     if len(views) and not views.max() <= MAX_EDGE_VIEWS:
         i = int(np.argmax(views))
-        raise ValueError(f"step_m: edge {i} would take {views[i]:.3g} views {step_m:g} m apart; at most "
-                         f"{MAX_EDGE_VIEWS} an edge (a larger step_m or shorter edges)")
+        raise ValueError(
+            f"step_m: edge {i} would take {views[i]:.3g} views {step_m:g} m apart; at most "
+            f"{MAX_EDGE_VIEWS} an edge (a larger step_m or shorter edges)"
+        )
     n = np.maximum(1, np.ceil(views - 1e-9)).astype(np.int64)
     edge = np.repeat(np.arange(len(starts)), n)
     fraction = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 1) / np.repeat(n, n)
@@ -97,8 +100,7 @@ def edge_views(starts: np.ndarray, ends: np.ndarray, T_vehicle_sensor: np.ndarra
     return T @ T_vehicle_sensor, edge
 
 
-def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | None = None,
-              region=None) -> ViewGain:
+def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | None = None, region=None) -> ViewGain:
     """Gain along E edges between vehicle states (E,4: x, y, z, yaw): every voxel the sensor
     would see from the views sampled on an edge (`edge_views`), counted once per edge."""
     sensor = as_sensor(sensor)
@@ -109,14 +111,14 @@ def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | No
     region = check_region(region)
     with opened(map_) as source:
         for name, states in (("starts", starts), ("ends", ends)):
-            within_key_range(name, np.abs(states[:, :3]) + max_range, source.config.voxel_size,
-                             hashing.VOXEL_KEY_LIMIT)
+            within_key_range(name, np.abs(states[:, :3]) + max_range, source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
         counts, rays = edge_counts(source, starts, ends, sensor, step_m, max_range, region)
     return gain_of(counts, source.config.voxel_size, rays)
 
 
-def edge_counts(source: Source, starts: np.ndarray, ends: np.ndarray, sensor: RangeSensor, step_m: float,
-                max_range: float, region) -> tuple[np.ndarray, int]:
+def edge_counts(
+    source: Source, starts: np.ndarray, ends: np.ndarray, sensor: RangeSensor, step_m: float, max_range: float, region
+) -> tuple[np.ndarray, int]:
     """`edge_gain` on an opened map: counts (E,3) unknown, free, occupied, and the rays cast."""
     poses, edge = edge_views(starts, ends, sensor.T_vehicle_sensor, step_m, max_range)
     return group_counts(source, poses, edge, len(starts), sensor, max_range, region)
@@ -133,8 +135,10 @@ def gain_range(name: str, sensor: RangeSensor, value) -> float:
     where it would see nothing and every view would read as explored."""
     value = positive_number(name, value)
     if not value > sensor.min_range_m:
-        raise ValueError(f"{name} must exceed the sensor's min_range_m ({sensor.min_range_m:g} m), got {value!r}: "
-                         "the rays would see nothing")
+        raise ValueError(
+            f"{name} must exceed the sensor's min_range_m ({sensor.min_range_m:g} m), got {value!r}: "
+            "the rays would see nothing"
+        )
     return value
 
 

@@ -70,8 +70,14 @@ class NbvPlanner:
     region (2,3): where gain counts (default: everywhere); risk: optional callable(starts (E,3),
     ends (E,3)) -> (E,) collision risk >= 0 of edges (weighted by config.risk_weight)."""
 
-    def __init__(self, config: PlannerConfig | None = None, bounds=None, sensor: RangeSensor | None = None,
-                 region=None, risk=None):
+    def __init__(
+        self,
+        config: PlannerConfig | None = None,
+        bounds=None,
+        sensor: RangeSensor | None = None,
+        region=None,
+        risk=None,
+    ):
         self.config = config = config or PlannerConfig()
         if not isinstance(config, PlannerConfig):
             raise ValueError(f"config must be a PlannerConfig, got {type(config).__name__}")
@@ -108,8 +114,9 @@ class NbvPlanner:
         start_s = time.perf_counter()
         with opened(map_) as source:
             # checked before the first sample is drawn: a refused plan leaves the random state
-            reach = np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.box_m) + \
-                self.config.margin_m
+            reach = (
+                np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.box_m) + self.config.margin_m
+            )
             within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
             tree = _Tree(root)
             rays = self._grow(source, tree, self.memory, root, chain=True)
@@ -126,8 +133,16 @@ class NbvPlanner:
                 iterations += count
         branch = tree.branch(int(np.argmax(tree.gains)))
         self.memory = branch[1:]
-        return Plan(branch, float(tree.gains.max()), len(tree.states) - 1, iterations, rays,
-                    time.perf_counter() - start_s, tree.states.copy(), tree.parents.copy())
+        return Plan(
+            branch,
+            float(tree.gains.max()),
+            len(tree.states) - 1,
+            iterations,
+            rays,
+            time.perf_counter() - start_s,
+            tree.states.copy(),
+            tree.parents.copy(),
+        )
 
     # ---------------------------------------------------------------- sampling
     def _samples(self, root: np.ndarray, count: int) -> np.ndarray:
@@ -141,7 +156,7 @@ class NbvPlanner:
         targets[:, 3] = self.rng.uniform(-cfg.max_heading_change_rad, cfg.max_heading_change_rad, count)
         return targets
 
-    def _grow(self, source, tree: "_Tree", targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
+    def _grow(self, source, tree: _Tree, targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
         """Steer, check and add edges toward `targets`. With `chain`, targets (x, y, z, yaw) are
         one branch from the root (the remembered one: it breaks at its first edge that is too
         long, turns too far or collides); else each target (x, y, z, yaw offset) attaches to its
@@ -157,8 +172,9 @@ class NbvPlanner:
             starts = tree.states[parents]
         step = targets[:, :3] - starts[:, :3]
         scale = np.minimum(1.0, cfg.edge_length_m / np.maximum(np.linalg.norm(step, axis=1), 1e-12))
-        ends = np.c_[starts[:, :3] + step * scale[:, None],
-                     targets[:, 3] if chain else wrap_angle(starts[:, 3] + targets[:, 3])]
+        ends = np.c_[
+            starts[:, :3] + step * scale[:, None], targets[:, 3] if chain else wrap_angle(starts[:, 3] + targets[:, 3])
+        ]
         ok = np.all((ends[:, :3] >= self.sample_box[0] - 1e-9) & (ends[:, :3] <= self.sample_box[1] + 1e-9), axis=1)
         if chain:
             ok &= (scale >= 1.0) & (np.abs(wrap_angle(ends[:, 3] - starts[:, 3])) <= cfg.max_heading_change_rad + 1e-9)
@@ -169,10 +185,12 @@ class NbvPlanner:
             ok = np.cumprod(ok).astype(bool)
         if not ok.any():
             return 0
-        counts, rays = edge_counts(source, starts[ok], ends[ok], self.sensor, cfg.gain_step_m, cfg.gain_range_m,
-                                   self.region)
-        visible = (cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1]
-                   + cfg.gain_occupied * counts[:, 2]) * source.config.voxel_size ** 3
+        counts, rays = edge_counts(
+            source, starts[ok], ends[ok], self.sensor, cfg.gain_step_m, cfg.gain_range_m, self.region
+        )
+        visible = (
+            cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1] + cfg.gain_occupied * counts[:, 2]
+        ) * source.config.voxel_size**3
         if cfg.risk_weight > 0:
             risk = np.asarray(self.risk(starts[ok, :3], ends[ok, :3]), np.float64)
             if risk.shape != (int(ok.sum()),) or not np.all(np.isfinite(risk)) or np.any(risk < 0):
@@ -189,8 +207,12 @@ def _nearest(nodes: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """Index of the nearest of `nodes` (N,3) to each target (T,3) (the first on a tie), in
     chunks of targets that keep the distance table near 12 MiB (24 bytes a node and target)."""
     chunk = max(1, (1 << 19) // max(len(nodes), 1))
-    return np.concatenate([np.argmin(np.linalg.norm(nodes[None] - targets[k:k + chunk, None], axis=2), axis=1)
-                           for k in range(0, len(targets), chunk)])
+    return np.concatenate(
+        [
+            np.argmin(np.linalg.norm(nodes[None] - targets[k : k + chunk, None], axis=2), axis=1)
+            for k in range(0, len(targets), chunk)
+        ]
+    )
 
 
 class _Tree:

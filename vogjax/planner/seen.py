@@ -27,8 +27,15 @@ FIRST_GUESS = 4
 FIRST_PROBES = 64
 
 
-def group_counts(source: Source, poses: np.ndarray, groups: np.ndarray, num_groups: int, sensor: RangeSensor,
-                 max_range: float, region) -> tuple[np.ndarray, int]:
+def group_counts(
+    source: Source,
+    poses: np.ndarray,
+    groups: np.ndarray,
+    num_groups: int,
+    sensor: RangeSensor,
+    max_range: float,
+    region,
+) -> tuple[np.ndarray, int]:
     """Voxels of each state (unknown, free, occupied) first seen by each group of views: poses
     (V,4,4) sorted by their group (V,) in [0, num_groups). Returns (num_groups, 3) int64 and
     the rays cast."""
@@ -40,8 +47,10 @@ def group_counts(source: Source, poses: np.ndarray, groups: np.ndarray, num_grou
         raise ValueError("groups must be sorted")
     s = source.config.voxel_size
     if max_range > MAX_RANGE_VOXELS * s:  # as for a map's beams: rays of bounded cost
-        raise ValueError(f"max_range_m: {max_range:g} m is more than {MAX_RANGE_VOXELS} voxels of "
-                         f"{s:g} m, the longest ray a view casts")
+        raise ValueError(
+            f"max_range_m: {max_range:g} m is more than {MAX_RANGE_VOXELS} voxels of "
+            f"{s:g} m, the longest ray a view casts"
+        )
     origins = np.ascontiguousarray(poses[:, :3, 3])
     within_key_range("T_world_sensor", np.abs(origins) + max_range, s, hashing.VOXEL_KEY_LIMIT)
     # voxels each view's rays cross, at most (sizes the sets only: counts are exact either way);
@@ -59,14 +68,34 @@ def group_counts(source: Source, poses: np.ndarray, groups: np.ndarray, num_grou
     reach = np.abs(np.floor(origins / s) - anchors[groups]).max(initial=0) + max_range / s + 2
     if reach >= kernels.OFFSET_LIMIT:
         raise ValueError("max_range_m: views of one group reach too far for the voxel size")
-    counts, overflowed = _launch(source, poses, groups, anchors, directions, sensor.min_range_m, max_range,
-                                 region, _pow2(np.maximum(bound / FIRST_GUESS, 32)), FIRST_PROBES)
+    counts, overflowed = _launch(
+        source,
+        poses,
+        groups,
+        anchors,
+        directions,
+        sensor.min_range_m,
+        max_range,
+        region,
+        _pow2(np.maximum(bound / FIRST_GUESS, 32)),
+        FIRST_PROBES,
+    )
     retry = np.flatnonzero(overflowed)
     if len(retry):
         views = np.isin(groups, retry)
         renumbered = np.searchsorted(retry, groups[views])
-        counts[retry], _ = _launch(source, poses[views], renumbered, anchors[retry], directions,
-                                   sensor.min_range_m, max_range, region, _pow2(2 * bound[retry] + 1), None)
+        counts[retry], _ = _launch(
+            source,
+            poses[views],
+            renumbered,
+            anchors[retry],
+            directions,
+            sensor.min_range_m,
+            max_range,
+            region,
+            _pow2(2 * bound[retry] + 1),
+            None,
+        )
     return counts, len(poses) * len(directions)
 
 
@@ -74,17 +103,20 @@ def _pow2(values: np.ndarray) -> np.ndarray:
     return (2 ** np.ceil(np.log2(np.maximum(values, 16)))).astype(np.int64)
 
 
-def _launch(source: Source, poses, groups, anchors, directions, min_range, max_range, region, capacity,
-            max_probes) -> tuple[np.ndarray, np.ndarray]:
+def _launch(
+    source: Source, poses, groups, anchors, directions, min_range, max_range, region, capacity, max_probes
+) -> tuple[np.ndarray, np.ndarray]:
     """One pass: counts (G,3) and whether each group's set overflowed (its counts are then void)."""
     device = source.device
     num_groups = len(capacity)
     origins = np.ascontiguousarray(poses[:, :3, 3])
     offsets, candidates = source.candidates(origins - max_range, origins + max_range)
-    d = [wp.array(origins, dtype=wp.vec3d, device=device),
-         wp.array(np.ascontiguousarray(poses[:, :3, :3]), dtype=wp.mat33d, device=device),
-         wp.array(groups.astype(np.int32), dtype=wp.int32, device=device),
-         wp.array(directions, dtype=wp.vec3d, device=device)]
+    d = [
+        wp.array(origins, dtype=wp.vec3d, device=device),
+        wp.array(np.ascontiguousarray(poses[:, :3, :3]), dtype=wp.mat33d, device=device),
+        wp.array(groups.astype(np.int32), dtype=wp.int32, device=device),
+        wp.array(directions, dtype=wp.vec3d, device=device),
+    ]
     region_lo, region_hi = region if region is not None else np.zeros((2, 3))
     d_anchors = wp.array(anchors.astype(np.int32), dtype=wp.vec3i, device=device)
     view_ranges = np.searchsorted(groups, np.arange(num_groups + 1))
@@ -92,7 +124,7 @@ def _launch(source: Source, poses, groups, anchors, directions, min_range, max_r
     overflowed = np.zeros(num_groups, bool)
     for g0, g1 in _chunks(capacity, TABLE_BUDGET["cuda" if device.is_cuda else "cpu"]):
         table_offsets = np.zeros(num_groups + 1, np.int64)
-        table_offsets[g0:g1 + 1] = np.concatenate([[0], np.cumsum(capacity[g0:g1])])
+        table_offsets[g0 : g1 + 1] = np.concatenate([[0], np.cumsum(capacity[g0:g1])])
         tables = wp.full(int(table_offsets[g1]), -1, dtype=wp.int64, device=device)
         d_offsets = wp.array(table_offsets, dtype=wp.int64, device=device)
         out = wp.zeros((num_groups, 3), dtype=wp.int32, device=device)
@@ -100,14 +132,32 @@ def _launch(source: Source, poses, groups, anchors, directions, min_range, max_r
         v0, v1 = int(view_ranges[g0]), int(view_ranges[g1])
         parts = _parts(view_ranges, g0, g1, parallel.num_parts(device, (v1 - v0) * len(directions)))
 
-        def launch(part: int, _lo: int, _hi: int, parts=parts, tables=tables, d_offsets=d_offsets, out=out,
-                   overflow=overflow) -> None:
+        def launch(
+            part: int, _lo: int, _hi: int, parts=parts, tables=tables, d_offsets=d_offsets, out=out, overflow=overflow
+        ) -> None:
             first, last = parts[part]
-            wp.launch(kernels.count_seen_voxels, dim=(last - first, len(directions)),
-                      inputs=[first, *d, np.float64(max_range), np.float64(min_range), int(region is not None),
-                              wp.vec3d(*region_lo), wp.vec3d(*region_hi), source.access, offsets, candidates,
-                              d_offsets, d_anchors, tables, -1 if max_probes is None else int(max_probes)],
-                      outputs=[out, overflow], device=device)
+            wp.launch(
+                kernels.count_seen_voxels,
+                dim=(last - first, len(directions)),
+                inputs=[
+                    first,
+                    *d,
+                    np.float64(max_range),
+                    np.float64(min_range),
+                    int(region is not None),
+                    wp.vec3d(*region_lo),
+                    wp.vec3d(*region_hi),
+                    source.access,
+                    offsets,
+                    candidates,
+                    d_offsets,
+                    d_anchors,
+                    tables,
+                    -1 if max_probes is None else int(max_probes),
+                ],
+                outputs=[out, overflow],
+                device=device,
+            )
 
         parallel.split_launch(launch, len(parts), len(parts))
         counts[g0:g1] = out.numpy()[g0:g1]
@@ -133,7 +183,7 @@ def _parts(view_ranges: np.ndarray, g0: int, g1: int, parts: int) -> list[tuple[
     """View ranges of up to `parts` runs of whole groups with about equal numbers of views (two
     threads never write one group's set or counts: CPU atomics are not atomic across threads)."""
     v0, v1 = int(view_ranges[g0]), int(view_ranges[g1])
-    boundaries = view_ranges[g0:g1 + 1]
+    boundaries = view_ranges[g0 : g1 + 1]
     cuts = boundaries[np.searchsorted(boundaries, np.linspace(v0, v1, parts + 1)[1:-1])]
     edges = sorted({v0, v1, *(int(c) for c in cuts)})
     return list(zip(edges[:-1], edges[1:]))

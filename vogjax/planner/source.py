@@ -1,8 +1,8 @@
 """The maps a planner reads, opened for its kernels (`kernels/planner_maps.py`).
 
-    with opened(map) as source:   # a VoxelMap, GlobalMap, VogMap or Overlay, read-locked
-        source.access             # the MapAccess struct the kernels take
-        source.boxes              # (n,2,3) world boxes of its submap views (the virtual part)
+with opened(map) as source:   # a VoxelMap, GlobalMap, VogMap or Overlay, read-locked
+    source.access             # the MapAccess struct the kernels take
+    source.boxes              # (n,2,3) world boxes of its submap views (the virtual part)
 """
 
 from __future__ import annotations
@@ -58,17 +58,20 @@ class Source:
         count = len(lo)
         if len(self.boxes) == 0 or count == 0:
             offsets = np.zeros(count + 1, np.int32)
-            return (wp.array(offsets, dtype=wp.int32, device=self.device),
-                    wp.zeros(1, dtype=wp.int32, device=self.device))
-        meets = np.all((lo[:, None, :] <= self.boxes[None, :, 1]) & (hi[:, None, :] >= self.boxes[None, :, 0]),
-                       axis=2)
+            return (
+                wp.array(offsets, dtype=wp.int32, device=self.device),
+                wp.zeros(1, dtype=wp.int32, device=self.device),
+            )
+        meets = np.all((lo[:, None, :] <= self.boxes[None, :, 1]) & (hi[:, None, :] >= self.boxes[None, :, 0]), axis=2)
         query, view = np.nonzero(meets)
         offsets = np.zeros(count + 1, np.int64)
         np.cumsum(np.bincount(query, minlength=count), out=offsets[1:])
         if offsets[-1] >= 2**31:
             raise ValueError("too many (query, submap) pairs for one launch; query fewer views at once")
-        return (wp.array(offsets.astype(np.int32), dtype=wp.int32, device=self.device),
-                wp.array(np.r_[view, 0].astype(np.int32), dtype=wp.int32, device=self.device))
+        return (
+            wp.array(offsets.astype(np.int32), dtype=wp.int32, device=self.device),
+            wp.array(np.r_[view, 0].astype(np.int32), dtype=wp.int32, device=self.device),
+        )
 
 
 PLANNABLE = "a vj.VoxelMap, vj.GlobalMap, vj.VogMap or vogjax.planner.Overlay"
@@ -104,7 +107,9 @@ def opened(map_):
         empty_keys = wp.full(1, -1, dtype=wp.int64, device=device)
         access.table_keys = store.table_keys if store is not None else empty_keys
         access.table_slots = store.table_slots if store is not None else wp.full(1, -1, dtype=wp.int32, device=device)
-        access.log_odds = store.layers["log_odds"] if store is not None else wp.zeros(1, dtype=wp.float32, device=device)
+        access.log_odds = (
+            store.layers["log_odds"] if store is not None else wp.zeros(1, dtype=wp.float32, device=device)
+        )
         has_sums = store is not None and "sum" in store.layers
         access.sums = store.layers["sum"] if has_sums else wp.zeros(1, dtype=wp.int64, device=device)
         access.counts = store.layers["count"] if has_sums else wp.zeros(1, dtype=wp.int32, device=device)

@@ -9,5 +9,14 @@ from vogjax.report.job import map_run, map_runs
 from vogjax.report.metrics import Roc, misclassified, reconstruction_rmse, register_to_surface, roc
 from vogjax.report.summary import summary_table
 
-__all__ = ["Roc", "evaluate_run", "map_run", "map_runs", "misclassified", "reconstruction_rmse", "register_to_surface",
-           "roc", "summary_table"]
+__all__ = [
+    "Roc",
+    "evaluate_run",
+    "map_run",
+    "map_runs",
+    "misclassified",
+    "reconstruction_rmse",
+    "register_to_surface",
+    "roc",
+    "summary_table",
+]

@@ -15,28 +15,43 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
     """The report of a pipeline `result` of the run at `run_path`, with its ground-truth
     `metrics` ({} when the run has no scene), timing `curves` (or None), the pipeline's wall
     time and the JobConfig used."""
-    steps = {name: float(np.sum(values)) for name, values in result.timings.items()
-             if name not in ("reapplied", "closures")}
+    steps = {
+        name: float(np.sum(values)) for name, values in result.timings.items() if name not in ("reapplied", "closures")
+    }
     duration_s = result.duration_s
     mapping_s = pipeline_s - steps.get("probes", 0.0)  # the probes' time is not the pipeline's
-    timing_s = {"pipeline": mapping_s, "scans_per_s": result.scans / mapping_s,
-                "real_time_factor": duration_s / mapping_s, "steps": steps}
+    timing_s = {
+        "pipeline": mapping_s,
+        "scans_per_s": result.scans / mapping_s,
+        "real_time_factor": duration_s / mapping_s,
+        "steps": steps,
+    }
     if curves is not None:
         n = len(curves.online_s)
-        timing_s["update_per_submap"] = {"online": float(curves.online_s[-1]), "virtual": float(curves.virtual_s[-1]),
-                                         "full_merge": float(curves.full_merge_s[-1]), "submaps": n}
-        timing_s["query"] = {"rays": curves.rays, "global": float(curves.query_global_s[-1]),
-                             "virtual": float(curves.query_virtual_s[-1]),
-                             "submaps": int(curves.sampled_submaps[-1])}
+        timing_s["update_per_submap"] = {
+            "online": float(curves.online_s[-1]),
+            "virtual": float(curves.virtual_s[-1]),
+            "full_merge": float(curves.full_merge_s[-1]),
+            "submaps": n,
+        }
+        timing_s["query"] = {
+            "rays": curves.rays,
+            "global": float(curves.query_global_s[-1]),
+            "virtual": float(curves.query_virtual_s[-1]),
+            "submaps": int(curves.sampled_submaps[-1]),
+        }
         timing_s["curves"] = curves.to_dict()
         timing_s["reapplied_per_submap"] = float(np.mean(curves.reapplied))
     empty = dict.fromkeys(("online", "virtual", "full_merge", "standard"))
     return {
-        "run": str(run_path), "scene": result.metadata.get("scene"),
-        "ground_truth": ("scene" if metrics else
-                         "none: the run names no built-in scene, so AUC, RMSE and agreement are skipped"),
+        "run": str(run_path),
+        "scene": result.metadata.get("scene"),
+        "ground_truth": (
+            "scene" if metrics else "none: the run names no built-in scene, so AUC, RMSE and agreement are skipped"
+        ),
         "scans": result.scans,
-        "duration_s": duration_s, "submaps": result.vog.num_submaps,
+        "duration_s": duration_s,
+        "submaps": result.vog.num_submaps,
         "auc": metrics.get("auc", empty),
         "auc_aligned": metrics.get("auc_aligned", {}),
         "auc_vs_reference": metrics.get("auc_vs_reference", {}),
@@ -54,10 +69,16 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
 
 def versions() -> dict:
     """Installed versions, read from package metadata (importing JAX just to ask costs a second)."""
-    installed = {name: package_metadata.version(package) for name, package in
-                 (("numpy", "numpy"), ("warp", "warp-lang"), ("jax", "jax"), ("gtsam", "gtsam"))}
-    return {"vogjax": vogjax.__version__, "python": platform.python_version(), **installed,
-            "platform": platform.platform()}
+    installed = {
+        name: package_metadata.version(package)
+        for name, package in (("numpy", "numpy"), ("warp", "warp-lang"), ("jax", "jax"), ("gtsam", "gtsam"))
+    }
+    return {
+        "vogjax": vogjax.__version__,
+        "python": platform.python_version(),
+        **installed,
+        "platform": platform.platform(),
+    }
 
 
 def finite_or_null(value):

@@ -52,8 +52,10 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         mean, variance = crm.mean(centres), crm.variance(centres)
         curves["confidence"] = roc(mean, occupied)
         truth_level = occupied.astype(np.float64)
-        confidence = {"mean_error": float(np.mean(np.abs(mean - truth_level))),
-                      "inconsistency_per_voxel": inconsistency(mean, variance, truth_level) / len(centres)}
+        confidence = {
+            "mean_error": float(np.mean(np.abs(mean - truth_level))),
+            "inconsistency_per_voxel": inconsistency(mean, variance, truth_level) / len(centres),
+        }
         if "standard" in maps:
             p = maps["standard"].probability(centres).astype(np.float64)
             confidence["standard_mean_error"] = float(np.mean(np.abs(p - truth_level)))
@@ -72,11 +74,17 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         if labels.any() and not labels.all():
             aligned_online = roc(maps["online"].probability(sampled[seen]), labels)
             aligned = {"online": aligned_online.auc}
-            aligned.update({name: roc(maps[name].probability(sampled[seen]), labels).auc
-                            for name in ("virtual", "full_merge")})
+            aligned.update(
+                {name: roc(maps[name].probability(sampled[seen]), labels).auc for name in ("virtual", "full_merge")}
+            )
             # the maps already in the true frame, over the same voxels where they are
-            aligned.update({name: roc(maps[name].probability(all_centres[seen]), labels).auc
-                            for name in ("true_pose", "rigid_truth") if name in maps})
+            aligned.update(
+                {
+                    name: roc(maps[name].probability(all_centres[seen]), labels).auc
+                    for name in ("true_pose", "rigid_truth")
+                    if name in maps
+                }
+            )
     # against the map this sensor gives from true poses (as the thesis registers against a
     # true-odometry reconstruction): the discretisation of the surface cancels out
     vs_reference = {}
@@ -85,23 +93,30 @@ def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dic
         known = state != UNKNOWN
         labels = state[known] == OCCUPIED
         if labels.any() and not labels.all():
-            vs_reference = {name: roc(m.probability(centres[known]), labels).auc
-                            for name, m in maps.items() if name != "true_pose"}
+            vs_reference = {
+                name: roc(m.probability(centres[known]), labels).auc for name, m in maps.items() if name != "true_pose"
+            }
     surface = scene.surface_points(surface_points)
 
     def occupied_centres(m):
         points, values = m.voxels()
         return points[values >= cfg.log_occupied]
 
-    rmse = {"without_loop_closures": reconstruction_rmse(occupied_centres(without), surface),
-            "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface)}
+    rmse = {
+        "without_loop_closures": reconstruction_rmse(occupied_centres(without), surface),
+        "with_loop_closures": reconstruction_rmse(occupied_centres(result.global_map), surface),
+    }
     if "standard" in maps:
         rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
-    metrics = {"auc": {name: c.auc for name, c in curves.items()}, "auc_aligned": aligned,
-               "auc_vs_reference": vs_reference, "rmse_m": rmse,
-               "confidence_map": confidence,
-               "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
-               "evaluated_voxels": int(len(centres))}
+    metrics = {
+        "auc": {name: c.auc for name, c in curves.items()},
+        "auc_aligned": aligned,
+        "auc_vs_reference": vs_reference,
+        "rmse_m": rmse,
+        "confidence_map": confidence,
+        "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
+        "evaluated_voxels": int(len(centres)),
+    }
     if aligned_online is not None:  # for the ROC figure, beside the maps as they stand
         curves["online, registered to the truth"] = aligned_online
     return metrics, curves

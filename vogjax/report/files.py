@@ -18,17 +18,38 @@ def save_trajectories(result, path) -> None:
             continue
         columns += [f"{name}_{c}" for c in ("x", "y", "z", "yaw")]
         rows += [poses[:, 0, 3], poses[:, 1, 3], poses[:, 2, 3], yaw_pitch_roll(poses[:, :3, :3])[..., 0]]
-    np.savetxt(path, np.stack(rows, axis=1), delimiter=",", header=",".join(columns), comments="",
-               fmt=["%d", "%d"] + ["%.6f"] * (len(columns) - 2))
+    np.savetxt(
+        path,
+        np.stack(rows, axis=1),
+        delimiter=",",
+        header=",".join(columns),
+        comments="",
+        fmt=["%d", "%d"] + ["%.6f"] * (len(columns) - 2),
+    )
 
 
 def save_loop_closures(result, path) -> None:
     """CSV: per accepted loop closure the submaps i and k, the constraint's x, y, z, yaw
     (T_i_k), its fitness and how many directions it constrains."""
-    rows = [(c.i, c.k, *c.T_i_k[:3, 3], yaw_pitch_roll(c.T_i_k[:3, :3])[0], c.fitness,
-             6 if c.basis is None else c.basis.shape[1]) for c in result.loop_closures]
-    np.savetxt(path, np.array(rows).reshape(-1, 8), delimiter=",", header="i,k,x,y,z,yaw,fitness,directions",
-               comments="", fmt=["%d", "%d", "%.6f", "%.6f", "%.6f", "%.6f", "%.6g", "%d"])
+    rows = [
+        (
+            c.i,
+            c.k,
+            *c.T_i_k[:3, 3],
+            yaw_pitch_roll(c.T_i_k[:3, :3])[0],
+            c.fitness,
+            6 if c.basis is None else c.basis.shape[1],
+        )
+        for c in result.loop_closures
+    ]
+    np.savetxt(
+        path,
+        np.array(rows).reshape(-1, 8),
+        delimiter=",",
+        header="i,k,x,y,z,yaw,fitness,directions",
+        comments="",
+        fmt=["%d", "%d", "%.6f", "%.6f", "%.6f", "%.6f", "%.6g", "%d"],
+    )
 
 
 def save_tum_trajectories(result, folder) -> None:

@@ -80,8 +80,9 @@ def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> d
         return _evaluate_and_write(result, path, pipeline_s, warm_up_s, config, folder, progress)
 
 
-def _evaluate_and_write(result, path: Path, pipeline_s: float, warm_up_s: float, config: JobConfig,
-                        folder: Path, progress: bool) -> dict:
+def _evaluate_and_write(
+    result, path: Path, pipeline_s: float, warm_up_s: float, config: JobConfig, folder: Path, progress: bool
+) -> dict:
     name = result.metadata.get("scene")
     scene = scenes.load(name) if name in scenes.NAMES else None
     metrics, roc = evaluate_run(result, scene, config.report.surface_points) if scene else ({}, {})
@@ -105,6 +106,7 @@ def _evaluate_and_write(result, path: Path, pipeline_s: float, warm_up_s: float,
     if curves is not None:
         plots.timing(curves, folder / "timing.png", title=f"{path.stem}, {result.global_map.device}")
     # 3. the report last: its presence says the rest is there
-    (folder / "report.json").write_text(json.dumps(document.finite_or_null(report), indent=2,
-                                                   default=document.json_default, allow_nan=False))
+    (folder / "report.json").write_text(
+        json.dumps(document.finite_or_null(report), indent=2, default=document.json_default, allow_nan=False)
+    )
     return report

@@ -60,8 +60,9 @@ def _labels(name: str, value) -> np.ndarray:
     return array == 1
 
 
-def register_to_surface(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
-                        search_radius_m: float = 3.0) -> np.ndarray:
+def register_to_surface(
+    points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None, search_radius_m: float = 3.0
+) -> np.ndarray:
     """T_surface_points (4, 4) registering `points` to the true `surface` points: a correlative
     x-y-yaw search within `search_radius_m` (a drifted map can sit farther off than ICP
     reaches), then point-to-plane ICP."""
@@ -70,8 +71,9 @@ def register_to_surface(points: np.ndarray, surface: np.ndarray, config: IcpConf
     return icp(points, surface, seed.T_target_source, config=config).T_target_source
 
 
-def reconstruction_rmse(points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None,
-                        search_radius_m: float = 3.0) -> float | None:
+def reconstruction_rmse(
+    points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None, search_radius_m: float = 3.0
+) -> float | None:
     """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
     registering them to it (`register_to_surface`); None (not measurable) when there are fewer
     points than registration needs (MIN_POINTS, ICP's): a map with next to nothing occupied."""
@@ -86,8 +88,13 @@ def misclassified(states_a: np.ndarray, states_b: np.ndarray) -> dict:
     """How many voxels two maps classify differently, and how many of those are occupied in one."""
     states_a, states_b = real_array("states_a", states_a), real_array("states_b", states_b)
     if states_a.ndim != 1 or states_a.shape != states_b.shape:
-        raise ValueError(f"states_a and states_b must be 1-D arrays of the same length, "
-                         f"got shapes {states_a.shape} and {states_b.shape}")
+        raise ValueError(
+            f"states_a and states_b must be 1-D arrays of the same length, "
+            f"got shapes {states_a.shape} and {states_b.shape}"
+        )
     differ = states_a != states_b
-    return {"voxels": int(len(states_a)), "misclassified": int(differ.sum()),
-            "occupied_disagreements": int((differ & ((states_a == OCCUPIED) | (states_b == OCCUPIED))).sum())}
+    return {
+        "voxels": int(len(states_a)),
+        "misclassified": int(differ.sum()),
+        "occupied_disagreements": int((differ & ((states_a == OCCUPIED) | (states_b == OCCUPIED))).sum()),
+    }

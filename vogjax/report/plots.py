@@ -39,9 +39,11 @@ def trajectories(result, path, title: str = "") -> None:
     """Top view of the vehicle's path: truth, navigation and optimised (scans carried with their
     submaps), submap bases as dots, accepted loop closures between optimised bases."""
     fig, ax = plt.subplots(figsize=(7, 6), dpi=120)
-    for name, style in (("truth", dict(color="k", lw=2.5, alpha=0.3)),
-                        ("navigation", dict(color="tab:red", lw=1.0)),
-                        ("optimized", dict(color="tab:blue", lw=1.0))):
+    for name, style in (
+        ("truth", dict(color="k", lw=2.5, alpha=0.3)),
+        ("navigation", dict(color="tab:red", lw=1.0)),
+        ("optimized", dict(color="tab:blue", lw=1.0)),
+    ):
         poses = result.scan_poses(name)
         if poses is None:
             continue
@@ -66,8 +68,12 @@ def roc_curves(curves: dict, path, title: str = "") -> None:
     """ROC of each map's occupancy against ground truth, AUC in the legend."""
     fig, ax = plt.subplots(figsize=(5.5, 5), dpi=120)
     for name, curve in curves.items():
-        ax.plot(curve.false_positive_rate, curve.true_positive_rate, label=f"{name} (AUC {curve.auc:.3f})",
-                ls="--" if "registered" in name else "-")
+        ax.plot(
+            curve.false_positive_rate,
+            curve.true_positive_rate,
+            label=f"{name} (AUC {curve.auc:.3f})",
+            ls="--" if "registered" in name else "-",
+        )
     ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls=":")
     ax.set_xlabel("false positive rate")
     ax.set_ylabel("true positive rate")
@@ -83,8 +89,11 @@ def timing(curves, path, title: str = "") -> None:
     planner query against the global and the virtual map by submap count (Fig. 8)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), dpi=120)
     n = np.arange(1, len(curves.online_s) + 1)
-    for name, values in (("full merge at loop closures", curves.full_merge_s), ("virtual map (pose update)", curves.virtual_s),
-                         ("online global map", curves.online_s)):
+    for name, values in (
+        ("full merge at loop closures", curves.full_merge_s),
+        ("virtual map (pose update)", curves.virtual_s),
+        ("online global map", curves.online_s),
+    ):
         left.plot(n, np.maximum(values, 1e-6) * 1e3, label=name)
     left.set_yscale("log")
     left.set_xlabel("submaps")

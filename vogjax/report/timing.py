@@ -37,15 +37,21 @@ class TimingCurves:
     rays: int
 
     def to_dict(self) -> dict:
-        return {f.name: (v.tolist() if isinstance(v := getattr(self, f.name), np.ndarray) else v)
-                for f in dataclasses.fields(self)}
+        return {
+            f.name: (v.tolist() if isinstance(v := getattr(self, f.name), np.ndarray) else v)
+            for f in dataclasses.fields(self)
+        }
 
     def fig9(self) -> dict:
         """Fig. 9's data: submap counts and the three cumulative averages (s), and re-applied
         submaps per new submap."""
-        return {"submaps": list(range(1, len(self.online_s) + 1)), "online_s": self.online_s.tolist(),
-                "virtual_s": self.virtual_s.tolist(), "full_merge_s": self.full_merge_s.tolist(),
-                "reapplied": self.reapplied.tolist()}
+        return {
+            "submaps": list(range(1, len(self.online_s) + 1)),
+            "online_s": self.online_s.tolist(),
+            "virtual_s": self.virtual_s.tolist(),
+            "full_merge_s": self.full_merge_s.tolist(),
+            "reapplied": self.reapplied.tolist(),
+        }
 
 
 def cumulative_average(values: np.ndarray) -> np.ndarray:
@@ -66,7 +72,14 @@ def curves(result) -> TimingCurves | None:
     add = np.asarray(timings["add"], dtype=np.float64)
     baseline = add + np.where(np.asarray(timings["closures"]) > 0, merge, 0.0)
     online = np.asarray(timings["undo_redo"], dtype=np.float64) + add
-    return TimingCurves(cumulative_average(online), cumulative_average(timings["virtual_update"]),
-                        cumulative_average(baseline), np.asarray(timings["reapplied"], dtype=np.int64), sampled,
-                        merge_s, np.array([p["query_global_s"] for p in result.probes]),
-                        np.array([p["query_virtual_s"] for p in result.probes]), result.config.timing.rays)
+    return TimingCurves(
+        cumulative_average(online),
+        cumulative_average(timings["virtual_update"]),
+        cumulative_average(baseline),
+        np.asarray(timings["reapplied"], dtype=np.int64),
+        sampled,
+        merge_s,
+        np.array([p["query_global_s"] for p in result.probes]),
+        np.array([p["query_virtual_s"] for p in result.probes]),
+        result.config.timing.rays,
+    )

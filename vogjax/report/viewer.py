@@ -100,8 +100,16 @@ def log_map(recording, source, prefix: str = "") -> dict:
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
     centres = voxels.centres[voxels.state() == 2]
     entity = _entity(prefix, "map/occupied")
-    recording.log(entity, rr.Boxes3D(centers=centres, half_sizes=np.full(3, voxels.voxel_size / 2),
-                                     colors=height_colours(centres[:, 2]), fill_mode="solid"), static=True)
+    recording.log(
+        entity,
+        rr.Boxes3D(
+            centers=centres,
+            half_sizes=np.full(3, voxels.voxel_size / 2),
+            colors=height_colours(centres[:, 2]),
+            fill_mode="solid",
+        ),
+        static=True,
+    )
     return {entity: len(centres)}
 
 
@@ -114,8 +122,9 @@ def log_folder(recording, folder: Path, prefix: str = "") -> dict:
     closures = read_loop_closures(folder / "loop_closures.csv", len(table["submap"]))
     submaps = len(table["submap"])
     curves = (report or {}).get("timing_s", {}).get("curves", {})
-    timing = {name: np.asarray(curves.get(f"{name}_s", []), dtype=np.float64) for name in
-              ("online", "virtual", "full_merge")}
+    timing = {
+        name: np.asarray(curves.get(f"{name}_s", []), dtype=np.float64) for name in ("online", "virtual", "full_merge")
+    }
     for i in range(submaps):
         recording.set_time("submap", sequence=i)
         recording.set_time("scan", sequence=int(table["first_scan"][i]))
@@ -123,8 +132,8 @@ def log_folder(recording, folder: Path, prefix: str = "") -> dict:
             if name not in table:
                 continue
             entity = _entity(prefix, f"trajectory/{name}")
-            recording.log(entity, rr.LineStrips3D([table[name][:i + 1]], colors=[colour], radii=0.02))
-            recording.log(f"{entity}/base", rr.Points3D(table[name][i:i + 1], colors=[colour], radii=0.06))
+            recording.log(entity, rr.LineStrips3D([table[name][: i + 1]], colors=[colour], radii=0.02))
+            recording.log(f"{entity}/base", rr.Points3D(table[name][i : i + 1], colors=[colour], radii=0.06))
             logged[entity] = i + 1
         if "optimized" in table:
             shown = closures[closures[:, 1] <= i]
@@ -186,9 +195,12 @@ def _read_report(path: Path) -> dict | None:
 
 def _summary(report: dict) -> str:
     closures = report.get("loop_closures", {})
-    lines = [f"# {Path(str(report.get('run', ''))).stem}", "",
-             f"- scans: {report.get('scans')}, submaps: {report.get('submaps')}",
-             f"- loop closures: {closures.get('accepted')} accepted, {closures.get('rejected')} rejected"]
+    lines = [
+        f"# {Path(str(report.get('run', ''))).stem}",
+        "",
+        f"- scans: {report.get('scans')}, submaps: {report.get('submaps')}",
+        f"- loop closures: {closures.get('accepted')} accepted, {closures.get('rejected')} rejected",
+    ]
     auc = {k: v for k, v in (report.get("auc") or {}).items() if v is not None}
     if auc:
         lines.append("- AUC: " + ", ".join(f"{k} {v:.3f}" for k, v in auc.items()))

@@ -50,8 +50,9 @@ def ray_module():
     return ray
 
 
-def map_runs_parallel(paths, out, config: JobConfig | None = None, workers: int = 2, address: str | None = None,
-                      progress: bool = False) -> list[Outcome]:
+def map_runs_parallel(
+    paths, out, config: JobConfig | None = None, workers: int = 2, address: str | None = None, progress: bool = False
+) -> list[Outcome]:
     """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
     `address` is None, else the cluster there); the outcomes in the order of `paths`."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -79,8 +80,9 @@ def _start(ray, address: str | None, workers: int) -> bool:
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage-stats notice
     env = {**WORKER_ENV, **{k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}}
-    options = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
-                   runtime_env={"env_vars": env})
+    options = dict(
+        include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, runtime_env={"env_vars": env}
+    )
     try:
         with warnings.catch_warnings():
             # JAX warns of any fork; Ray's fork is followed by exec, so nothing is shared

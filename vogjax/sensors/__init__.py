@@ -1,8 +1,8 @@
 """Range sensors: their beams, what a run file stores of them, and rays from stored scans.
 
-    sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.02))
-    sonar.beam_directions()                       # (B, U, 3), sensor frame
-    vj.sensors.from_metadata(dataset.metadata)    # the sensor a run was recorded with
+sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.02))
+sonar.beam_directions()                       # (B, U, 3), sensor frame
+vj.sensors.from_metadata(dataset.metadata)    # the sensor a run was recorded with
 """
 
 from __future__ import annotations
@@ -14,7 +14,10 @@ from vogjax.sensors.base import RangeSensor, world_rays
 from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
 
-KINDS = {ProfilingSonar.kind: (ProfilingSonar, SonarConfig), PointCloudSensor.kind: (PointCloudSensor, PointCloudConfig)}
+KINDS = {
+    ProfilingSonar.kind: (ProfilingSonar, SonarConfig),
+    PointCloudSensor.kind: (PointCloudSensor, PointCloudConfig),
+}
 
 
 def from_metadata(metadata: dict) -> RangeSensor:
@@ -42,5 +45,13 @@ def as_sensor(sensor) -> RangeSensor:
     raise ValueError(f"sensor must be a vogjax.sensors.RangeSensor or a SonarConfig, got {type(sensor).__name__}")
 
 
-__all__ = ["KINDS", "T_VEHICLE_SONAR", "PointCloudSensor", "ProfilingSonar", "RangeSensor", "as_sensor", "from_metadata",
-           "world_rays"]
+__all__ = [
+    "KINDS",
+    "T_VEHICLE_SONAR",
+    "PointCloudSensor",
+    "ProfilingSonar",
+    "RangeSensor",
+    "as_sensor",
+    "from_metadata",
+    "world_rays",
+]

@@ -25,8 +25,9 @@ class RangeSensor(abc.ABC):
 
     def __init__(self, config: Config, T_vehicle_sensor=None):
         self.config = config
-        self.T_vehicle_sensor = rigid_pose("T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None
-                                           else T_vehicle_sensor)
+        self.T_vehicle_sensor = rigid_pose(
+            "T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None else T_vehicle_sensor
+        )
 
     @property
     @abc.abstractmethod
@@ -59,18 +60,30 @@ class RangeSensor(abc.ABC):
         count = len(ranges)
         central = self.beam_directions()[:, self.beam_directions().shape[1] // 2]
         directions = central @ self.T_vehicle_sensor[:3, :3].T
-        return {"sonar_origin": np.tile(self.T_vehicle_sensor[:3, 3], (count, 1)),
-                "sonar_directions": np.tile(directions, (count, 1, 1)),
-                "ranges": np.where(no_return, np.nan, ranges), "no_return": no_return}
+        return {
+            "sonar_origin": np.tile(self.T_vehicle_sensor[:3, 3], (count, 1)),
+            "sonar_directions": np.tile(directions, (count, 1, 1)),
+            "ranges": np.where(no_return, np.nan, ranges),
+            "no_return": no_return,
+        }
 
     def metadata(self) -> dict:
         """What a run file records of the sensor (read back by `vogjax.sensors.from_metadata`)."""
-        return {"sensor": self.kind, "sensor_config": self.config.to_dict(),
-                "T_vehicle_sensor": self.T_vehicle_sensor.tolist()}
+        return {
+            "sensor": self.kind,
+            "sensor_config": self.config.to_dict(),
+            "T_vehicle_sensor": self.T_vehicle_sensor.tolist(),
+        }
 
 
-def world_rays(T_world_vehicle: np.ndarray, origins: np.ndarray, directions: np.ndarray, ranges: np.ndarray,
-               no_return: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+def world_rays(
+    T_world_vehicle: np.ndarray,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    ranges: np.ndarray,
+    no_return: np.ndarray,
+    max_range_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Sensor origins (S,3) and beam endpoints (S,B,3) in the world frame of S scans: vehicle
     poses (S,4,4), origins (S,3) and unit directions (S,B,3) in the vehicle frame, ranges and
     no_return (S,B). Beams without a return end past `max_range_m`, so a map clears free space

@@ -30,5 +30,7 @@ class PointCloudSensor(RangeSensor):
     max_range_m = property(lambda self: self.config.max_range_m)
 
     def beam_directions(self) -> np.ndarray:
-        raise ValueError("a recorded point-cloud sensor has no fixed beams: its run file stores each scan's "
-                         "beam directions (it cannot be simulated)")
+        raise ValueError(
+            "a recorded point-cloud sensor has no fixed beams: its run file stores each scan's "
+            "beam directions (it cannot be simulated)"
+        )

@@ -42,5 +42,4 @@ class ProfilingSonar(RangeSensor):
 
     def metadata(self) -> dict:
         # the keys runs have always carried, so older readers and files agree
-        return {**super().metadata(), "sonar": self.config.to_dict(),
-                "T_vehicle_sonar": self.T_vehicle_sensor.tolist()}
+        return {**super().metadata(), "sonar": self.config.to_dict(), "T_vehicle_sonar": self.T_vehicle_sensor.tolist()}

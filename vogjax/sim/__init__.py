@@ -5,11 +5,17 @@ without loading MuJoCo and JAX."""
 
 import importlib
 
-_HOMES = {"RunSummary": "mission", "simulate_run": "mission", "drifting_navigation": "navigation",
-          "SimulatedScans": "ranging", "scan": "ranging", "simulate": "vehicle", "simulate_batch": "vehicle"}
+_HOMES = {
+    "RunSummary": "mission",
+    "simulate_run": "mission",
+    "drifting_navigation": "navigation",
+    "SimulatedScans": "ranging",
+    "scan": "ranging",
+    "simulate": "vehicle",
+    "simulate_batch": "vehicle",
+}
 
-__all__ = ["RunSummary", "SimulatedScans", "drifting_navigation", "scan", "simulate",
-           "simulate_batch", "simulate_run"]
+__all__ = ["RunSummary", "SimulatedScans", "drifting_navigation", "scan", "simulate", "simulate_batch", "simulate_run"]
 
 
 def __getattr__(name):

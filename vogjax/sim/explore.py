@@ -42,8 +42,24 @@ from vogjax.sim.stepped_navigation import SteppedNavigation
 MAPS = ("global", "virtual", "standard")
 # Scans flown per compiled MJX call; a flight is cut where the waypoint is reached.
 PIECE_SCANS = 10
-CSV_FIELDS = ("iteration", "time_s", "scans", "submaps", "explored_m3", "path_m", "plan_s", "rays", "gain_m3",
-              "nodes", "samples", "x_m", "y_m", "z_m", "yaw_rad", "reached")
+CSV_FIELDS = (
+    "iteration",
+    "time_s",
+    "scans",
+    "submaps",
+    "explored_m3",
+    "path_m",
+    "plan_s",
+    "rays",
+    "gain_m3",
+    "nodes",
+    "samples",
+    "x_m",
+    "y_m",
+    "z_m",
+    "yaw_rad",
+    "reached",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,10 +107,21 @@ def csv_path_of(out) -> Path:
     return out.with_name(out.stem + ".explore.csv")
 
 
-def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: int = 0,
-            planner_config: PlannerConfig | None = None, pipeline_config: PipelineConfig | None = None,
-            sensor: RangeSensor | None = None, noise: NavNoise | None = None, max_scans: int | None = None,
-            progress: bool = True, on_iteration=None, overwrite: bool = False) -> ExploreSummary:
+def explore(
+    scene_name: str,
+    out,
+    submaps: int,
+    map_kind: str = "global",
+    seed: int = 0,
+    planner_config: PlannerConfig | None = None,
+    pipeline_config: PipelineConfig | None = None,
+    sensor: RangeSensor | None = None,
+    noise: NavNoise | None = None,
+    max_scans: int | None = None,
+    progress: bool = True,
+    on_iteration=None,
+    overwrite: bool = False,
+) -> ExploreSummary:
     """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
     write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
     planning iteration to RUN.explore.csv. planner_config: default the papers' settings for the
@@ -120,17 +147,28 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
     sensor = ProfilingSonar(SonarConfig(range_noise_m=0.02)) if sensor is None else as_sensor(sensor)
     vehicle.steps_per_scan(sensor.rate_hz, "sensor.rate_hz")  # scan times k / rate_hz as simulated
     noise = noise or pipeline_config.nav_noise
-    metadata = {"scene": scene_name, "seed": seed, "mission": "explore", "map": map_kind, **sensor.metadata(),
-                "nav_noise": noise.to_dict(), "planner": planner_config.to_dict(),
-                "pipeline": {"scans_per_submap": pipeline_config.scans_per_submap,
-                             "voxel_size": pipeline_config.map.voxel_size},
-                "vogjax_version": vogjax.__version__}
+    metadata = {
+        "scene": scene_name,
+        "seed": seed,
+        "mission": "explore",
+        "map": map_kind,
+        **sensor.metadata(),
+        "nav_noise": noise.to_dict(),
+        "planner": planner_config.to_dict(),
+        "pipeline": {
+            "scans_per_submap": pipeline_config.scans_per_submap,
+            "voxel_size": pipeline_config.map.voxel_size,
+        },
+        "vogjax_version": vogjax.__version__,
+    }
     loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata)
     nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=scene.region())
     rows = []
     stopped = "submaps"
-    with DatasetWriter(out, sensor.beams, metadata) as writer, \
-            tqdm(total=submaps, unit="submap", desc=f"exploring {scene_name}", disable=not progress) as bar:
+    with (
+        DatasetWriter(out, sensor.beams, metadata) as writer,
+        tqdm(total=submaps, unit="submap", desc=f"exploring {scene_name}", disable=not progress) as bar,
+    ):
         loop.writer = writer
         # nbvplanner's initial motion: a turn in place, so the first tree has a map to grow in
         x, y, z, yaw = loop.true_state()
@@ -141,10 +179,19 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
                 break
             T_plan = loop.estimate(map_kind)
             plan = nbv.plan(loop.planning_map(map_kind), T_plan)
-            row = {"iteration": len(rows), "time_s": loop.scans / sensor.rate_hz, "scans": loop.scans,
-                   "submaps": loop.mapper.num_submaps, "explored_m3": loop.explored_m3(),
-                   "path_m": loop.path_m, "plan_s": plan.seconds, "rays": plan.rays, "gain_m3": plan.gain_m3,
-                   "nodes": plan.nodes, "samples": plan.iterations}
+            row = {
+                "iteration": len(rows),
+                "time_s": loop.scans / sensor.rate_hz,
+                "scans": loop.scans,
+                "submaps": loop.mapper.num_submaps,
+                "explored_m3": loop.explored_m3(),
+                "path_m": loop.path_m,
+                "plan_s": plan.seconds,
+                "rays": plan.rays,
+                "gain_m3": plan.gain_m3,
+                "nodes": plan.nodes,
+                "samples": plan.iterations,
+            }
             if len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3:
                 rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
                 stopped = "gain" if plan.nodes else "blocked"
@@ -156,16 +203,24 @@ def explore(scene_name: str, out, submaps: int, map_kind: str = "global", seed: 
             T_goal = loop.truth[-1] @ inverse(T_plan) @ pose_from_xyz_yaw(*goal)
             target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
             reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target))
-            rows.append({**row, "x_m": goal[0], "y_m": goal[1], "z_m": goal[2], "yaw_rad": goal[3],
-                         "reached": reached})
+            rows.append({**row, "x_m": goal[0], "y_m": goal[1], "z_m": goal[2], "yaw_rad": goal[3], "reached": reached})
             if on_iteration:
                 on_iteration(loop.mapper, plan, rows[-1])
             bar.update(loop.mapper.num_submaps - bar.n)
         loop.mapper.finish_submap()
         bar.update(loop.mapper.num_submaps - bar.n)  # the turn in place and the last submap count too
     _write_csv(csv_path_of(out), rows)
-    return ExploreSummary(Path(out), csv_path_of(out), loop.scans, loop.mapper.num_submaps, len(rows),
-                          loop.scans / sensor.rate_hz, loop.path_m, loop.explored_m3(), stopped)
+    return ExploreSummary(
+        Path(out),
+        csv_path_of(out),
+        loop.scans,
+        loop.mapper.num_submaps,
+        len(rows),
+        loop.scans / sensor.rate_hz,
+        loop.path_m,
+        loop.explored_m3(),
+        stopped,
+    )
 
 
 def _timeout_s(state: np.ndarray, target: np.ndarray, config: ControllerConfig = ControllerConfig()) -> float:
@@ -178,8 +233,7 @@ def _timeout_s(state: np.ndarray, target: np.ndarray, config: ControllerConfig =
 class _Loop:
     """The simulated vehicle and its mapper: flies, scans, drifts, maps, records."""
 
-    def __init__(self, scene, sensor: RangeSensor, noise: NavNoise, seed: int, config: PipelineConfig,
-                 metadata: dict):
+    def __init__(self, scene, sensor: RangeSensor, noise: NavNoise, seed: int, config: PipelineConfig, metadata: dict):
         self.scene, self.sensor = scene, sensor
         self.mapper = Mapper(config, metadata)
         self.navigation = SteppedNavigation(noise, seed)
@@ -220,7 +274,7 @@ class _Loop:
         lo, hi = self.scene.region()
         inside = np.all((centres >= lo) & (centres <= hi), axis=1)
         known = (values <= gmap.config.log_free) | (values >= gmap.config.log_occupied)
-        return float(np.count_nonzero(inside & known) * gmap.config.voxel_size ** 3)
+        return float(np.count_nonzero(inside & known) * gmap.config.voxel_size**3)
 
     def fly(self, waypoints, timeout_s: float | None = None) -> bool:
         """Fly through waypoints (W,4) in the true frame, scanning, until the last one is reached
@@ -235,7 +289,7 @@ class _Loop:
             keep = int(np.argmax(done)) + 1 if done.any() else PIECE_SCANS
             self._record(flight.poses[:keep])
             self.qpos, self.qvel = flight.qpos[keep - 1], flight.qvel[keep - 1]
-            waypoints = waypoints[int(flight.index[keep - 1]):]  # each piece starts at its first
+            waypoints = waypoints[int(flight.index[keep - 1]) :]  # each piece starts at its first
             flown += keep
             if done.any():
                 return True
@@ -249,9 +303,12 @@ class _Loop:
         scans = ranging.scan(self.scene.warp_mesh, truth @ self.sensor.T_vehicle_sensor, self.sensor, self.rng)
         fields = self.sensor.dataset_fields(scans.ranges, scans.no_return)
         # what the run file stores (float32 beams), so reprocessing it sees the same scans
-        fields = {"sonar_origin": fields["sonar_origin"].astype(np.float32),
-                  "sonar_directions": fields["sonar_directions"].astype(np.float32),
-                  "ranges": fields["ranges"].astype(np.float32), "no_return": fields["no_return"]}
+        fields = {
+            "sonar_origin": fields["sonar_origin"].astype(np.float32),
+            "sonar_directions": fields["sonar_directions"].astype(np.float32),
+            "ranges": fields["ranges"].astype(np.float32),
+            "no_return": fields["no_return"],
+        }
         self.writer.append(time_s=times, pose_truth=truth, pose_nav=nav, **fields)
         self.mapper.add(ScanBatch(self.scans, times, truth, nav, **fields))
         positions = np.concatenate([[self.truth[-1][:3, 3]], truth[:, :3, 3]])

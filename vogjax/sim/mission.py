@@ -12,10 +12,10 @@ import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise
 from vogjax.config.schema import Rule
-from vogjax.sensors import RangeSensor, as_sensor, ProfilingSonar
 from vogjax.geometry import rigid_pose, wrap_angle, yaw_pitch_roll
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import DatasetWriter
+from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
 from vogjax.sim import navigation, ranging, vehicle
 from vogjax.validation import float_array
 
@@ -32,8 +32,9 @@ class RunSummary:
     returns: float  # fraction of beams that returned
 
 
-def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
-                  config: ControllerConfig = ControllerConfig()) -> int:
+def mission_scans(
+    waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float, config: ControllerConfig = ControllerConfig()
+) -> int:
     """Scans long enough to fly the waypoints at the speed limits, with a margin; at most
     MAX_SCANS (a ValueError otherwise)."""
     start_pose = rigid_pose("start_pose", start_pose)
@@ -42,18 +43,29 @@ def mission_scans(waypoints: np.ndarray, start_pose: np.ndarray, rate_hz: float,
     points = np.vstack([start_pose[:3, 3], waypoints[:, :3]])
     headings = np.concatenate([[yaw_pitch_roll(start_pose[:3, :3])[0]], waypoints[:, 3]])
     turns = np.abs(wrap_angle(np.diff(headings)))
-    seconds = (np.linalg.norm(np.diff(points, axis=0), axis=1).sum() / config.max_speed_mps
-               + turns.sum() / config.max_yaw_rate_rps)
+    seconds = (
+        np.linalg.norm(np.diff(points, axis=0), axis=1).sum() / config.max_speed_mps
+        + turns.sum() / config.max_yaw_rate_rps
+    )
     scans = np.ceil(1.4 * seconds * rate_hz) + 10
     if not scans <= MAX_SCANS:
-        raise ValueError(f"flying these waypoints at {rate_hz:g} Hz takes {scans:.3g} scans, more than the limit "
-                         f"of {MAX_SCANS}")
+        raise ValueError(
+            f"flying these waypoints at {rate_hz:g} Hz takes {scans:.3g} scans, more than the limit of {MAX_SCANS}"
+        )
     return int(scans)
 
 
-def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, num_scans: int | None = None,
-                 sensor: RangeSensor | None = None, noise: NavNoise | None = None,
-                 progress: bool = True, overwrite: bool = False) -> RunSummary:
+def simulate_run(
+    scene_name: str,
+    out,
+    laps: int | None = None,
+    seed: int = 0,
+    num_scans: int | None = None,
+    sensor: RangeSensor | None = None,
+    noise: NavNoise | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> RunSummary:
     """Simulate the default survey of a built-in scene and write it to `out` (HDF5).
 
     laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);
@@ -88,8 +100,9 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
         num_scans = mission_scans(waypoints, scene.start_pose, sensor.rate_hz)
     # 1. fly the survey (MJX), and stop recording once the last waypoint is reached
     truth, index = vehicle.simulate(scene.start_pose, waypoints, num_scans, sensor.rate_hz)
-    arrived = np.flatnonzero((index == len(waypoints) - 1)
-                             & (np.linalg.norm(truth[:, :3, 3] - waypoints[-1, :3], axis=1) < 0.2))
+    arrived = np.flatnonzero(
+        (index == len(waypoints) - 1) & (np.linalg.norm(truth[:, :3, 3] - waypoints[-1, :3], axis=1) < 0.2)
+    )
     if until_done and len(arrived):
         num_scans = min(num_scans, int(arrived[0]) + int(sensor.rate_hz * 5))
         truth = truth[:num_scans]
@@ -98,16 +111,28 @@ def simulate_run(scene_name: str, out, laps: int | None = None, seed: int = 0, n
     nav = navigation.drifting_navigation(truth, times, noise, seed)
     # 3. scan and record, a chunk at a time
     rng = np.random.default_rng(seed + 1)
-    metadata = {"scene": scene_name, "seed": seed, "laps": laps, **sensor.metadata(),
-                "nav_noise": noise.to_dict(), "waypoints": waypoints.tolist(), "vogjax_version": vogjax.__version__}
+    metadata = {
+        "scene": scene_name,
+        "seed": seed,
+        "laps": laps,
+        **sensor.metadata(),
+        "nav_noise": noise.to_dict(),
+        "waypoints": waypoints.tolist(),
+        "vogjax_version": vogjax.__version__,
+    }
     returned = 0
     with DatasetWriter(out, sensor.beams, metadata) as writer:
         chunk = max(1, min(CHUNK_SCANS, ranging.MAX_CAST_BEAMS // sensor.beams))
-        for first in tqdm(range(0, num_scans, chunk), desc=f"simulating {scene_name}",
-                          unit="chunk", disable=not progress):
+        for first in tqdm(
+            range(0, num_scans, chunk), desc=f"simulating {scene_name}", unit="chunk", disable=not progress
+        ):
             last = min(first + chunk, num_scans)
             scans = ranging.scan(scene.warp_mesh, truth[first:last] @ sensor.T_vehicle_sensor, sensor, rng)
             returned += int((~scans.no_return).sum())
-            writer.append(time_s=times[first:last], pose_truth=truth[first:last], pose_nav=nav[first:last],
-                          **sensor.dataset_fields(scans.ranges, scans.no_return))
+            writer.append(
+                time_s=times[first:last],
+                pose_truth=truth[first:last],
+                pose_nav=nav[first:last],
+                **sensor.dataset_fields(scans.ranges, scans.no_return),
+            )
     return RunSummary(Path(out), num_scans, float(times[-1]), returned / (num_scans * sensor.beams))

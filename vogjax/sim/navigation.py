@@ -11,8 +11,9 @@ from vogjax.geometry import inverse, rigid_poses, rotation_from_ypr, yaw_pitch_r
 from vogjax.validation import real_array
 
 
-def drifting_navigation(truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None,
-                        seed: int = 0) -> np.ndarray:
+def drifting_navigation(
+    truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None, seed: int = 0
+) -> np.ndarray:
     """Navigation poses (N,4,4) for ground-truth poses (N,4,4) at times (N,), seeded.
 
     Each step's true motion is perturbed in x, y (its own frame) and yaw with variances

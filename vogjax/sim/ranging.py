@@ -38,19 +38,29 @@ def scan(mesh: wp.Mesh, T_world_sensor: np.ndarray, sensor, rng: np.random.Gener
         raise ValueError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
     sensor = as_sensor(sensor)
     if len(poses) * sensor.beams > MAX_CAST_BEAMS:
-        raise ValueError(f"T_world_sensor holds {len(poses)} poses of {sensor.beams} beams each, more than "
-                         f"{MAX_CAST_BEAMS} beams in one call (scan fewer poses at a time)")
+        raise ValueError(
+            f"T_world_sensor holds {len(poses)} poses of {sensor.beams} beams each, more than "
+            f"{MAX_CAST_BEAMS} beams in one call (scan fewer poses at a time)"
+        )
     devices.init()
     count = len(poses)
     local = sensor.beam_directions()
     ranges = wp.empty((count, sensor.beams), dtype=float, device="cpu")
     if count:
-        wp.launch(ranging.cast_sensor_beams, dim=(count, sensor.beams),
-                  inputs=[mesh.id, wp.array(poses[:, :3, 3], dtype=wp.vec3, device="cpu"),
-                          wp.array(poses[:, :3, :3], dtype=wp.mat33, device="cpu"),
-                          wp.array(local, dtype=wp.vec3, device="cpu"), float(sensor.min_range_m),
-                          float(sensor.max_range_m)],
-                  outputs=[ranges], device="cpu")
+        wp.launch(
+            ranging.cast_sensor_beams,
+            dim=(count, sensor.beams),
+            inputs=[
+                mesh.id,
+                wp.array(poses[:, :3, 3], dtype=wp.vec3, device="cpu"),
+                wp.array(poses[:, :3, :3], dtype=wp.mat33, device="cpu"),
+                wp.array(local, dtype=wp.vec3, device="cpu"),
+                float(sensor.min_range_m),
+                float(sensor.max_range_m),
+            ],
+            outputs=[ranges],
+            device="cpu",
+        )
     ranges = ranges.numpy().astype(np.float64)
     no_return = ranges < 0
     if sensor.range_noise_m > 0:

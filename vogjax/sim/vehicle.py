@@ -18,8 +18,15 @@ from mujoco import mjx
 
 from vogjax.config import ControllerConfig
 from vogjax.config.schema import Rule
-from vogjax.geometry import (quaternions_from_rotations, rigid_pose, rigid_poses, rotation_from_quaternion,
-                             rotations_from_quaternions, wrap_angle, yaw_of_quaternion)
+from vogjax.geometry import (
+    quaternions_from_rotations,
+    rigid_pose,
+    rigid_poses,
+    rotation_from_quaternion,
+    rotations_from_quaternions,
+    wrap_angle,
+    yaw_of_quaternion,
+)
 from vogjax.sim.vehicle_model import HAUV_XML
 from vogjax.validation import float_array
 
@@ -48,15 +55,19 @@ def control(qpos, qvel, target, config: ControllerConfig):
     velocity = jnp.where(distance > 1e-9, error / jnp.maximum(distance, 1e-9) * speed, 0.0)
     force_world = DAMPING * velocity + config.velocity_gain * (velocity - qvel[:3])
     force_body = rotation_from_quaternion(qpos[3:7], jnp).T @ force_world
-    yaw_rate = jnp.clip(config.yaw_gain * wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp)),
-                        -config.max_yaw_rate_rps, config.max_yaw_rate_rps)
+    yaw_rate = jnp.clip(
+        config.yaw_gain * wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp)),
+        -config.max_yaw_rate_rps,
+        config.max_yaw_rate_rps,
+    )
     torque = DAMPING * yaw_rate + config.yaw_rate_gain * (yaw_rate - qvel[5])
     return jnp.concatenate([force_body, torque[None]])
 
 
 def _reached(qpos, target, config: ControllerConfig):
-    return (jnp.linalg.norm(target[:3] - qpos[:3]) < config.tolerance_m) & \
-        (jnp.abs(wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp))) < config.tolerance_rad)
+    return (jnp.linalg.norm(target[:3] - qpos[:3]) < config.tolerance_m) & (
+        jnp.abs(wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp))) < config.tolerance_rad
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("num_scans", "steps_per_scan", "config"))
@@ -107,8 +118,10 @@ def steps_per_scan(rate_hz: float, name: str = "scan_rate_hz") -> int:
     steps = 1.0 / (rate_hz * timestep)
     whole = round(steps)
     if whole < 1 or abs(steps - whole) > STEP_TOLERANCE * whole:
-        raise ValueError(f"{name} must be {1 / timestep:g}/n Hz for a whole number n of {timestep:g} s physics "
-                         f"steps between scans (20, 10, 6.667, 5, 4, ... Hz), got {rate_hz!r}")
+        raise ValueError(
+            f"{name} must be {1 / timestep:g}/n Hz for a whole number n of {timestep:g} s physics "
+            f"steps between scans (20, 10, 6.667, 5, 4, ... Hz), got {rate_hz!r}"
+        )
     return int(whole)
 
 
@@ -117,8 +130,10 @@ def _flight_args(num_scans, scan_rate_hz, config) -> int:
     Rule("integer", 0, MAX_SCANS).check("num_scans", num_scans)
     steps = steps_per_scan(scan_rate_hz)
     if num_scans * steps > MAX_STEPS:
-        raise ValueError(f"num_scans {num_scans} at {scan_rate_hz:g} Hz is {num_scans * steps} physics steps, "
-                         f"more than the limit of {MAX_STEPS}")
+        raise ValueError(
+            f"num_scans {num_scans} at {scan_rate_hz:g} Hz is {num_scans * steps} physics steps, "
+            f"more than the limit of {MAX_STEPS}"
+        )
     if not isinstance(config, ControllerConfig):
         raise ValueError(f"config must be a ControllerConfig, got {type(config).__name__}")
     return steps
@@ -142,8 +157,9 @@ def _start_poses(name: str, value) -> np.ndarray:
     return poses
 
 
-def simulate(start_pose, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
-             config: ControllerConfig = ControllerConfig()) -> tuple[np.ndarray, np.ndarray]:
+def simulate(
+    start_pose, waypoints, num_scans: int, scan_rate_hz: float = 5.0, config: ControllerConfig = ControllerConfig()
+) -> tuple[np.ndarray, np.ndarray]:
     """Fly from start_pose (4,4) through waypoints (W,4: x, y, z, yaw; W >= 1); the pose at each
     scan (num_scans,4,4) and the index of the waypoint being flown to. scan_rate_hz must give a
     whole number of physics steps between scans (`steps_per_scan`), so scan k is at k / rate."""
@@ -151,20 +167,23 @@ def simulate(start_pose, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
     waypoints = _waypoints(waypoints, (-1, 4))
     steps = _flight_args(num_scans, scan_rate_hz, config)
     _, mx = model()
-    qpos, index = _run(mx, jnp.asarray(_qpos(start_pose)),
-                       jnp.asarray(waypoints, dtype=jnp.float32), int(num_scans), steps, config)
+    qpos, index = _run(
+        mx, jnp.asarray(_qpos(start_pose)), jnp.asarray(waypoints, dtype=jnp.float32), int(num_scans), steps, config
+    )
     return poses_from_qpos(np.asarray(qpos)), np.asarray(index)
 
 
-def simulate_batch(start_poses, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
-                   config: ControllerConfig = ControllerConfig()) -> tuple[np.ndarray, np.ndarray]:
+def simulate_batch(
+    start_poses, waypoints, num_scans: int, scan_rate_hz: float = 5.0, config: ControllerConfig = ControllerConfig()
+) -> tuple[np.ndarray, np.ndarray]:
     """`simulate` for V vehicles at once (vmap): start_poses (V,4,4), waypoints (V,W,4)."""
     start_poses = _start_poses("start_poses", start_poses)
     waypoints = _waypoints(waypoints, (len(start_poses), -1, 4))
     steps = _flight_args(num_scans, scan_rate_hz, config)
     if len(start_poses) * num_scans > MAX_SCANS:
-        raise ValueError(f"start_poses times num_scans must be at most {MAX_SCANS} scans, "
-                         f"got {len(start_poses)} x {num_scans}")
+        raise ValueError(
+            f"start_poses times num_scans must be at most {MAX_SCANS} scans, got {len(start_poses)} x {num_scans}"
+        )
     num_scans = int(num_scans)
     _, mx = model()
     qpos0 = jnp.asarray(_qpos(start_poses))
@@ -175,6 +194,7 @@ def simulate_batch(start_poses, waypoints, num_scans: int, scan_rate_hz: float =
 
 # ---------------------------------------------------------------- flights continued from a state
 # (for closed-loop runs, where the next waypoint depends on what the vehicle has seen so far)
+
 
 @dataclasses.dataclass(frozen=True)
 class Flight:
@@ -212,8 +232,9 @@ def _run_from(mx, qpos0, qvel0, waypoints, num_scans: int, steps_per_scan: int, 
     return qpos, qvel, index
 
 
-def fly(qpos, qvel, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
-        config: ControllerConfig = ControllerConfig()) -> Flight:
+def fly(
+    qpos, qvel, waypoints, num_scans: int, scan_rate_hz: float = 5.0, config: ControllerConfig = ControllerConfig()
+) -> Flight:
     """Continue a flight from the state qpos (7,), qvel (6,) (a `resting_state`, or a Flight's
     last row) through waypoints (W,4: x, y, z, yaw) for num_scans scans. Compiled once per
     (num_scans, W): callers fly fixed-length pieces."""
@@ -223,7 +244,8 @@ def fly(qpos, qvel, waypoints, num_scans: int, scan_rate_hz: float = 5.0,
     steps = _flight_args(num_scans, scan_rate_hz, config)
     num_scans = int(num_scans)
     _, mx = model()
-    qpos, qvel, index = _run_from(mx, jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(waypoints, dtype=jnp.float32),
-                                  num_scans, steps, config)
+    qpos, qvel, index = _run_from(
+        mx, jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(waypoints, dtype=jnp.float32), num_scans, steps, config
+    )
     qpos = np.asarray(qpos, dtype=np.float64)
     return Flight(poses_from_qpos(qpos), np.asarray(index), qpos, np.asarray(qvel, dtype=np.float64))

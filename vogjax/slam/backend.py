@@ -16,8 +16,8 @@ import numpy as np
 
 from vogjax.config import NavNoise
 from vogjax.geometry import rigid_pose, wrap_angle
-from vogjax.validation import real_array
 from vogjax.slam import factors
+from vogjax.validation import real_array
 
 PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
 MIN_VARIANCE, MAX_VARIANCE = 1e-12, 1e12
@@ -53,8 +53,9 @@ def _zpr_error(measured: np.ndarray, this: gtsam.CustomFactor, values: gtsam.Val
     return error
 
 
-def _partial_error(between: gtsam.BetweenFactorPose3, basis: np.ndarray, this: gtsam.CustomFactor,
-                   values: gtsam.Values, jacobians):
+def _partial_error(
+    between: gtsam.BetweenFactorPose3, basis: np.ndarray, this: gtsam.CustomFactor, values: gtsam.Values, jacobians
+):
     """basis^T of the full Pose3 loop-closure error: GTSAM's own Jacobians, projected."""
     linear = between.linearize(values)  # unit noise: A is the plain Jacobian, b = -error
     A, b = linear.jacobian()
@@ -76,8 +77,10 @@ def _covariance(name: str, covariance, size: int) -> np.ndarray:
     # GTSAM inverts it: sigmas below a micrometre (or microradian) or beyond a megametre
     # overflow or lose every digit in the information matrix
     if eigenvalues.min() < MIN_VARIANCE or eigenvalues.max() > MAX_VARIANCE:
-        raise ValueError(f"{name} must have variances in [{MIN_VARIANCE:g}, {MAX_VARIANCE:g}] (sigmas from a "
-                         f"micrometre to a megametre), got eigenvalues {eigenvalues.min():.3g} .. {eigenvalues.max():.3g}")
+        raise ValueError(
+            f"{name} must have variances in [{MIN_VARIANCE:g}, {MAX_VARIANCE:g}] (sigmas from a "
+            f"micrometre to a megametre), got eigenvalues {eigenvalues.min():.3g} .. {eigenvalues.max():.3g}"
+        )
     return covariance
 
 
@@ -92,9 +95,15 @@ class PoseGraph:
         self.noise = noise or NavNoise()
         self.prior_pose = rigid_pose("prior_pose", np.eye(4) if prior_pose is None else prior_pose)
         sigmas = real_array("prior_sigmas", prior_sigmas)
-        if sigmas.shape != (6,) or not np.all(np.isfinite(sigmas)) or not np.all(sigmas > 0) or \
-                not np.all((sigmas**2 >= MIN_VARIANCE) & (sigmas**2 <= MAX_VARIANCE)):
-            raise ValueError(f"prior_sigmas must be six sigmas in [1e-6, 1e6] (rad, rad, rad, m, m, m), got {prior_sigmas!r}")
+        if (
+            sigmas.shape != (6,)
+            or not np.all(np.isfinite(sigmas))
+            or not np.all(sigmas > 0)
+            or not np.all((sigmas**2 >= MIN_VARIANCE) & (sigmas**2 <= MAX_VARIANCE))
+        ):
+            raise ValueError(
+                f"prior_sigmas must be six sigmas in [1e-6, 1e6] (rad, rad, rad, m, m, m), got {prior_sigmas!r}"
+            )
         self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
         self._isam = gtsam.ISAM2(gtsam.ISAM2Params())
         self._pending = gtsam.NonlinearFactorGraph()
@@ -111,10 +120,16 @@ class PoseGraph:
         """A new node at the navigation pose; `duration_s`: time since the previous base pose."""
         T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
         i = self.num_submaps
-        if i > 0 and not (isinstance(duration_s, (int, float, np.integer, np.floating)) and not isinstance(duration_s, bool)
-                          and np.isfinite(duration_s) and MIN_DURATION_S <= duration_s <= MAX_DURATION_S):
-            raise ValueError(f"duration_s must be a number of seconds in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}], "
-                             f"got {duration_s!r}")
+        if i > 0 and not (
+            isinstance(duration_s, (int, float, np.integer, np.floating))
+            and not isinstance(duration_s, bool)
+            and np.isfinite(duration_s)
+            and MIN_DURATION_S <= duration_s <= MAX_DURATION_S
+        ):
+            raise ValueError(
+                f"duration_s must be a number of seconds in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}], "
+                f"got {duration_s!r}"
+            )
         if i == 0:
             self._pending.add(gtsam.PriorFactorPose3(0, _pose3(self.prior_pose), self._prior_noise))
             self.factors.append(("prior", (0,)))
@@ -124,9 +139,11 @@ class PoseGraph:
             step, variances = factors.xyh(previous, T), self.noise.xyh_variances(duration_s)
             step_sigmas = np.abs(step[:2]).max() / np.sqrt(variances[:2].min())
             if step_sigmas > MAX_STEP_SIGMAS:
-                raise ValueError(f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
-                                 f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s): a jump "
-                                 "the pose graph cannot weigh")
+                raise ValueError(
+                    f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
+                    f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s): a jump "
+                    "the pose graph cannot weigh"
+                )
             xyh_noise = gtsam.noiseModel.Diagonal.Variances(variances)
             zpr_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.zpr_variances(duration_s))
             self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i], partial(_xyh_error, step)))
@@ -152,16 +169,23 @@ class PoseGraph:
         T_i_k = rigid_pose("T_i_k", T_i_k)
         covariance = _covariance("covariance", covariance, 6)
         if basis is None:
-            self._pending.add(gtsam.BetweenFactorPose3(int(i), int(k), _pose3(T_i_k),
-                                                       gtsam.noiseModel.Gaussian.Covariance(covariance)))
+            self._pending.add(
+                gtsam.BetweenFactorPose3(
+                    int(i), int(k), _pose3(T_i_k), gtsam.noiseModel.Gaussian.Covariance(covariance)
+                )
+            )
             self.factors.append(("loop", (int(i), int(k))))
             return
         try:
             basis = np.asarray(basis, dtype=np.float64)
         except (TypeError, ValueError):
             raise ValueError("basis must be a (6, r) matrix") from None
-        if basis.ndim != 2 or basis.shape[0] != 6 or not 1 <= basis.shape[1] <= 6 or \
-                not np.allclose(basis.T @ basis, np.eye(basis.shape[1]), atol=1e-6):
+        if (
+            basis.ndim != 2
+            or basis.shape[0] != 6
+            or not 1 <= basis.shape[1] <= 6
+            or not np.allclose(basis.T @ basis, np.eye(basis.shape[1]), atol=1e-6)
+        ):
             raise ValueError("basis must be (6, r), 1 <= r <= 6, with orthonormal columns")
         unit = gtsam.noiseModel.Unit.Create(6)
         between = gtsam.BetweenFactorPose3(int(i), int(k), _pose3(T_i_k), unit)
@@ -193,8 +217,7 @@ class PoseGraph:
             raise ValueError(f"ids must be submap ids, got {ids!r}")
         if array.size and (array.min() < 0 or array.max() >= len(self._estimates)):
             raise ValueError(f"ids holds unknown or not yet updated submap ids (have {len(self._estimates)})")
-        return np.stack([self._isam.marginalCovariance(int(i)) for i in array]) if array.size \
-            else np.zeros((0, 6, 6))
+        return np.stack([self._isam.marginalCovariance(int(i)) for i in array]) if array.size else np.zeros((0, 6, 6))
 
     def _estimate(self, i: int) -> np.ndarray:
         if i < len(self._estimates):

@@ -13,9 +13,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import fft, ndimage
-
 import warp as wp
+from scipy import fft, ndimage
 
 from vogjax import devices
 from vogjax.config import CorrelativeConfig
@@ -54,8 +53,14 @@ class CorrelativeMatch:
         return self.runner_up / self.score if self.score > 0 else 1.0
 
 
-def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, radius_m: float,
-                    yaw_radius_rad: float, config: CorrelativeConfig = CorrelativeConfig()) -> CorrelativeMatch:
+def correlative_xyh(
+    source: np.ndarray,
+    target: np.ndarray,
+    T_init: np.ndarray,
+    radius_m: float,
+    yaw_radius_rad: float,
+    config: CorrelativeConfig = CorrelativeConfig(),
+) -> CorrelativeMatch:
     """Best x-y-yaw correction of T_init (source -> target frame) within radius_m and yaw_radius_rad.
 
     The correction rotates about the source cloud's centroid (in the target frame) and then
@@ -64,8 +69,9 @@ def correlative_xyh(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, 
     return correlative_xyh_batch([(source, target, T_init, radius_m, yaw_radius_rad)], config)[0]
 
 
-def correlative_xyh_batch(searches: list, config: CorrelativeConfig = CorrelativeConfig(),
-                          device=None) -> list[CorrelativeMatch]:
+def correlative_xyh_batch(
+    searches: list, config: CorrelativeConfig = CorrelativeConfig(), device=None
+) -> list[CorrelativeMatch]:
     """`correlative_xyh` for many (source, target, T_init, radius_m, yaw_radius_rad) at once.
 
     device None: FFT correlation on the host, one search after the other. A Warp device (a
@@ -84,8 +90,9 @@ def correlative_xyh_batch(searches: list, config: CorrelativeConfig = Correlativ
     peaks = {p: _Peak() for p in direct}
     for p, n, window in _device_windows([plans[p] for p in direct], device):
         peaks[direct[p]].offer(plans[direct[p]].yaws[n], window / len(plans[direct[p]].moved))
-    return [peaks[p].match(plan, config) if p in peaks else _search_on_host(plan, config)
-            for p, plan in enumerate(plans)]
+    return [
+        peaks[p].match(plan, config) if p in peaks else _search_on_host(plan, config) for p, plan in enumerate(plans)
+    ]
 
 
 def _search_on_host(plan: _Plan | CorrelativeMatch, config: CorrelativeConfig) -> CorrelativeMatch:
@@ -137,7 +144,9 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
             raise ValueError(f"{name} has coordinates beyond {MAX_COORDINATE_M:g} m")
     T_init = rigid_pose("T_init", T_init)
     for name, value, most in (("radius_m", radius_m, MAX_RADIUS_M), ("yaw_radius_rad", yaw_radius_rad, np.pi)):
-        if isinstance(value, bool) or not (isinstance(value, (int, float, np.integer, np.floating)) and 0 <= value <= most):
+        if isinstance(value, bool) or not (
+            isinstance(value, (int, float, np.integer, np.floating)) and 0 <= value <= most
+        ):
             raise ValueError(f"{name} must be a number in [0, {most:g}], got {value!r}")
     res = config.resolution_m
     moved = source @ T_init[:3, :3].T + T_init[:3, 3]
@@ -157,10 +166,12 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
     yaw_steps = 2 * np.floor(yaw_radius_rad / config.yaw_step_rad) + 1
     cells = float(np.prod(extent))
     if cells > MAX_GRID_CELLS or cells * yaw_steps > MAX_SEARCH_WORK:
-        raise ValueError(f"radius_m ({radius_m:g} m) and yaw_radius_rad ({yaw_radius_rad:g}) ask for a search grid of "
-                         f"{cells:.3g} cells x {yaw_steps:.0f} yaw steps at {res:g} m; at most {MAX_GRID_CELLS:.0e} "
-                         f"cells and {MAX_SEARCH_WORK:.0e} cells x yaw steps (a coarser resolution_m or a smaller "
-                         "radius)")
+        raise ValueError(
+            f"radius_m ({radius_m:g} m) and yaw_radius_rad ({yaw_radius_rad:g}) ask for a search grid of "
+            f"{cells:.3g} cells x {yaw_steps:.0f} yaw steps at {res:g} m; at most {MAX_GRID_CELLS:.0e} "
+            f"cells and {MAX_SEARCH_WORK:.0e} cells x yaw steps (a coarser resolution_m or a smaller "
+            "radius)"
+        )
     shape = extent.astype(int)
     steps = int(yaw_steps) // 2
     # Only the layers the source occupies enter the sum over z (a yaw keeps every z; one more
@@ -168,7 +179,9 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
     z_lo = max(int(np.floor((moved[:, 2].min() - lo[2]) / res)) - 1, 0)
     z_hi = min(int(np.floor((moved[:, 2].max() - lo[2]) / res)) + 2, int(shape[2]))
     field = _target_field(np.floor((target - lo) / res).astype(int), shape, z_lo, z_hi, config.blur_voxels)
-    return _Plan(T_init, moved, pivot, lo, z_lo, res, shift_cells, field, config.yaw_step_rad * np.arange(-steps, steps + 1))
+    return _Plan(
+        T_init, moved, pivot, lo, z_lo, res, shift_cells, field, config.yaw_step_rad * np.arange(-steps, steps + 1)
+    )
 
 
 def _fft_windows(plan: _Plan):
@@ -198,8 +211,11 @@ def _device_windows(plans: list[_Plan], device):
         more_cells, more_scores = len(plan.moved), (2 * plan.shift_cells + 1) ** 2
         for n in range(len(plan.yaws)):
             more_floats = 0 if p in fields else plan.field.size
-            if launch and (field_floats + more_floats > MAX_FIELD_FLOATS or cells + more_cells > MAX_LAUNCH_CELLS or
-                           scores + more_scores > MAX_LAUNCH_SCORES):
+            if launch and (
+                field_floats + more_floats > MAX_FIELD_FLOATS
+                or cells + more_cells > MAX_LAUNCH_CELLS
+                or scores + more_scores > MAX_LAUNCH_SCORES
+            ):
                 yield from _correlate_on_device(plans, launch, device)
                 launch, fields, field_floats, cells, scores = [], set(), 0, 0, 0
                 more_floats = plan.field.size
@@ -217,7 +233,7 @@ def _correlate_on_device(plans: list[_Plan], slots: list, device) -> list:
     field_sizes = np.array([plans[p].field.size for p in used])
     widths = np.array([2 * plans[p].shift_cells + 1 for p, _ in slots])
     counts = np.array([len(plans[p].moved) for p, _ in slots])
-    window_start = np.concatenate([[0], np.cumsum(widths ** 2)]).astype(np.int32)
+    window_start = np.concatenate([[0], np.cumsum(widths**2)]).astype(np.int32)
     with wp.ScopedDevice(device):
         field = wp.array(np.concatenate([plans[p].field.ravel() for p in used]), dtype=wp.float32)
         field_start = wp.array(np.concatenate([[0], np.cumsum(field_sizes)[:-1]]).astype(np.int32), dtype=wp.int32)
@@ -228,12 +244,27 @@ def _correlate_on_device(plans: list[_Plan], slots: list, device) -> list:
         cell_count = wp.array(counts.astype(np.int32), dtype=wp.int32)
         cells = wp.array(np.concatenate([plans[p].cells(n) for p, n in slots]).astype(np.int32), dtype=wp.vec3i)
         windows = wp.empty(int(window_start[-1]), dtype=wp.float64)
-        wp.launch(registration.correlate_shifted_cells, dim=int(window_start[-1]),
-                  inputs=[field, field_start, field_dims, shift, slot_field, cell_start, cell_count,
-                          wp.array(window_start, dtype=wp.int32), cells], outputs=[windows])
+        wp.launch(
+            registration.correlate_shifted_cells,
+            dim=int(window_start[-1]),
+            inputs=[
+                field,
+                field_start,
+                field_dims,
+                shift,
+                slot_field,
+                cell_start,
+                cell_count,
+                wp.array(window_start, dtype=wp.int32),
+                cells,
+            ],
+            outputs=[windows],
+        )
         flat = windows.numpy()
-    return [(p, n, flat[first:first + width * width].reshape(width, width))
-            for (p, n), width, first in zip(slots, widths, window_start)]
+    return [
+        (p, n, flat[first : first + width * width].reshape(width, width))
+        for (p, n), width, first in zip(slots, widths, window_start)
+    ]
 
 
 class _Peak:
@@ -279,7 +310,9 @@ def _target_field(cells: np.ndarray, shape: np.ndarray, z_lo: int, z_hi: int, bl
     field = np.zeros((int(shape[0]), int(shape[1]), z_hi - z_lo), np.float32)
     z0, z1 = max(z_lo, int(box_lo[2])), min(z_hi, int(box_hi[2]))
     if z1 > z0:
-        field[box_lo[0]:box_hi[0], box_lo[1]:box_hi[1], z0 - z_lo:z1 - z_lo] = box[:, :, z0 - box_lo[2]:z1 - box_lo[2]]
+        field[box_lo[0] : box_hi[0], box_lo[1] : box_hi[1], z0 - z_lo : z1 - z_lo] = box[
+            :, :, z0 - box_lo[2] : z1 - box_lo[2]
+        ]
     return field
 
 

@@ -77,12 +77,22 @@ def _check_target(target: IcpTarget, config: IcpConfig) -> IcpTarget:
     """A prepared target as `prepare_target` makes them (one built by hand could pair a tree
     or normals with other points)."""
     points = target.points
-    if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2 and
-            points.shape[1] == 3 and len(points) >= 3 and isinstance(target.tree, cKDTree) and
-            target.tree.n == len(points) and np.array_equal(target.tree.data, points) and
-            isinstance(target.normals, np.ndarray) and target.normals.shape == points.shape):
-        raise ValueError("targets: an IcpTarget whose points, tree and normals do not belong together "
-                         "(make them with prepare_target)")
+    if not (
+        isinstance(points, np.ndarray)
+        and points.dtype == np.float64
+        and points.ndim == 2
+        and points.shape[1] == 3
+        and len(points) >= 3
+        and isinstance(target.tree, cKDTree)
+        and target.tree.n == len(points)
+        and np.array_equal(target.tree.data, points)
+        and isinstance(target.normals, np.ndarray)
+        and target.normals.shape == points.shape
+    ):
+        raise ValueError(
+            "targets: an IcpTarget whose points, tree and normals do not belong together "
+            "(make them with prepare_target)"
+        )
     if target.neighbours != config.normal_neighbours:
         raise ValueError("targets: an IcpTarget was prepared with other normal_neighbours than config's")
     return target
@@ -107,14 +117,14 @@ def _plane_system(moved, rotation, source, matched, normals):
     return np.concatenate([d_omega, n_rotated], axis=-1), residuals
 
 
-def icp(source, target, T_init=None, method: str = "point_to_plane",
-        config: IcpConfig | None = None) -> IcpResult:
+def icp(source, target, T_init=None, method: str = "point_to_plane", config: IcpConfig | None = None) -> IcpResult:
     """Align `source` (N,3) to `target` (M,3), starting from T_init (4,4) T_target_source."""
     return icp_batch([source], [target], None if T_init is None else [T_init], method, config)[0]
 
 
-def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
-              config: IcpConfig | None = None, device=None) -> list[IcpResult]:
+def icp_batch(
+    sources, targets, T_inits=None, method: str = "point_to_plane", config: IcpConfig | None = None, device=None
+) -> list[IcpResult]:
     """Align many (source, target) pairs at once: the neighbour searches run per pair, the normal
     equations, eigen-decompositions and updates for all pairs together (padded arrays). A
     target may be an `IcpTarget` (`prepare_target`): its tree and normals are used as they are,
@@ -136,18 +146,19 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
     if len(sources) != len(targets):
         raise ValueError("sources and targets must pair up (same length)")
     sources = [_cloud("source", c) for c in sources]
-    prepared = [_check_target(t, config) if isinstance(t, IcpTarget) else prepare_target(t, config)
-                for t in targets]
+    prepared = [_check_target(t, config) if isinstance(t, IcpTarget) else prepare_target(t, config) for t in targets]
     count = len(sources)
     if count == 0:
         return []
-    T = (np.tile(np.eye(4), (count, 1, 1)) if T_inits is None
-         else rigid_poses("T_init", T_inits, count=count).copy())
+    T = np.tile(np.eye(4), (count, 1, 1)) if T_inits is None else rigid_poses("T_init", T_inits, count=count).copy()
     targets = [t.points for t in prepared]
     trees = [t.tree for t in prepared]
     normals = [t.normals for t in prepared]
-    nearest = (_tree_neighbours(trees, config.max_correspondence_m) if device is None
-               else _GridNeighbours(targets, config.max_correspondence_m, device))
+    nearest = (
+        _tree_neighbours(trees, config.max_correspondence_m)
+        if device is None
+        else _GridNeighbours(targets, config.max_correspondence_m, device)
+    )
     width = max(len(s) for s in sources)
     active = np.ones(count, bool)
     converged = np.zeros(count, bool)
@@ -197,17 +208,22 @@ def icp_batch(sources, targets, T_inits=None, method: str = "point_to_plane",
         angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
         done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
         starved = inliers < config.min_inliers
-        cycling = np.zeros(len(ids), bool) if cycles is None else \
-            _returned(cycles, ids, matches, good.sum(axis=1) == 3, iterations[ids])
+        cycling = (
+            np.zeros(len(ids), bool)
+            if cycles is None
+            else _returned(cycles, ids, matches, good.sum(axis=1) == 3, iterations[ids])
+        )
         converged[ids] = done & ~starved
         active[ids] = ~(done | starved | cycling)
-    return [_result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]),
-                    config)
-            for k in range(count)]
+    return [
+        _result(sources[k], targets[k], trees[k], normals[k], T[k], bool(converged[k]), int(iterations[k]), config)
+        for k in range(count)
+    ]
 
 
-def _returned(cycles: list, pairs: np.ndarray, matches: list, well_conditioned: np.ndarray,
-              iteration: np.ndarray) -> np.ndarray:
+def _returned(
+    cycles: list, pairs: np.ndarray, matches: list, well_conditioned: np.ndarray, iteration: np.ndarray
+) -> np.ndarray:
     """Per pair: did its correspondences (nearest indices) come back, two or more iterations
     after they were last used, since its last step that was not well conditioned?
     `cycles[pair]` remembers since then each set's digest and last iteration. The set of the
@@ -229,10 +245,12 @@ def _returned(cycles: list, pairs: np.ndarray, matches: list, well_conditioned: 
 def _tree_neighbours(trees: list, max_distance_m: float):
     """nearest(pairs, moved): per pair, the index of each moved point's nearest target point
     within max_distance_m, -1 where there is none, from the pair's k-d tree."""
+
     def nearest(pairs, moved):
         for pair, points in zip(pairs, moved):
             distance, index = trees[pair].query(points, distance_upper_bound=max_distance_m)
             yield np.where(np.isfinite(distance), index, -1)
+
     return nearest
 
 
@@ -247,22 +265,34 @@ class _GridNeighbours:
         with wp.ScopedDevice(device):
             self.points = wp.array(np.concatenate(targets), dtype=wp.vec3d)
             self.grid = wp.HashGrid(128, 128, 128, dtype=wp.float64)
-            self.grid.build(self.points, max_distance_m,
-                            groups=wp.array(np.repeat(np.arange(len(targets), dtype=np.int32), np.diff(starts)),
-                                            dtype=wp.int32))
+            self.grid.build(
+                self.points,
+                max_distance_m,
+                groups=wp.array(np.repeat(np.arange(len(targets), dtype=np.int32), np.diff(starts)), dtype=wp.int32),
+            )
 
     def __call__(self, pairs, moved):
         counts = [len(points) for points in moved]
         with wp.ScopedDevice(self.device):
             found = wp.empty(sum(counts), dtype=wp.int32)
-            wp.launch(registration.find_nearest_points, dim=sum(counts), inputs=[
-                self.grid.id, self.points, wp.array(np.concatenate(moved), dtype=wp.vec3d),
-                wp.array(np.repeat(np.asarray(pairs, np.int32), counts), dtype=wp.int32),
-                wp.float64(self.max_distance_m)], outputs=[found])
+            wp.launch(
+                registration.find_nearest_points,
+                dim=sum(counts),
+                inputs=[
+                    self.grid.id,
+                    self.points,
+                    wp.array(np.concatenate(moved), dtype=wp.vec3d),
+                    wp.array(np.repeat(np.asarray(pairs, np.int32), counts), dtype=wp.int32),
+                    wp.float64(self.max_distance_m),
+                ],
+                outputs=[found],
+            )
             index = found.numpy()
         # back to each target's own numbering
-        return [np.where(part >= 0, part - self.starts[pair], -1)
-                for pair, part in zip(pairs, np.split(index, np.cumsum(counts)[:-1]))]
+        return [
+            np.where(part >= 0, part - self.starts[pair], -1)
+            for pair, part in zip(pairs, np.split(index, np.cumsum(counts)[:-1]))
+        ]
 
 
 def _xyh_steps(moved: np.ndarray, matched: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -288,8 +318,7 @@ def _result(source, target, tree, normals, T, converged, iterations, config) -> 
     distance, index = tree.query(moved, distance_upper_bound=config.max_correspondence_m)
     inlier = np.isfinite(distance)
     if inlier.any():
-        J, _ = _plane_system(moved[inlier], T[:3, :3], source[inlier], target[index[inlier]],
-                             normals[index[inlier]])
+        J, _ = _plane_system(moved[inlier], T[:3, :3], source[inlier], target[index[inlier]], normals[index[inlier]])
         J = J * _free_columns(config)
         H = J.T @ J
         fitness = float(np.mean(distance[inlier] ** 2))
@@ -298,8 +327,17 @@ def _result(source, target, tree, normals, T, converged, iterations, config) -> 
     values, vectors = np.linalg.eigh(H)
     num_inliers = int(inlier.sum())
     good = values >= config.lambda_min * max(num_inliers, 1)
-    return IcpResult(T, bool(converged and num_inliers >= config.min_inliers), fitness, num_inliers,
-                     iterations, H, values, vectors, vectors[:, good])
+    return IcpResult(
+        T,
+        bool(converged and num_inliers >= config.min_inliers),
+        fitness,
+        num_inliers,
+        iterations,
+        H,
+        values,
+        vectors,
+        vectors[:, good],
+    )
 
 
 def _free_columns(config: IcpConfig) -> np.ndarray:

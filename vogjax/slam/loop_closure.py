@@ -70,16 +70,34 @@ def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, 
     yaw_radius_rad) per candidate, source = submap k's cloud; `seconds` collects the time per
     phase; device: where the searches and ICP's neighbour queries run (None: on the host)."""
     start = time.perf_counter()
-    seeds = correlative_xyh_batch([(source, target.points, T_init, radius_m, yaw_radius_rad)
-                                   for source, target, T_init, radius_m, yaw_radius_rad in pairs],
-                                  config.correlative, device)
+    seeds = correlative_xyh_batch(
+        [
+            (source, target.points, T_init, radius_m, yaw_radius_rad)
+            for source, target, T_init, radius_m, yaw_radius_rad in pairs
+        ],
+        config.correlative,
+        device,
+    )
     seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
     # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
-    refine = [n for n, seed in enumerate(seeds)
-              if seed.score >= config.min_overlap_score and seed.ratio <= config.max_ambiguity]
+    refine = [
+        n
+        for n, seed in enumerate(seeds)
+        if seed.score >= config.min_overlap_score and seed.ratio <= config.max_ambiguity
+    ]
     start = time.perf_counter()
-    results = icp_batch([pairs[n][0] for n in refine], [pairs[n][1] for n in refine],
-                        [seeds[n].T_target_source for n in refine], config.method, config.icp, device) if refine else []
+    results = (
+        icp_batch(
+            [pairs[n][0] for n in refine],
+            [pairs[n][1] for n in refine],
+            [seeds[n].T_target_source for n in refine],
+            config.method,
+            config.icp,
+            device,
+        )
+        if refine
+        else []
+    )
     seconds["icp"] = seconds.get("icp", 0.0) + time.perf_counter() - start
     refined = dict(zip(refine, results))
     return [Alignment(refined.get(n), seed.T_target_source, seed.score, seed.ratio) for n, seed in enumerate(seeds)]
@@ -105,8 +123,11 @@ class LoopClosureDetector:
         """Submap i's cloud prepared for ICP once: kept while the same values (compared point by
         point, cheap next to a tree and normals) come with the same ICP settings."""
         kept = self._targets.get(i)
-        if kept is None or kept.neighbours != self.config.icp.normal_neighbours or \
-                not np.array_equal(kept.points, cloud):
+        if (
+            kept is None
+            or kept.neighbours != self.config.icp.normal_neighbours
+            or not np.array_equal(kept.points, cloud)
+        ):
             start = time.perf_counter()
             kept = self._targets[i] = prepare_target(cloud, self.config.icp)
             self.seconds["icp"] += time.perf_counter() - start
@@ -128,11 +149,12 @@ class LoopClosureDetector:
                 found.append(i)
                 distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
         # aligning costs most of a submap's time: bound it by the best-placed few
-        nearest = np.argsort(distances, kind="stable")[:cfg.max_candidates]
+        nearest = np.argsort(distances, kind="stable")[: cfg.max_candidates]
         return sorted(found[j] for j in nearest)
 
-    def detect(self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray,
-               times_s: np.ndarray) -> tuple[list[LoopClosure], list[Rejection]]:
+    def detect(
+        self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray, times_s: np.ndarray
+    ) -> tuple[list[LoopClosure], list[Rejection]]:
         """Loop closures of submap k with earlier submaps.
 
         clouds[i]: (N,3) occupied points in submap i's frame; bounds[i]: its (lo, hi) box or None;
@@ -150,14 +172,22 @@ class LoopClosureDetector:
             elapsed = abs(times_s[k] - times_s[i])
             # with ICP holding the rotation, the search takes the yaw from the estimate too
             yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if cfg.icp.free == "all" else 0.0
-            pairs.append((clouds[k], self._target(i, clouds[i]), inverse(poses[i]) @ poses[k],
-                          min(self._drift_bound(elapsed), cfg.max_search_m), yaw_radius))
+            pairs.append(
+                (
+                    clouds[k],
+                    self._target(i, clouds[i]),
+                    inverse(poses[i]) @ poses[k],
+                    min(self._drift_bound(elapsed), cfg.max_search_m),
+                    yaw_radius,
+                )
+            )
         alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device)
         for i, alignment in zip(found, alignments):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             result = alignment.icp
-            deviation = np.nan if result is None else \
-                float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
+            deviation = (
+                np.nan if result is None else float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
+            )
             reason = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
             if reason:
                 rejected.append(Rejection(i, k, reason, np.nan if result is None else result.fitness, deviation))
@@ -199,5 +229,14 @@ class LoopClosureDetector:
         floor = np.array([cfg.min_sigma_rotation_rad] * 3 + [cfg.min_sigma_translation_m] * 3) ** 2
         covariance = covariance + np.diag(floor)
         basis = None if good.all() else result.basis
-        return LoopClosure(i, k, result.T_target_source, covariance, basis, result.fitness,
-                           result.num_inliers, alignment.overlap, alignment.ambiguity)
+        return LoopClosure(
+            i,
+            k,
+            result.T_target_source,
+            covariance,
+            basis,
+            result.fitness,
+            result.num_inliers,
+            alignment.overlap,
+            alignment.ambiguity,
+        )
