@@ -5,8 +5,10 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # Warp compiles kernels once per source change; keep them in the checkout so tests and CI reuse them.
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
+# MkDocs Material's banner about its successor is not a build problem
+export NO_MKDOCS_2_WARNING := 1
 
-.PHONY: test demo bench clean
+.PHONY: test docs demo bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +19,7 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(VENV)/bin/ruff check --quiet .
 	$(VENV)/bin/ruff format --check --quiet .
+	$(VENV)/bin/mkdocs build --strict
 	$(PY) -m pytest -q
 
 demo: $(STAMP)
@@ -34,3 +37,6 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) .cache demo_out
+
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict

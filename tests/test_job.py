@@ -219,3 +219,19 @@ def test_paper_preset_is_sodhi_with_the_bounded_rule(tmp_path):
     settings.write_text("[pipeline]\neps_move_m = 0\n")
     literal = JobConfig.from_toml(settings, JobConfig.preset("paper")).pipeline
     assert literal == PipelineConfig.paper(eps_move_m=0.0) != paper
+
+
+def test_every_report_field_is_described(mapped):
+    from vogjax.report.fields import FIELDS, undescribed
+
+    report = json.loads((mapped / "report.json").read_text())
+    assert undescribed(report) == []
+    # and every described field occurs (the confidence map's only with --crm)
+    for path in FIELDS:
+        if "*" in path or path.startswith("confidence_map."):
+            continue
+        node = report
+        for key in path.split("."):
+            assert isinstance(node, dict) and key in node, f"{path} is described but not in the report"
+            node = node[key]
+    assert undescribed({"auc": {"online": 0.5}, "no_such_field": 1}) == ["no_such_field"]

@@ -18,13 +18,18 @@ COMMANDS = {
 }
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The `vogjax` parser with every subcommand (the CLI reference is generated from it)."""
     parser = argparse.ArgumentParser(prog="vogjax", description="GPU/JAX occupancy mapping")
     subparsers = parser.add_subparsers(dest="command", required=True)
+    for module in COMMANDS.values():
+        importlib.import_module(f"vogjax.commands.{module}").add_parser(subparsers)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     modules = {name: importlib.import_module(f"vogjax.commands.{module}") for name, module in COMMANDS.items()}
-    for module in modules.values():
-        module.add_parser(subparsers)
-    args = parser.parse_args(argv)
     try:
         modules[args.command].run(args)
     except ValueError as error:
