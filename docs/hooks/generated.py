@@ -2,6 +2,9 @@
 
 A page asks for generated content with an HTML comment on a line of its own:
 
+- ``<!-- generated: api vogjax.maps -->``: the package's docstring, then one mkdocstrings entry
+  per name of its ``__all__``, from the module that defines it (names a package imports on
+  first use resolve too), and its constants with their values;
 - ``<!-- generated: cli -->``: every subcommand's ``--help``, from ``vogjax.cli.build_parser()``;
 - ``<!-- generated: settings JobConfig -->`` / ``settings ExploreConfig``: one table per settings
   table of a settings file, from the rules in ``vogjax/config`` and the classes' docstrings;
@@ -26,7 +29,7 @@ from contextlib import redirect_stdout
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-MARKER = re.compile(r"^<!-- generated: ([\w-]+)(?: (\w+))? -->$", re.M)
+MARKER = re.compile(r"^<!-- generated: ([\w-]+)(?: ([\w.]+))? -->$", re.M)
 
 
 def on_config(config):
@@ -56,6 +59,8 @@ def on_page_markdown(markdown, page, config, files):
         kind, argument = match.group(1), match.group(2)
         if kind == "cli":
             return cli_reference()
+        if kind == "api":
+            return api_reference(argument)
         if kind == "settings":
             return settings_reference(argument)
         if kind == "report-json":
@@ -65,6 +70,49 @@ def on_page_markdown(markdown, page, config, files):
         raise ValueError(f"{page.file.src_path}: unknown generated block {kind!r}")
 
     return MARKER.sub(expand, markdown)
+
+
+def api_reference(package: str) -> str:
+    import importlib
+    import inspect
+
+    module = importlib.import_module(package)
+    parts = [f"::: {package}\n    options:\n      members: false\n      show_root_heading: false\n"]
+    constants, elsewhere = [], []
+    names = getattr(module, "__all__", None)
+    if names is None:  # a module without __all__: what it defines without a leading underscore
+        names = [
+            n
+            for n, o in vars(module).items()
+            if not n.startswith("_") and getattr(o, "__module__", None) == package and callable(o)
+        ]
+    for name in names:
+        obj = getattr(module, name)
+        if inspect.ismodule(obj):
+            parts.append(f"::: {obj.__name__}\n    options:\n      members: false\n      heading_level: 2\n")
+        elif (inspect.isclass(obj) or inspect.isfunction(obj)) and documented_at_home(obj, package):
+            # re-exported: documented once, on the page of the package that defines it
+            elsewhere.append(f"[`{name}`][{obj.__module__}.{obj.__qualname__}]")
+        elif inspect.isclass(obj) or inspect.isfunction(obj):
+            parts.append(f"::: {obj.__module__}.{obj.__qualname__}\n")
+        else:
+            constants.append(f"| `{name}` | `{obj!r}` |")
+    if elsewhere:
+        parts.insert(1, "Also here, documented where they are defined: " + ", ".join(elsewhere) + ".\n")
+    if constants:
+        parts.append("## Constants\n\n| name | value |\n| --- | --- |\n" + "\n".join(constants) + "\n")
+    return "\n".join(parts)
+
+
+def documented_at_home(obj, package: str) -> bool:
+    """Whether `obj`, listed by `package`, belongs on another package's page: the subpackage
+    that defines it lists it too."""
+    import importlib
+
+    home = ".".join(obj.__module__.split(".")[:2])
+    if home == package or home == "vogjax":
+        return False
+    return obj.__name__ in getattr(importlib.import_module(home), "__all__", ())
 
 
 def cli_reference() -> str:
