@@ -85,6 +85,20 @@ class Parser(argparse.ArgumentParser):
         self._arguments = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
 
+    def parse_args(self, args=None, namespace=None) -> argparse.Namespace:
+        """As argparse's, with an argument nobody takes reported by the subcommand it was
+        given to: an unknown flag as unknown (with the closest known one), anything else as
+        unexpected."""
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(namespace, "command", None)
+            parser = _subparser(self, command) if command else self
+            flags = [e for e in extras if e.startswith("-") and not _NEGATIVE_NUMBER.match(e)]
+            if flags:
+                parser.error(parser.unknown_message(flags[0].split("=", 1)[0]))
+            parser.error(f"unexpected argument {extras[0]!r} ({parser.prog} --help lists the arguments)")
+        return namespace
+
     def error(self, message: str):
         """Print one line naming what is wrong and exit with status 2 (never returns)."""
         unknown = self.unknown_flags(self._arguments)
@@ -111,9 +125,15 @@ class Parser(argparse.ArgumentParser):
             and unique prefixes of known flags, which argparse accepts, are not among them.
         """
         known = set(self._option_string_actions)
+        commands = {
+            name
+            for action in self._actions
+            if isinstance(action, argparse._SubParsersAction)
+            for name in action.choices
+        }
         unknown = []
         for argument in arguments:
-            if argument == "--":
+            if argument == "--" or argument in commands:  # a subcommand's flags are its own
                 break
             if not argument.startswith("-") or argument == "-" or _NEGATIVE_NUMBER.match(argument):
                 continue
@@ -226,6 +246,8 @@ def start_libraries(verbose: bool) -> None:
     if not verbose:
         for name in ("jax", "jax._src.xla_bridge", "absl"):
             logging.getLogger(name).setLevel(logging.ERROR)
+    if devices.init.cache_info().currsize:  # started already (an earlier command in this process)
+        return
     with _native_stderr(keep=verbose) as lines:
         devices.init()
     for line in lines:
@@ -246,14 +268,7 @@ def main(argv: list[str] | None = None) -> int:
     int
         0 on success; errors exit with status 2 (SystemExit), Ctrl-C with 130.
     """
-    parser = build_parser()
-    args, extras = parser.parse_known_args(argv)
-    command = _subparser(parser, args.command)
-    if extras:
-        flags = [e for e in extras if e.startswith("-") and not _NEGATIVE_NUMBER.match(e)]
-        if flags:
-            command.error(command.unknown_message(flags[0].split("=", 1)[0]))
-        command.error(f"unexpected argument {extras[0]!r} ({command.prog} --help lists the arguments)")
+    args = build_parser().parse_args(argv)
     module = importlib.import_module(f"vogjax.commands.{COMMANDS[args.command]}")
     try:
         if args.command in WARP_COMMANDS:

@@ -71,7 +71,8 @@ def add_parser(commands) -> None:
         type=ruled("integer", 1),
         default=None,
         help="map this many runs at once with Ray, each in its own process; a run that fails "
-        "fails alone (pip install 'vogjax[workers]')",
+        "fails alone (pip install 'vogjax[workers]'; default: one after another in this process, "
+        "or with --address one worker per run)",
     )
     mapping.add_argument(
         "--address",

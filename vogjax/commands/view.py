@@ -39,7 +39,7 @@ def add_parser(commands) -> None:
         "--save",
         type=Path,
         default=None,
-        help="write the recording to this .rrd file instead of opening a viewer (`rerun FILE.rrd` shows it)",
+        help="write the recording to this .rrd file (`rerun FILE.rrd` shows it; default: open a viewer)",
     )
     add_output_flags(view)
 

@@ -120,7 +120,8 @@ def settings_toml(config: Config, command: str, commented: tuple[str, ...] = (),
     """
     notes = notes or {}
     lines = [
-        f"# Settings of `{command}`: every setting, with its value, what it accepts and its unit.",
+        f"# Settings of `{command}`:",
+        "# every setting, with its value, what it accepts and its unit.",
         f"# Pass it back with `{command} --config FILE`; a setting left out keeps its default.",
         "# Check a file with `vogjax config --check FILE`.",
     ]

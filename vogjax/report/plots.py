@@ -99,20 +99,28 @@ def top_view_figure(
     figure, ax = plt.subplots(figsize=(7.5, min(12.0, 6.5 * aspect + 1.5)), dpi=120)
     ax.imshow(np.where(seen, FREE_GREY, 1.0).T, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1)
     image = ax.imshow(height.T, origin="lower", extent=extent, cmap="viridis")
-    figure.colorbar(image, ax=ax, fraction=0.04, pad=0.02, label="height of the highest occupied voxel, z [m]")
+    figure.colorbar(image, ax=ax, fraction=0.04, pad=0.02, shrink=0.85, label="highest occupied voxel, z [m]")
     handles = [
         Patch(facecolor=plt.get_cmap("viridis")(0.6), label="occupied (coloured by height)"),
         Patch(facecolor=str(FREE_GREY), label="free (observed, nothing occupied)"),
         Patch(facecolor="white", edgecolor="0.6", label="unknown (never observed)"),
     ]
     if scene is not None and _outline(ax, scene, s, lo, shape):
-        handles.append(Line2D([], [], color=TRUTH_COLOUR, lw=1.2, label="ground truth: outline of each part"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=TRUTH_COLOUR,
+                lw=1.2,
+                label="ground truth: each part's outline (the map is not registered to it)",
+            )
+        )
     ax.set_xlim(extent[:2])
     ax.set_ylim(extent[2:])
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title or f"{map_name}, top view")
-    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2, fontsize=8, frameon=False)
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=8, frameon=False)
     return figure
 
 
@@ -213,7 +221,13 @@ def trajectories_figure(result, title: str = "") -> Figure:
     start = (start if start is not None else result.scan_poses("navigation"))[0]
     ax.plot(start[0, 3], start[1, 3], "*", color="k", ms=10, label="start")
     ax.plot([], [], "o", color="0.35", ms=2.5, label="submap base poses (dots, on each path)")
-    ax.plot([], [], color="tab:green", lw=0.6, label=f"accepted loop closures ({len(result.loop_closures)}), optimized")
+    ax.plot(
+        [],
+        [],
+        color="tab:green",
+        lw=0.6,
+        label=f"accepted loop closures ({len(result.loop_closures)}), joining optimized base poses",
+    )
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
