@@ -10,11 +10,12 @@ from vogjax.commands.simulation import scene_help, scene_names
 
 DESCRIPTION = """\
 The whole pipeline in one command: simulate a survey of a built-in scene (as `vogjax
-simulate`, with 2 cm sonar range noise and drifting navigation) into OUT/<scene>.h5, map it
-with loop closures (as `vogjax map`) into OUT/<scene>/, and print the summary table: the
+simulate`, with 2 cm sonar range noise and drifting navigation) into DIR/<scene>.h5, map it
+with loop closures (as `vogjax map`) into DIR/<scene>/, and print the summary table: the
 maps' agreement with the ground truth, the trajectory errors and the timings. The demo's
-own run file and report folder in OUT are replaced when it runs again. The propeller survey
-of two laps takes about a minute on a laptop's CPU."""
+own run file and report folder in DIR are replaced when it runs again. The propeller survey
+of two laps (4,000 scans) takes under a minute on two CPU cores once Warp has compiled its
+kernels."""
 
 EPILOG = """\
 examples:
@@ -38,9 +39,11 @@ def add_parser(commands) -> None:
         description=DESCRIPTION,
         epilog=EPILOG,
     )
-    demo.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
+    demo.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR", help="output folder")
     demo.add_argument("--scene", default="propeller", choices=scene_names(), help=scene_help())
-    demo.add_argument("--laps", type=ruled("integer", 1, MAX_LAPS), default=2, help="times the survey is flown")
+    demo.add_argument(
+        "--laps", type=ruled("integer", 1, MAX_LAPS), default=2, metavar="N", help="times the survey is flown"
+    )
     add_output_flags(demo)
 
 

@@ -40,12 +40,15 @@ def add_parser(commands) -> None:
     explore.add_argument(
         "--submaps",
         type=ruled("integer", 1),
+        metavar="N",
         required=True,
         help="stop once this many submaps are finished, checked before each plan: the initial "
         "turn in place and each flown edge run in full first, and the submap being filled "
         "at the stop is finished too, so a run can end with more",
     )
-    explore.add_argument("--out", type=Path, required=True, help="run file to write (HDF5); RUN.explore.csv beside it")
+    explore.add_argument(
+        "--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5); RUN.explore.csv beside it"
+    )
     explore.add_argument(
         "--map",
         default="global",
@@ -54,7 +57,11 @@ def add_parser(commands) -> None:
         "map, or the navigation-only standard map (the papers' baseline)",
     )
     explore.add_argument(
-        "--seed", type=ruled("integer", 0, 2**63 - 1), default=0, help="seed of the planner, navigation and range noise"
+        "--seed",
+        type=ruled("integer", 0, 2**63 - 1),
+        default=0,
+        metavar="N",
+        help="seed of the planner, navigation and range noise",
     )
     explore.add_argument(
         "--config",

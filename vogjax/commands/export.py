@@ -36,7 +36,10 @@ def add_parser(commands) -> None:
         epilog=EPILOG,
     )
     export.add_argument(
-        "map", type=Path, help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)"
+        "map",
+        type=Path,
+        metavar="MAP.vog",
+        help="map file (.vog: a VoxelMap, GlobalMap or ConfidenceMap, e.g. DIR/global_map.vog)",
     )
     export.add_argument(
         "--format",
@@ -45,7 +48,7 @@ def add_parser(commands) -> None:
         help="bt: OctoMap max-likelihood, ot: OctoMap with every log-odds, ply: occupied voxel "
         "centres coloured by height (default: the suffix of --out)",
     )
-    export.add_argument("--out", type=Path, required=True, help="file to write (.bt, .ot or .ply)")
+    export.add_argument("--out", type=Path, required=True, metavar="FILE", help="file to write (.bt, .ot or .ply)")
     add_output_flags(export)
 
 

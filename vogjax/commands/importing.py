@@ -36,7 +36,7 @@ def add_parser(commands) -> None:
     bag.add_argument("bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file")
     bag.add_argument("--points", required=True, help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
     bag.add_argument("--odometry", required=True, help="topic of nav_msgs/Odometry (the vehicle's poses)")
-    bag.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
+    bag.add_argument("--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5)")
     bag.add_argument(
         "--frame",
         default=None,

@@ -13,7 +13,7 @@ Reprocess recorded runs into loop-closure-consistent occupancy maps. Each run's 
 into submaps anchored to the nodes of an iSAM2 pose graph, loop closures are found by
 registering submaps against earlier ones, and the online global map is kept consistent by
 undoing and redoing only the submaps whose poses moved and are uncertain (Sodhi et al.,
-Algorithm 1). Per run, OUT/<run name>/ receives the map (global_map.vog), the trajectories
+Algorithm 1). Per run, DIR/<run name>/ receives the map (global_map.vog), the trajectories
 (CSV and TUM), the loop closures, report.json and four figures (top_view.png,
 trajectory.png, roc.png, timing.png); a run of a built-in scene is scored against its ground
 truth. A table of each run's headline figures is printed. An existing run folder is kept
@@ -49,11 +49,12 @@ def add_parser(commands) -> None:
         metavar="RUN",
         help="run files (HDF5, from `vogjax simulate`, `import` or a logger)",
     )
-    mapping.add_argument("--out", type=Path, required=True, help="output folder: one sub-folder per run")
+    mapping.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder: one sub-folder per run")
     mapping.add_argument(
         "--config",
         type=Path,
         default=None,
+        metavar="FILE",
         help=config_help(
             "[map], [nav_noise], [loop_closure] (with [loop_closure.icp], "
             "[loop_closure.correlative]), [timing], [pipeline] and [report]"
@@ -70,6 +71,7 @@ def add_parser(commands) -> None:
         "--workers",
         type=ruled("integer", 1),
         default=None,
+        metavar="N",
         help="map this many runs at once with Ray, each in its own process; a run that fails "
         "fails alone (pip install 'vogjax[workers]'; default: one after another in this process, "
         "or with --address one worker per run)",
@@ -77,6 +79,7 @@ def add_parser(commands) -> None:
     mapping.add_argument(
         "--address",
         default=None,
+        metavar="ADDR",
         help="with --workers: an existing Ray cluster (e.g. ray://head:10001, or auto); default: a local one",
     )
     mapping.add_argument(

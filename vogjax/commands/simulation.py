@@ -58,21 +58,30 @@ def add_parser(commands) -> None:
         "simulate", help="simulate a sonar survey of a built-in scene", description=DESCRIPTION, epilog=EPILOG
     )
     sim.add_argument("--scene", required=True, choices=scene_names(), help=scene_help())
-    sim.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
+    sim.add_argument("--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5)")
     sim.add_argument(
         "--laps",
         type=ruled("integer", 1, MAX_LAPS),
+        metavar="N",
         default=None,
         help="times the survey is flown (default 2, or as many as --scans fill)",
     )
     sim.add_argument(
-        "--scans", type=ruled("integer", 1), default=None, help="number of scans (default: enough for the laps)"
+        "--scans",
+        type=ruled("integer", 1),
+        default=None,
+        metavar="N",
+        help="number of scans (default: enough for the laps)",
     )
     sim.add_argument(
-        "--seed", type=ruled("integer", 0, 2**63 - 1), default=0, help="seed of the navigation and range noise"
+        "--seed",
+        type=ruled("integer", 0, 2**63 - 1),
+        default=0,
+        metavar="N",
+        help="seed of the navigation and range noise",
     )
     sim.add_argument(
-        "--range-noise", type=ruled("number", 0), default=0.02, help="sonar range noise (Gaussian), metres"
+        "--range-noise", type=ruled("number", 0), default=0.02, metavar="M", help="sonar range noise (Gaussian), metres"
     )
     sim.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     add_output_flags(sim)

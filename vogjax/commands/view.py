@@ -39,6 +39,7 @@ def add_parser(commands) -> None:
         "--save",
         type=Path,
         default=None,
+        metavar="FILE.rrd",
         help="write the recording to this .rrd file (`rerun FILE.rrd` shows it; default: open a viewer)",
     )
     add_output_flags(view)
