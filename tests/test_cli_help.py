@@ -211,6 +211,7 @@ def files(tmp_path_factory):
     (root / "typo.toml").write_text("[map]\nvoxel_sise = 0.1\n")
     (root / "tiny.toml").write_text(TINY)
     (root / "notes.txt").write_text("not a run\n")
+    (root / "nostd.toml").write_text("[pipeline]\nstandard_map = false\n")
     return root
 
 
@@ -244,6 +245,11 @@ ERRORS = [
     ("explore --scene boxes --submaps 2 --seed -1 --out {d}/e.h5", ["--seed"], []),
     ("explore --scene boxes --submaps 2 --map octomap --out {d}/e.h5", ["--map", "octomap"], []),
     ("explore --scene boxes --submaps 2 --out {d}/run.h5", ["--out", "run.h5", "--overwrite"], ["overwrite=True"]),
+    (
+        "explore --scene boxes --submaps 2 --map standard --config {d}/nostd.toml --out {d}/e.h5",
+        ["--map standard", "standard_map"],
+        ["map_kind"],
+    ),
     ("demo --laps 0 --out {d}/demo", ["--laps"], []),
     ("demo --scene nope --out {d}/demo", ["--scene", "nope"], []),
     ("export {d}/map.vog --format plyy --out {d}/m.bt", ["--format", "did you mean ply?"], []),

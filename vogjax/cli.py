@@ -193,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
         The parser; `parse_args` gives a namespace whose `command` names the subcommand.
     """
     parser = Parser(prog="vogjax", description=DESCRIPTION, epilog=EPILOG)
-    parser.add_argument("--version", action="version", version=f"vogjax {version()}")
+    parser.add_argument("--version", action="version", version=f"vogjax {version()}", help="print the version and exit")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="command", title="commands")
     for module in COMMANDS.values():
         importlib.import_module(f"vogjax.commands.{module}").add_parser(subparsers)

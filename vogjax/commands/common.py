@@ -16,6 +16,11 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     default after its help: ArgumentDefaultsHelpFormatter's "(default: X)", except where the
     help already says it, where there is none (None, a flag's False) or where it is implied."""
 
+    def _format_action(self, action: argparse.Action) -> str:
+        if isinstance(action, argparse._SubParsersAction):  # the commands, without a "command" line above
+            return "".join(self._format_action(command) for command in action._get_subactions())
+        return super()._format_action(action)
+
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         unset = action.default is None or action.default is False or action.default is argparse.SUPPRESS

@@ -89,6 +89,10 @@ def run(args) -> None:
     for path in (args.out, csv_path_of(args.out)):
         refuse_existing(path, args.overwrite, "--out" if path == args.out else "--out's CSV")
     planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed)
+    if args.map == "standard" and not pipeline_config.standard_map:
+        raise ValueError(
+            "--map standard plans on the standard map: --config must not set [pipeline] standard_map = false"
+        )
     summary = explore(
         args.scene,
         args.out,

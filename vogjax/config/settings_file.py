@@ -171,7 +171,7 @@ def _comment(text: str) -> list[str]:
         if any(line.startswith((" ", "\t")) or ":  " in line for line in block[1:]):
             out += [f"# {line}".rstrip() for line in block]  # a laid-out list: kept as written
         else:
-            out += [f"# {line}" for line in textwrap.wrap(" ".join(block), WIDTH - 2)]
+            out += [f"# {line}" for line in textwrap.wrap(" ".join(block), WIDTH - 2, break_on_hyphens=False)]
     return out
 
 
