@@ -88,7 +88,20 @@ class Parser(argparse.ArgumentParser):
     def parse_args(self, args=None, namespace=None) -> argparse.Namespace:
         """As argparse's, with an argument nobody takes reported by the subcommand it was
         given to: an unknown flag as unknown (with the closest known one), anything else as
-        unexpected."""
+        unexpected.
+
+        Parameters
+        ----------
+        args : list of str or None
+            The arguments (None: the process's).
+        namespace : argparse.Namespace or None
+            Where to put the values.
+
+        Returns
+        -------
+        argparse.Namespace
+            The parsed arguments.
+        """
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:
             command = getattr(namespace, "command", None)
@@ -100,7 +113,13 @@ class Parser(argparse.ArgumentParser):
         return namespace
 
     def error(self, message: str):
-        """Print one line naming what is wrong and exit with status 2 (never returns)."""
+        """Print one line naming what is wrong and exit with status 2 (never returns).
+
+        Parameters
+        ----------
+        message : str
+            argparse's message.
+        """
         unknown = self.unknown_flags(self._arguments)
         if unknown and ("required" in message or "expected" in message or "unrecognized" in message):
             message = self.unknown_message(unknown[0])
