@@ -120,7 +120,7 @@ def test_a_failure_while_writing_leaves_the_earlier_results(mapped, boxes_run, m
     monkeypatch.setattr(job.plots, "timing", broken)
     config = JobConfig.from_document({"timing": {"rays": 100, "every_submaps": 5}, "report": {"surface_points": 1000}})
     with pytest.raises(RuntimeError, match="disk full"):
-        job.map_runs([boxes_run], mapped.parent, config, progress=False)
+        job.map_runs([boxes_run], mapped.parent, config, progress=False, overwrite=True)
     assert (mapped / "report.json").read_text() == before
     assert sorted(p.name for p in mapped.parent.iterdir()) == [mapped.name]
 

@@ -4,13 +4,39 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vogjax.commands.common import add_output_flags, refuse_existing, ruled
+
+DESCRIPTION = """\
+Convert a ROS bag into a run file for `vogjax map`: the scans of a PointCloud2 or LaserScan
+topic, each paired with the vehicle's pose from a nav_msgs/Odometry topic (interpolated to the
+scan's time), and the sensor's mount from /tf_static or /tf when --frame names the sensor's
+frame. ROS 1 .bag files, ROS 2 bag folders and .mcap/.db3 files are read without a ROS
+installation (rosbags). The run has no ground truth: `vogjax map` then skips AUC and RMSE."""
+
+EPILOG = """\
+examples:
+  vogjax import survey.bag --points /velodyne_points --odometry /odom --frame velodyne --out survey.h5
+  vogjax import rosbag2_folder --points /scan --odometry /odometry/filtered --out run.h5 --max-range 30"""
+
 
 def add_parser(commands) -> None:
-    bag = commands.add_parser("import", help="convert a ROS 1/ROS 2/MCAP bag into a run file for `vogjax map`")
+    """Declare `vogjax import` and its arguments.
+
+    Parameters
+    ----------
+    commands : argparse._SubParsersAction
+        The subcommands of `vogjax`.
+    """
+    bag = commands.add_parser(
+        "import",
+        help="convert a ROS 1/ROS 2/MCAP bag into a run file for `vogjax map`",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+    )
     bag.add_argument("bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file")
     bag.add_argument("--points", required=True, help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
     bag.add_argument("--odometry", required=True, help="topic of nav_msgs/Odometry (the vehicle's poses)")
-    bag.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
+    bag.add_argument("--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5)")
     bag.add_argument(
         "--frame",
         default=None,
@@ -19,21 +45,29 @@ def add_parser(commands) -> None:
     )
     bag.add_argument(
         "--max-range",
-        type=float,
+        type=ruled("number", 0, low_open=True),
         default=None,
         help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)",
     )
     bag.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
-    bag.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_output_flags(bag)
 
 
 def run(args) -> None:
-    from vogjax.io.rosbag import import_bag
+    """Import the bag and print what was written.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of `vogjax import`.
+    """
+    from vogjax.io.rosbag import MAX_RANGE_M, import_bag
 
     # as `vogjax simulate` does: an existing run is refused before the bag is read (import_bag
     # then checks, with io.atomic.check_writable, that --out can be published)
-    if args.out.exists() and not args.overwrite:
-        raise ValueError(f"out {str(args.out)!r} exists (pass --overwrite to replace it)")
+    refuse_existing(args.out, args.overwrite)
+    if args.max_range is not None and args.max_range > MAX_RANGE_M:
+        raise ValueError(f"--max-range must be at most {MAX_RANGE_M:g} m, got {args.max_range:g}")
     summary = import_bag(
         args.bag,
         args.out,

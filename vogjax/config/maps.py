@@ -37,14 +37,14 @@ class MapConfig(Config):
     max_range:           beams longer than this give free space up to it and no hit, metres
     """
 
-    voxel_size: float = number(0.1, low=1e-4, high=1e3)
+    voxel_size: float = number(0.1, low=1e-4, high=1e3, doc="in m")
     prob_hit: float = probability(0.75)
     prob_miss: float = probability(0.2)
     occupied_threshold: float = probability(0.7)
     free_threshold: float = probability(0.3)
     clamp_min: float = number(0.1192, low=0, high=1, high_open=True)
     clamp_max: float = number(0.971, low=0, high=1, low_open=True)
-    max_range: float = positive(11.0)
+    max_range: float = positive(11.0, doc="in m")
 
     @classmethod
     def paper(cls, **changes) -> MapConfig:

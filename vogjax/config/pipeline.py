@@ -43,8 +43,8 @@ class PipelineConfig(Config):
     scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
     max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
     max_yaw_variance_rad2: float = positive(2e-6)
-    eps_rot: float = non_negative(1e-2)
-    eps_trans: float = non_negative(2e-3)
+    eps_rot: float = non_negative(1e-2, doc="in rad")
+    eps_trans: float = non_negative(2e-3, doc="in m")
     eps_cov: float | str = number("auto", low=0, options=("auto",))
     eps_move_m: float = non_negative(0.05)
     batch_scans: int = integer(200, low=1)

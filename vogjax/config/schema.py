@@ -5,11 +5,14 @@ A setting is a field of a frozen dataclass derived from `Config`, declared with 
 `Config.__post_init__` checks every field against it and then calls `check()` for rules that
 span fields. `from_dict` builds a Config from nested dicts (a TOML document): unknown keys and
 values of the wrong type are errors naming the key's path, and nothing needs a table of its own.
+A declaration's `doc` is a short note the settings file (`settings_file`) prints beside the rule:
+the unit ("in m") of a setting whose name has no unit suffix.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 import tomllib
@@ -206,10 +209,17 @@ class Config:
         return cls.from_document(document, base)
 
     @classmethod
-    def from_document(cls, document: dict, base: Config | None = None):
-        """From a settings document: one table per section (`[map]`, `[loop_closure.icp]`, ...),
-        each setting given replacing that of `base` (default: the defaults)."""
-        tables = {}  # table name -> (path of fields to the Config it sets)
+    def tables(cls) -> dict[str, tuple[str, ...]]:
+        """The top-level tables of this Config's settings file, in order: table name -> the
+        path of fields to the Config it sets; ("pipeline", "") for a flattened section's own
+        plain settings, ("pipeline", "map") for one of its sections, ("report",) otherwise.
+
+        Returns
+        -------
+        dict
+            Table name -> tuple of field names.
+        """
+        tables = {}
         for field in dataclasses.fields(cls):
             if field.metadata.get("flatten"):
                 tables[field.name] = (field.name, "")
@@ -219,9 +229,19 @@ class Config:
                         tables[sub.name] = (field.name, sub.name)
             elif rule_of(field).kind == "section":
                 tables[field.name] = (field.name,)
+        return tables
+
+    @classmethod
+    def from_document(cls, document: dict, base: Config | None = None):
+        """From a settings document: one table per section (`[map]`, `[loop_closure.icp]`, ...),
+        each setting given replacing that of `base` (default: the defaults)."""
+        tables = cls.tables()  # table name -> (path of fields to the Config it sets)
         unknown = sorted(set(document) - set(tables))
         if unknown:
-            raise ValueError(f"unknown config table(s) {', '.join(unknown)} (known: {', '.join(tables)})")
+            raise ValueError(
+                f"unknown config table(s) {', '.join(unknown)}{_did_you_mean(unknown[0], tables)} "
+                f"(known: {', '.join(tables)})"
+            )
         config = cls() if base is None else base
         for table, path in tables.items():
             if table not in document:
@@ -257,7 +277,7 @@ def _replaced(config: Config, values, where: str) -> Config:
     for key, value in values.items():
         name = f"{where}.{key}"
         if key not in fields:
-            raise ValueError(f"unknown setting {name} (known: {', '.join(sorted(fields))})")
+            raise ValueError(f"unknown setting {name}{_did_you_mean(key, fields)} (known: {', '.join(sorted(fields))})")
         rule = rule_of(fields[key])
         if rule.kind == "section":
             changes[key] = _replaced(getattr(config, key), value, name)
@@ -275,6 +295,12 @@ def _replaced(config: Config, values, where: str) -> Config:
         return config.replace(**changes)
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
+
+
+def _did_you_mean(name, known) -> str:
+    """ ", did you mean X?" for the known name closest to a misspelt one, or ""."""
+    close = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    return f", did you mean {close[0]}?" if close else ""
 
 
 def _has_type(rule: Rule, value) -> bool:

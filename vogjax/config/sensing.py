@@ -20,12 +20,12 @@ class NavNoise(Config):
     (depth sensor, inclinometers: unary zpr factors).
     """
 
-    sigma2_x: float = positive(0.00138)
-    sigma2_y: float = positive(0.00138)
-    sigma2_yaw: float = positive(1e-7)
-    sigma2_z: float = positive(1e-4)
-    sigma2_pitch: float = positive(1e-7)
-    sigma2_roll: float = positive(1e-7)
+    sigma2_x: float = positive(0.00138, doc="in m^2/s")
+    sigma2_y: float = positive(0.00138, doc="in m^2/s")
+    sigma2_yaw: float = positive(1e-7, doc="in rad^2/s")
+    sigma2_z: float = positive(1e-4, doc="in m^2/s")
+    sigma2_pitch: float = positive(1e-7, doc="in rad^2/s")
+    sigma2_roll: float = positive(1e-7, doc="in rad^2/s")
 
     def xyh_variances(self, duration_s: float) -> np.ndarray:
         return np.array([self.sigma2_x, self.sigma2_y, self.sigma2_yaw]) * duration_s

@@ -107,14 +107,29 @@ def check_writable(target, folder: bool = False) -> None:
     if not ancestor.is_dir():
         raise ValueError(f"{str(target)!r}: {str(ancestor)!r} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable")
+        raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable (permission denied)")
     try:  # os.access trusts the permission bits: root passes them on /proc or a read-only mount
         with tempfile.TemporaryFile(dir=ancestor):
             pass
     except OSError as error:
-        raise ValueError(
-            f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} ({error.strerror or error})"
-        ) from None
+        raise ValueError(f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} ({_why(error)})") from None
+
+
+_WHY = {
+    errno.EACCES: "permission denied",
+    errno.EPERM: "permission denied",
+    errno.EROFS: "a read-only file system",
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+}
+
+
+def _why(error: OSError) -> str:
+    """Why a file could not be created in an existing folder, in words."""
+    if error.errno in _WHY:
+        return _WHY[error.errno]
+    # /proc, /sys and the like exist but take no new files (they answer "No such file")
+    return f"its file system takes no new files: {error.strerror or error}"
 
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?P<old>\.old)?\.tmp$")

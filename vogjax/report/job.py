@@ -22,19 +22,61 @@ from vogjax.report import document, files, plots, timing
 from vogjax.report.evaluate import evaluate_run
 
 
-def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True) -> list[dict]:
-    """Map each run in `paths` into out/<run name>/; returns the reports."""
+def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True, overwrite: bool = False) -> list[dict]:
+    """Map each run in `paths` into out/<run name>/; returns the reports.
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Run files (HDF5).
+    out : str or Path
+        The output folder: one sub-folder per run.
+    config : JobConfig or None
+        The settings (None: the defaults).
+    progress : bool
+        Whether to show progress bars (stderr).
+    overwrite : bool
+        Replace a run's existing folder; without it an existing one is an error, raised
+        before any work.
+
+    Returns
+    -------
+    list of dict
+        The reports (report.json's contents), in the order of `paths`.
+
+    Raises
+    ------
+    ValueError
+        For bad settings, an unreadable run, an unwritable output, or an existing output
+        without `overwrite`, before anything is written.
+    """
     config, paths = check_job(paths, config)
+    out = Path(out)
+    for path in paths:
+        refuse_existing(out / path.stem, overwrite)
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
             if len(ds) == 0:
                 raise ValueError(f"dataset {str(path)!r} holds no scans")
             ds.validate()
             _check_ground_truth(ds, config)
-    out = Path(out)
     for path in paths:
         check_writable(out / path.stem, folder=True)
     return [_map_into(path, out / path.stem, config, progress) for path in paths]
+
+
+def refuse_existing(out_dir: Path, overwrite: bool) -> None:
+    """A ValueError when a run's output folder exists and `overwrite` is not set.
+
+    Parameters
+    ----------
+    out_dir : Path
+        The run's output folder.
+    overwrite : bool
+        Whether replacing it was asked for.
+    """
+    if out_dir.exists() and not overwrite:
+        raise ValueError(f"out {str(out_dir)!r} exists (pass overwrite=True to replace it)")
 
 
 def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
@@ -60,9 +102,29 @@ def _check_ground_truth(ds: Dataset, config: JobConfig) -> None:
         scenes.load(name).check_occupancy(config.pipeline.map.voxel_size)
 
 
-def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:
-    """Map one run into `out_dir` (replaced only when everything is written); its report."""
+def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True, overwrite: bool = False) -> dict:
+    """Map one run into `out_dir` (published only when everything is written); its report.
+
+    Parameters
+    ----------
+    path : str or Path
+        The run file (HDF5).
+    out_dir : str or Path
+        The run's output folder.
+    config : JobConfig or None
+        The settings (None: the defaults).
+    progress : bool
+        Whether to show progress bars (stderr).
+    overwrite : bool
+        Replace an existing `out_dir`; without it that is an error, raised before any work.
+
+    Returns
+    -------
+    dict
+        The report (report.json's contents).
+    """
     config, (path,) = check_job([path], config)
+    refuse_existing(Path(out_dir), overwrite)
     with Dataset(path) as ds:
         _check_ground_truth(ds, config)
     check_writable(out_dir, folder=True)
@@ -98,13 +160,24 @@ def _evaluate_and_write(
     files.save_tum_trajectories(result, folder)
     # 2. figures
     centres, log_odds = result.global_map.voxels()
-    label = f"{path.stem}: {result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"
-    plots.top_view(centres, log_odds, result.config.map, folder / "top_view.png", title=f"{label}, top view")
-    plots.trajectories(result, folder / "trajectory.png", title=label)
+    counts = f"{result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"
+    plots.top_view(
+        centres,
+        log_odds,
+        result.config.map,
+        folder / "top_view.png",
+        title=f"{path.stem}: the online global map from above\n{counts}",
+        scene=scene,
+    )
+    plots.trajectories(result, folder / "trajectory.png", title=f"{path.stem}: vehicle path from above\n{counts}")
     if roc:
-        plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth")
+        voxels = metrics.get("evaluated_voxels", 0)
+        scored = f"Scored over the {voxels:,} ground-truth voxels the online or standard map observed."
+        plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth (ROC)", note=scored)
     if curves is not None:
-        plots.timing(curves, folder / "timing.png", title=f"{path.stem}, {result.global_map.device}")
+        plots.timing(
+            curves, folder / "timing.png", title=f"{path.stem}: update and query times on {result.global_map.device}"
+        )
     # 3. the report last: its presence says the rest is there
     (folder / "report.json").write_text(
         json.dumps(document.finite_or_null(report), indent=2, default=document.json_default, allow_nan=False)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from vogjax.config import JobConfig
 from vogjax.io.atomic import check_writable
-from vogjax.report.job import check_job
+from vogjax.report.job import check_job, refuse_existing
 
 WORKER_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 # forwarded from this process when set, so workers find the same caches and devices
@@ -51,10 +51,17 @@ def ray_module():
 
 
 def map_runs_parallel(
-    paths, out, config: JobConfig | None = None, workers: int = 2, address: str | None = None, progress: bool = False
+    paths,
+    out,
+    config: JobConfig | None = None,
+    workers: int = 2,
+    address: str | None = None,
+    progress: bool = False,
+    overwrite: bool = False,
 ) -> list[Outcome]:
     """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
-    `address` is None, else the cluster there); the outcomes in the order of `paths`."""
+    `address` is None, else the cluster there); the outcomes in the order of `paths`.
+    overwrite: replace a run's existing folder (else that is an error, raised before any work)."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be a positive integer, got {workers!r}")
     config, paths = check_job(paths, config)
@@ -63,6 +70,7 @@ def map_runs_parallel(
             raise ValueError(f"path {str(path)!r} does not exist")
     out = Path(out)
     for path in paths:
+        refuse_existing(out / path.stem, overwrite)
         check_writable(out / path.stem, folder=True)
     ray = ray_module()
     out.mkdir(parents=True, exist_ok=True)
@@ -122,11 +130,12 @@ def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: b
 
 def _map_one(path: str, out_dir: str, config: JobConfig, cwd: str) -> dict:
     """The task: one run mapped in a worker (quiet: no progress bars), from the caller's
-    working folder, so relative paths and the report's `run` read as they would one by one."""
+    working folder, so relative paths and the report's `run` read as they would one by one
+    (an existing folder was refused, or its replacement asked for, before the tasks began)."""
     from vogjax.report.job import map_run
 
     os.chdir(cwd)
-    return map_run(path, out_dir, config, progress=False)
+    return map_run(path, out_dir, config, progress=False, overwrite=True)
 
 
 def _one_line(error: BaseException) -> str:
