@@ -148,11 +148,12 @@ def settings_reference(class_name: str) -> str:
     from vogjax import config as settings
     from vogjax.config import planner
     from vogjax.config.schema import rule_of
+    from vogjax.config.settings_file import unit_of
 
     cls = getattr(settings, class_name, None) or getattr(planner, class_name)
     parts = []
     for table, instance in settings_tables(cls()):
-        rows = ["| setting | default | accepted | meaning |", "| --- | --- | --- | --- |"]
+        rows = ["| setting | default | accepted | unit | meaning |", "| --- | --- | --- | --- | --- |"]
         docs = field_docs(type(instance))
         for field in dataclasses.fields(instance):
             rule = rule_of(field)
@@ -160,15 +161,21 @@ def settings_reference(class_name: str) -> str:
                 continue
             default = getattr(instance, field.name)
             shown = rule.none_spelled if default is None and rule.none_spelled else default
-            rows.append(f"| `{field.name}` | `{toml_value(shown)}` | {rule.describe()} | {docs.get(field.name, '')} |")
+            accepted = rule.describe()
+            if rule.none_spelled:  # TOML has no None: the file spells it
+                accepted = accepted.replace("None", f'"{rule.none_spelled}"')
+            unit = unit_of(field).removeprefix("in ")
+            rows.append(
+                f"| `{field.name}` | `{toml_value(shown)}` | {accepted} | {unit} | {docs.get(field.name, '')} |"
+            )
         parts.append(f"### `[{table}]`\n\n`{type(instance).__name__}`\n\n" + "\n".join(rows) + "\n")
     return "\n".join(parts)
 
 
 def settings_tables(config):
-    """(table name, Config) for each table a settings file of `config`'s class takes, as
-    `Config.from_document` reads them: a flattened section's own settings under its name and its
-    sections at the top level; sections nested in a table as ``table.section``."""
+    """(table name, Config) for each table a settings file of `config`'s class takes, in the
+    order `Config.tables()` gives the top-level ones; sections nested in a table follow it as
+    ``table.section``."""
     from vogjax.config.schema import rule_of
 
     def nested(table: str, inner):
@@ -177,17 +184,14 @@ def settings_tables(config):
             if rule_of(field).kind == "section":
                 yield from nested(f"{table}.{field.name}", getattr(inner, field.name))
 
-    for field in dataclasses.fields(config):
-        if rule_of(field).kind != "section":
-            continue
-        inner = getattr(config, field.name)
-        if field.metadata.get("flatten"):
-            yield field.name, inner
-            for sub in dataclasses.fields(inner):
-                if rule_of(sub).kind == "section":
-                    yield from nested(sub.name, getattr(inner, sub.name))
+    for table, path in type(config).tables().items():
+        inner = config
+        for name in path:
+            inner = getattr(inner, name) if name else inner
+        if path[-1] == "":  # a flattened section's own settings
+            yield table, inner
         else:
-            yield from nested(field.name, inner)
+            yield from nested(table, inner)
 
 
 def field_docs(cls) -> dict[str, str]:
