@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable
+from os import PathLike
 from pathlib import Path
 
 from vogjax import pipeline, scenes
@@ -22,8 +24,39 @@ from vogjax.report import document, files, plots, timing
 from vogjax.report.evaluate import evaluate_run
 
 
-def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True) -> list[dict]:
-    """Map each run in `paths` into out/<run name>/; returns the reports."""
+def map_runs(
+    paths: Iterable[str | PathLike], out: str | PathLike, config: JobConfig | None = None, progress: bool = True
+) -> list[dict]:
+    """Map, evaluate and report each run: the `vogjax map` job.
+
+    Every input is read and checked (scans, ground truth at the map's voxel size) and every
+    output folder checked writable before any run is mapped; each run's folder appears only once
+    every file in it is written. Kernel compilation is kept out of the timings.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Run files (.h5); no two with the same name (they would share an output folder).
+    out : str or os.PathLike
+        The output folder: run ``NAME.h5`` is written to ``out/NAME/`` (global_map.vog,
+        trajectories, TUM files, report.json and figures).
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+
+    Returns
+    -------
+    list of dict
+        Each run's report, as written to its report.json (see the report.json reference).
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, `paths` is empty or two runs share a name, a run file is
+        missing, damaged or empty, its scene's ground truth is refused at this voxel size, or an
+        output folder cannot be written.
+    """
     config, paths = check_job(paths, config)
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
@@ -37,9 +70,29 @@ def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True)
     return [_map_into(path, out / path.stem, config, progress) for path in paths]
 
 
-def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
-    """The job's settings and run paths, checked: a JobConfig, at least one run, no two runs
-    writing the same output folder."""
+def check_job(paths: Iterable[str | PathLike], config: JobConfig | None) -> tuple[JobConfig, list[Path]]:
+    """Check the job's settings and run paths.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Run files.
+    config : JobConfig or None
+        The job's settings (None: the defaults).
+
+    Returns
+    -------
+    config : JobConfig
+        The settings.
+    paths : list of Path
+        The run files.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, `paths` names no run, or two runs would write the same
+        output folder.
+    """
     config = config or JobConfig()
     if not isinstance(config, JobConfig):
         raise ValueError(f"config must be a JobConfig, got {type(config).__name__}")
@@ -60,8 +113,34 @@ def _check_ground_truth(ds: Dataset, config: JobConfig) -> None:
         scenes.load(name).check_occupancy(config.pipeline.map.voxel_size)
 
 
-def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:
-    """Map one run into `out_dir` (replaced only when everything is written); its report."""
+def map_run(
+    path: str | PathLike, out_dir: str | PathLike, config: JobConfig | None = None, progress: bool = True
+) -> dict:
+    """Map, evaluate and report one run into a folder of its own.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The run file (.h5).
+    out_dir : str or os.PathLike
+        The folder to write; an existing one is replaced only once everything is written.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+
+    Returns
+    -------
+    dict
+        The run's report, as written to out_dir/report.json.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, the run file is missing or not a run file, its scene's
+        ground truth is refused at this voxel size, `out_dir` cannot be written, or the run is
+        found damaged while it is mapped.
+    """
     config, (path,) = check_job([path], config)
     with Dataset(path) as ds:
         _check_ground_truth(ds, config)
