@@ -20,10 +20,15 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from collections.abc import Iterator, Sequence
+from os import PathLike
 from pathlib import Path
+from types import TracebackType
+from typing import Any
 
 import h5py
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import RIGID_TOLERANCE
@@ -46,29 +51,72 @@ _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
 
 @dataclasses.dataclass(frozen=True)
 class ScanBatch:
-    """Consecutive scans: each field as in the file, with a leading scan axis (pose_truth None
-    when the run has no ground truth)."""
+    """Consecutive scans of a run: each field as in the file, with a leading scan axis.
+
+    S scans of B beams each; directions and origins are in the vehicle frame.
+
+    Attributes
+    ----------
+    first : int
+        Index in the run of the first scan.
+    time_s : (S,) ndarray of float64
+        Scan times, seconds, strictly increasing.
+    pose_truth : (S, 4, 4) ndarray of float64 or None
+        True poses ``T_world_vehicle``; None when the run has no ground truth.
+    pose_nav : (S, 4, 4) ndarray of float64
+        Navigation (dead-reckoned) poses ``T_world_vehicle``.
+    sonar_origin : (S, 3) ndarray of float32
+        The sensor's origin in the vehicle frame, metres.
+    sonar_directions : (S, B, 3) ndarray of float32
+        Unit beam directions in the vehicle frame.
+    ranges : (S, B) ndarray of float32
+        Ranges, metres; NaN where there was no return.
+    no_return : (S, B) ndarray of bool
+        Where a beam had no return.
+    """
 
     first: int
-    time_s: np.ndarray
-    pose_truth: np.ndarray | None
-    pose_nav: np.ndarray
-    sonar_origin: np.ndarray
-    sonar_directions: np.ndarray
-    ranges: np.ndarray
-    no_return: np.ndarray
+    time_s: npt.NDArray[np.float64]
+    pose_truth: npt.NDArray[np.float64] | None
+    pose_nav: npt.NDArray[np.float64]
+    sonar_origin: npt.NDArray[np.float32]
+    sonar_directions: npt.NDArray[np.float32]
+    ranges: npt.NDArray[np.float32]
+    no_return: npt.NDArray[np.bool_]
 
     def __len__(self) -> int:
         return len(self.time_s)
 
     def rows(self, lo: int, hi: int) -> ScanBatch:
-        """Scans lo to hi of this batch."""
+        """Some scans of this batch.
+
+        Parameters
+        ----------
+        lo, hi : int
+            First and one-past-last scan, counted within this batch.
+
+        Returns
+        -------
+        ScanBatch
+            Scans ``lo:hi`` (views, not copies), with `first` moved by `lo`.
+        """
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "first"}
         return ScanBatch(self.first + lo, **{k: None if v is None else v[lo:hi] for k, v in fields.items()})
 
     @staticmethod
-    def concatenate(batches: list) -> ScanBatch:
-        """Consecutive batches as one (the first scan index of the first)."""
+    def concatenate(batches: Sequence[ScanBatch]) -> ScanBatch:
+        """Consecutive batches as one.
+
+        Parameters
+        ----------
+        batches : sequence of ScanBatch
+            At least one batch, in order, all with or all without ground truth.
+
+        Returns
+        -------
+        ScanBatch
+            Their scans, with the `first` of the first batch.
+        """
         names = [f.name for f in dataclasses.fields(ScanBatch) if f.name != "first"]
         fields = {
             name: (None if getattr(batches[0], name) is None else np.concatenate([getattr(b, name) for b in batches]))
@@ -76,16 +124,57 @@ class ScanBatch:
         }
         return ScanBatch(batches[0].first, **fields)
 
-    def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
-        Beams without a return end past max_range_m (free space up to it, no hit)."""
+    def world(
+        self, poses: npt.NDArray[np.floating], max_range_m: float
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """The scans' rays in the world frame, at given vehicle poses.
+
+        Parameters
+        ----------
+        poses : (S, 4, 4) ndarray of float
+            ``T_world_vehicle`` of each scan (`pose_nav`, `pose_truth` or optimised poses).
+        max_range_m : float
+            The sensor's reach, metres: beams without a return end past it (free space up to
+            it, no hit).
+
+        Returns
+        -------
+        origins : (S, 3) ndarray of float64
+            Sensor origins in the world, metres.
+        endpoints : (S, B, 3) ndarray of float64
+            Beam endpoints in the world, metres.
+        """
         return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m)
 
 
-def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf, truth: bool = True) -> None:
-    """ValueError naming `where` and the field unless the scans in `fields` make physical
-    sense (see the module docstring); `after_time_s`: the time of the scan before them;
-    `truth`: whether pose_truth is due (else it must be None)."""
+def check_scans(
+    fields: dict[str, Any], beams: int, where: str, after_time_s: float = -np.inf, truth: bool = True
+) -> None:
+    """Check that scans make physical sense, as they are written and as they are read.
+
+    Times must be finite and strictly increasing, poses rigid, beam directions unit vectors,
+    origins within 10 km of the vehicle, and ranges in [0, 10 km] with NaN exactly where
+    no_return is set.
+
+    Parameters
+    ----------
+    fields : dict of str to array_like
+        Every field of the format by name (see `ScanBatch`), each with a leading scan axis.
+    beams : int
+        B, beams per scan.
+    where : str
+        What the error message names (the file, the scans).
+    after_time_s : float, optional
+        The time of the scan before them (their times must exceed it).
+    truth : bool, optional
+        Whether pose_truth is due (else it must be None).
+
+    Raises
+    ------
+    ValueError
+        Naming `where` and the field that is missing, unexpected, of the wrong shape or type,
+        or breaks one of the rules above.
+    """
     for name in _FIELDS:
         if (fields.get(name) is None) != (name == "pose_truth" and not truth):
             raise ValueError(f"{where}: {name} is {'missing' if fields.get(name) is None else 'not expected'}")
@@ -137,12 +226,51 @@ def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.
 
 
 class DatasetWriter:
-    """Append scans to a new run file; `close()` (or the `with` block) publishes it.
+    """Append scans to a new run file; `close()` (or the end of the `with` block) publishes it.
 
-    beams: B, beams per scan; metadata: JSON-able dict; truth: whether scans carry pose_truth.
+    The file is written under a temporary name and published atomically: a run is whole or
+    absent. Every chunk carries a Fletcher-32 checksum and the metadata its SHA-256.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The run file (.h5) to write; replaced on publication if it exists.
+    beams : int
+        B, beams per scan, in [1, 2^20].
+    metadata : dict
+        JSON-able run metadata (scene, seed, sensor, navigation noise, ...); no NaN.
+    truth : bool, optional
+        Whether scans carry pose_truth.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    beams : int
+        Beams per scan.
+    truth : bool
+        Whether scans carry pose_truth.
+
+    Raises
+    ------
+    ValueError
+        If `beams` is out of range, `metadata` is not a JSON-able dict, or `path` cannot be
+        written.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> import numpy as np
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "run.h5"
+    >>> with DatasetWriter(path, beams=1, metadata={"scene": "none"}, truth=False) as run:
+    ...     run.append(time_s=np.array([0.0]), pose_nav=np.eye(4)[None], sonar_origin=np.zeros((1, 3)),
+    ...                sonar_directions=np.array([[[1.0, 0, 0]]]), ranges=np.array([[2.0]]),
+    ...                no_return=np.array([[False]]))
+    >>> len(Dataset(path))
+    1
     """
 
-    def __init__(self, path, beams: int, metadata: dict, truth: bool = True):
+    def __init__(self, path: str | PathLike, beams: int, metadata: dict, truth: bool = True):
         if not (isinstance(beams, (int, np.integer)) and 1 <= beams <= MAX_BEAMS):
             raise ValueError(f"beams must be an integer in [1, {MAX_BEAMS}], got {beams!r}")
         try:
@@ -180,9 +308,20 @@ class DatasetWriter:
     def _fields(self) -> dict:
         return {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
 
-    def append(self, **fields) -> None:
-        """Append scans: every field of the format (pose_truth only when `truth`), each with a
-        leading scan axis. Checked first: a ValueError leaves the file as it was."""
+    def append(self, **fields: npt.ArrayLike) -> None:
+        """Append scans, checked first (`check_scans`): a ValueError leaves the file as it was.
+
+        Parameters
+        ----------
+        **fields
+            Every field of the format by name (`ScanBatch`'s, pose_truth only when `truth`),
+            each with a leading scan axis; times after those already written.
+
+        Raises
+        ------
+        ValueError
+            If a field is missing or unexpected, or the scans do not make physical sense.
+        """
         expected = set(self._fields())
         if set(fields) != expected:
             missing, extra = expected - set(fields), set(fields) - expected
@@ -200,29 +339,60 @@ class DatasetWriter:
         self._last_time_s = float(fields["time_s"][-1])
 
     def close(self) -> None:
+        """Close the file and publish it at `path` (nothing, once closed)."""
         if self._file:
             self._file.close()
             self._file = None
             self._publication.commit()
 
     def abort(self) -> None:
+        """Close the file and remove it: nothing is published (the `with` block's exit on an error)."""
         if self._file:
             self._file.close()
             self._file = None
         self._publication.abort()
 
-    def __enter__(self):
+    def __enter__(self) -> DatasetWriter:
         return self
 
-    def __exit__(self, kind, error, trace):
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
         self.abort() if kind else self.close()
 
 
 class Dataset:
-    """A run file opened for reading: `len(ds)` scans, `ds.metadata`, `ds.has_truth`,
-    `ds.batches(size)` (each batch checked as it is read), `ds.validate()` (the whole file)."""
+    """A run file opened for reading.
 
-    def __init__(self, path):
+    ``len(ds)`` is its number of scans; `batches` streams them, each batch checked as it is
+    read; `validate` checks the whole file. Runs of format 1 and 2 are read. A context manager
+    (closes the file on exit).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A run file written by `DatasetWriter`.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    metadata : dict
+        The run's metadata (scene, seed, sensor, navigation noise, vogjax version, ...).
+    has_truth : bool
+        Whether scans carry pose_truth.
+    beams : int
+        Beams per scan.
+
+    Raises
+    ------
+    ValueError
+        Naming the file if it does not exist, is not a readable HDF5 vogjax run file, has a
+        format version this vogjax does not read, or is damaged (metadata failing its checksum,
+        fields of the wrong shape or type or of different lengths).
+    """
+
+    def __init__(self, path: str | PathLike):
         self.path = Path(path)
         where = f"path {str(self.path)!r}"
         if not self.path.is_file():
@@ -286,7 +456,24 @@ class Dataset:
         return self._length
 
     def read(self, first: int, last: int) -> ScanBatch:
-        """Scans first to last, checked (ValueError naming the file when damaged)."""
+        """Read some scans, checked as `check_scans` checks.
+
+        Parameters
+        ----------
+        first, last : int
+            First and one-past-last scan index.
+
+        Returns
+        -------
+        ScanBatch
+            Scans ``first:last``.
+
+        Raises
+        ------
+        ValueError
+            Naming the file and the scans if a chunk cannot be read or fails its checksum, or the
+            scans do not make physical sense.
+        """
         where = f"path {str(self.path)!r}"
         try:
             fields = {
@@ -301,25 +488,53 @@ class Dataset:
             self._last_time_s[last] = float(fields["time_s"][-1])
         return ScanBatch(first, **fields)
 
-    def batches(self, size: int = 200):
-        """ScanBatch after ScanBatch of `size` scans (streamed, not loaded whole)."""
+    def batches(self, size: int = 200) -> Iterator[ScanBatch]:
+        """Stream the run in batches, each checked as it is read (not loaded whole).
+
+        Parameters
+        ----------
+        size : int, optional
+            Scans per batch (the last may hold fewer).
+
+        Yields
+        ------
+        ScanBatch
+            The next `size` scans.
+
+        Raises
+        ------
+        ValueError
+            If `size` is not a positive integer, or a batch is damaged (see `read`).
+        """
         if not (isinstance(size, (int, np.integer)) and size >= 1):
             raise ValueError(f"size must be a positive integer, got {size!r}")
         for first in range(0, len(self), size):
             yield self.read(first, min(first + size, len(self)))
 
     def validate(self, size: int = 2000) -> None:
-        """Read and check every scan (a ValueError names the file and the damage)."""
+        """Read and check every scan.
+
+        Parameters
+        ----------
+        size : int, optional
+            Scans read per step.
+
+        Raises
+        ------
+        ValueError
+            Naming the file and the damage.
+        """
         for _ in self.batches(size):
             pass
 
     def close(self) -> None:
+        """Close the file."""
         self._file.close()
 
-    def __enter__(self):
+    def __enter__(self) -> Dataset:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 

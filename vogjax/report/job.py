@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable
+from os import PathLike
 from pathlib import Path
 
 from vogjax import pipeline, scenes
@@ -22,33 +24,46 @@ from vogjax.report import document, files, plots, timing
 from vogjax.report.evaluate import evaluate_run
 
 
-def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True, overwrite: bool = False) -> list[dict]:
-    """Map each run in `paths` into out/<run name>/; returns the reports.
+def map_runs(
+    paths: Iterable[str | PathLike],
+    out: str | PathLike,
+    config: JobConfig | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> list[dict]:
+    """Map, evaluate and report each run: the `vogjax map` job.
+
+    Every input is read and checked (scans, ground truth at the map's voxel size) and every
+    output folder checked writable before any run is mapped; each run's folder appears only once
+    every file in it is written. Kernel compilation is kept out of the timings.
 
     Parameters
     ----------
-    paths : iterable of str or Path
-        Run files (HDF5).
-    out : str or Path
-        The output folder: one sub-folder per run.
-    config : JobConfig or None
-        The settings (None: the defaults).
-    progress : bool
-        Whether to show progress bars (stderr).
-    overwrite : bool
-        Replace a run's existing folder; without it an existing one is an error, raised
+    paths : iterable of str or os.PathLike
+        Run files (.h5); no two with the same name (they would share an output folder).
+    out : str or os.PathLike
+        The output folder: run ``NAME.h5`` is written to ``out/NAME/`` (global_map.vog,
+        trajectories, TUM files, report.json and figures).
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+    overwrite : bool, optional
+        Replace a run's existing output folder; without it an existing one is an error, raised
         before any work.
 
     Returns
     -------
     list of dict
-        The reports (report.json's contents), in the order of `paths`.
+        Each run's report, as written to its report.json (see the report.json reference).
 
     Raises
     ------
     ValueError
-        For bad settings, an unreadable run, an unwritable output, or an existing output
-        without `overwrite`, before anything is written.
+        If `config` is not a JobConfig, `paths` is empty or two runs share a name, a run's output
+        folder exists and `overwrite` is not set, a run file is missing, damaged or empty, its
+        scene's ground truth is refused at this voxel size, or an output folder cannot be
+        written.
     """
     config, paths = check_job(paths, config)
     out = Path(out)
@@ -102,26 +117,41 @@ def _check_ground_truth(ds: Dataset, config: JobConfig) -> None:
         scenes.load(name).check_occupancy(config.pipeline.map.voxel_size)
 
 
-def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True, overwrite: bool = False) -> dict:
-    """Map one run into `out_dir` (published only when everything is written); its report.
+def map_run(
+    path: str | PathLike,
+    out_dir: str | PathLike,
+    config: JobConfig | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> dict:
+    """Map, evaluate and report one run into a folder of its own.
 
     Parameters
     ----------
-    path : str or Path
-        The run file (HDF5).
-    out_dir : str or Path
-        The run's output folder.
-    config : JobConfig or None
-        The settings (None: the defaults).
-    progress : bool
-        Whether to show progress bars (stderr).
-    overwrite : bool
+    path : str or os.PathLike
+        The run file (.h5).
+    out_dir : str or os.PathLike
+        The folder to write; with `overwrite`, an existing one is replaced only once everything
+        is written.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+    overwrite : bool, optional
         Replace an existing `out_dir`; without it that is an error, raised before any work.
 
     Returns
     -------
     dict
-        The report (report.json's contents).
+        The run's report, as written to out_dir/report.json.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, `out_dir` exists and `overwrite` is not set, the run file
+        is missing or not a run file, its scene's
+        ground truth is refused at this voxel size, `out_dir` cannot be written, or the run is
+        found damaged while it is mapped.
     """
     config, (path,) = check_job([path], config)
     refuse_existing(Path(out_dir), overwrite)

@@ -21,7 +21,10 @@ import dataclasses
 import logging
 import os
 import warnings
+from collections.abc import Iterable
+from os import PathLike
 from pathlib import Path
+from types import ModuleType
 
 from vogjax.config import JobConfig
 from vogjax.io.atomic import check_writable
@@ -34,15 +37,36 @@ FORWARDED_ENV = ("WARP_CACHE_PATH", "CUDA_VISIBLE_DEVICES", "JAX_PLATFORMS")
 
 @dataclasses.dataclass(frozen=True)
 class Outcome:
-    """One run: its path, its report (None when it failed) and the error (one line, or None)."""
+    """What became of one run of `map_runs_parallel`.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    report : dict or None
+        Its report, as written to report.json; None when it failed.
+    error : str or None
+        Why it failed, in one line; None when it succeeded.
+    """
 
     path: Path
     report: dict | None
     error: str | None
 
 
-def ray_module():
-    """Ray, or a ValueError naming the extra that installs it."""
+def ray_module() -> ModuleType:
+    """Import Ray, an optional dependency.
+
+    Returns
+    -------
+    module
+        The `ray` module.
+
+    Raises
+    ------
+    ValueError
+        If Ray is not installed, naming the extra that installs it (``vogjax[workers]``).
+    """
     try:
         import ray
     except ImportError:
@@ -51,17 +75,50 @@ def ray_module():
 
 
 def map_runs_parallel(
-    paths,
-    out,
+    paths: Iterable[str | PathLike],
+    out: str | PathLike,
     config: JobConfig | None = None,
     workers: int = 2,
     address: str | None = None,
     progress: bool = False,
     overwrite: bool = False,
 ) -> list[Outcome]:
-    """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
-    `address` is None, else the cluster there); the outcomes in the order of `paths`.
-    overwrite: replace a run's existing folder (else that is an error, raised before any work)."""
+    """Map every run with Ray tasks, each run in its own worker process (`map_run`).
+
+    A run that fails fails alone: its outcome carries the error and the other runs finish. The
+    settings, the run files and the output folders are checked before Ray starts.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Run files (.h5), reachable at these paths from every node; no two with the same name.
+    out : str or os.PathLike
+        The output folder: run ``NAME.h5`` is written to ``out/NAME/``.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    workers : int, optional
+        Runs mapped at a time (each task takes one CPU and a share of the GPUs, at most one).
+    address : str or None, optional
+        A Ray cluster's address (such as "ray://head:10001"); None starts a local Ray with
+        `workers` CPUs, shut down again when done.
+    progress : bool, optional
+        Show a progress bar of finished runs (on stderr).
+    overwrite : bool, optional
+        Replace a run's existing folder; without it an existing one is an error, raised before
+        any work.
+
+    Returns
+    -------
+    list of Outcome
+        One per run, in the order of `paths`.
+
+    Raises
+    ------
+    ValueError
+        If `workers` is not a positive integer, `config` is not a JobConfig, `paths` is empty,
+        names a missing file or two runs with the same name, an output folder cannot be
+        written, Ray is not installed, or Ray cannot be started or reached.
+    """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be a positive integer, got {workers!r}")
     config, paths = check_job(paths, config)
