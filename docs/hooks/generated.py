@@ -89,7 +89,9 @@ def api_reference(package: str) -> str:
     for name in names:
         obj = getattr(module, name)
         if inspect.ismodule(obj):
-            parts.append(f"::: {obj.__name__}\n    options:\n      members: false\n      heading_level: 2\n")
+            # a kernel module is documented by its docstring; any other module with its members
+            members = "false" if package == "vogjax.kernels" else "true"
+            parts.append(f"::: {obj.__name__}\n    options:\n      members: {members}\n      heading_level: 2\n")
         elif (inspect.isclass(obj) or inspect.isfunction(obj)) and documented_at_home(obj, package):
             # re-exported: documented once, on the page of the package that defines it
             elsewhere.append(f"[`{name}`][{obj.__module__}.{obj.__qualname__}]")

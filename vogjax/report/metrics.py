@@ -13,7 +13,7 @@ from vogjax.config import IcpConfig
 from vogjax.maps import OCCUPIED
 from vogjax.slam import correlative_xyh, icp
 from vogjax.slam.icp import MIN_POINTS
-from vogjax.validation import real_array
+from vogjax.validation import float_array, real_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,9 +126,14 @@ def register_to_surface(
     Raises
     ------
     ValueError
-        If `points` or `surface` is not a non-empty (N, 3) array of finite points, or holds
-        fewer than 3 (the message names them as the registration's source and target).
+        If `points` or `surface` is not an (N, 3) array of finite points, or holds fewer than 3
+        (the message names the argument).
     """
+    points = float_array("points", points, (-1, 3), np.float64)
+    surface = float_array("surface", surface, (-1, 3), np.float64)
+    for name, cloud in (("points", points), ("surface", surface)):
+        if len(cloud) < MIN_POINTS:
+            raise ValueError(f"{name} must hold at least {MIN_POINTS} points to register, got {len(cloud)}")
     config = config or IcpConfig(max_correspondence_m=0.5)
     seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
     return icp(points, surface, seed.T_target_source, config=config).T_target_source
@@ -162,6 +167,7 @@ def reconstruction_rmse(
     ValueError
         If `points` or `surface` cannot be registered (see `register_to_surface`).
     """
+    points = float_array("points", points, (-1, 3), np.float64)
     if len(points) < MIN_POINTS:
         return None
     T = register_to_surface(points, surface, config, search_radius_m)
