@@ -106,7 +106,7 @@ class GlobalMap(BlockMap):
             self._applied = {}
             touched = []
             pulls = self._apply(vog, range(vog.num_submaps), touched, volumes)
-            self._refresh(touched)
+            self._refresh(touched, rebuilt=True)
         return pulls
 
     def add(self, vog: VogMap, ids, marginals=None) -> int:
@@ -405,15 +405,15 @@ class GlobalMap(BlockMap):
             touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
         return int(pulls.numpy().sum())
 
-    def _refresh(self, touched: list, release: bool = False) -> None:
-        """Recompute the queryable log-odds of touched blocks; release those no submap uses."""
-        self._values_changed()
-        if not touched:
-            return
-        slots = np.unique(np.concatenate(touched)).astype(np.int32)
+    def _refresh(self, touched: list, release: bool = False, rebuilt: bool = False) -> None:
+        """Recompute the queryable log-odds of touched blocks; release those no submap uses;
+        then the coarse levels above them (all of them when the store was `rebuilt`)."""
+        slots = np.unique(np.concatenate(touched)).astype(np.int32) if touched else np.zeros(0, np.int32)
         if len(slots) == 0:
+            self._values_changed(None if rebuilt else np.zeros(0, np.int64))
             return
         store, device = self._store, self.device
+        keys = store.slot_keys.numpy()[slots]  # before any is released
         d_slots = wp.array(slots, dtype=wp.int32, device=device)
         voxels = len(slots) * BLOCK_VOXELS
         parallel.split_launch(
@@ -443,6 +443,7 @@ class GlobalMap(BlockMap):
                 device=device,
             )
             store.release(slots[unused.numpy() == 1])
+        self._values_changed(None if rebuilt else keys)
 
     # ---------------------------------------------------------------- contents and files
     def sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

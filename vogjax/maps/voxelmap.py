@@ -66,15 +66,17 @@ class VoxelMap(BlockMap):
         batch = integrator.beams(self.device, origins, points, scan_index)
         cuda = self.device.is_cuda
         with self._lock.writing():
+            touched = [] if self._levels.count else None  # the written blocks, for the coarse levels
             integrator.integrate(
                 self._store,
                 self.config,
                 batch,
                 SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
                 min(MARK_BUDGET_BYTES_CUDA, self.device.total_memory // 32) if cuda else MARK_BUDGET_BYTES,
+                touched,
             )
             self.revision += 1
-            self._values_changed()
+            self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
 
     # ---------------------------------------------------------------- files
     def save(self, path) -> None:
