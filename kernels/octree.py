@@ -9,6 +9,11 @@ without sorting. A leaf's code is its first voxel's: the node's prefix shifted t
 The walk is sequential (each node's place depends on every node before it): one thread, run on
 the CPU, where a launch is compiled C++; it keeps its path from the root in small scratch
 arrays (17 levels) and reports the first fault it finds rather than reading past it.
+
+It also places each leaf in the block store the tree will fill (blocks in Morton order): the
+slot of the leaf's block (a leaf of whole blocks: its first) in `rows`, and per leaf that opens
+blocks a run (first block code, blocks) in `run_firsts`, `run_blocks`, so the host lists the
+blocks from the runs alone and checks their number against its budget before allocating them.
 """
 
 import warp as wp
@@ -22,6 +27,10 @@ STATUS_NODES = 1  # nodes read, the root included
 STATUS_READ = 2  # bytes (binary) or records (full) consumed
 STATUS_FAULT = 3  # one of the FAULT_* codes, 0 when the stream decoded
 STATUS_WHERE = 4  # byte offset (binary) or record index (full) of the fault
+STATUS_RUNS = 5  # runs of blocks written
+STATUS_BLOCKS = 6  # blocks of all runs
+STATUS_LAST_BLOCK = 7  # scratch: code of the last block placed (-1: none)
+STATUS_SIZE = 8
 FAULT_TRUNCATED = wp.constant(1)  # the stream ends inside the tree
 FAULT_CHILDLESS = wp.constant(2)  # an inner node with no children (binary: child code 11 with word 0)
 FAULT_TOO_DEEP = wp.constant(3)  # a node with children at depth 16
@@ -38,6 +47,34 @@ def leaf_code(prefix: wp.int64, depth: int) -> wp.int64:
     return prefix << wp.int64(3 * (TREE_DEPTH - depth))
 
 
+@wp.func
+def place_leaf(
+    code: wp.int64,
+    depth: int,
+    leaf: int,
+    rows: wp.array(dtype=wp.int32),
+    run_firsts: wp.array(dtype=wp.int64),
+    run_blocks: wp.array(dtype=wp.int64),
+    status: wp.array(dtype=wp.int64),
+):
+    """Give leaf number `leaf` (Morton code `code` at depth 16, node depth `depth`) its slot:
+    a leaf within a block shares the slot of the leaf before it when that ended in the same
+    block; otherwise it opens 8^max(13 - depth, 0) new blocks."""
+    first = code >> wp.int64(9)
+    span = wp.int64(1) << wp.int64(3 * wp.max(13 - depth, 0))
+    total = status[STATUS_BLOCKS]
+    if first == status[STATUS_LAST_BLOCK] and span == wp.int64(1):
+        rows[leaf] = int(total - wp.int64(1))
+        return
+    rows[leaf] = int(total)
+    runs = int(status[STATUS_RUNS])
+    run_firsts[runs] = first
+    run_blocks[runs] = span
+    status[STATUS_RUNS] = wp.int64(runs + 1)
+    status[STATUS_BLOCKS] = total + span
+    status[STATUS_LAST_BLOCK] = first + span - wp.int64(1)
+
+
 @wp.kernel
 def decode_binary_tree(
     data: wp.array(dtype=wp.uint8),
@@ -47,6 +84,9 @@ def decode_binary_tree(
     leaf_codes: wp.array(dtype=wp.int64),
     leaf_depths: wp.array(dtype=wp.int8),
     leaf_occupied: wp.array(dtype=wp.uint8),
+    rows: wp.array(dtype=wp.int32),
+    run_firsts: wp.array(dtype=wp.int64),
+    run_blocks: wp.array(dtype=wp.int64),
     status: wp.array(dtype=wp.int64),
 ):
     """The leaves of a binary (.bt) stream: per inner node a little-endian 16-bit word, two
@@ -55,6 +95,7 @@ def decode_binary_tree(
     tid = wp.tid()
     if tid != 0:
         return
+    status[STATUS_LAST_BLOCK] = wp.int64(-1)
     n = data.shape[0]
     capacity = leaf_codes.shape[0]
     leaves = int(0)
@@ -113,6 +154,7 @@ def decode_binary_tree(
             leaf_codes[leaves] = leaf_code(code, child_depth)
             leaf_depths[leaves] = wp.int8(child_depth)
             leaf_occupied[leaves] = wp.uint8(wp.where(bits == 2, 1, 0))
+            place_leaf(leaf_codes[leaves], child_depth, leaves, rows, run_firsts, run_blocks, status)
             leaves += 1
     status[STATUS_LEAVES] = wp.int64(leaves)
     status[STATUS_NODES] = wp.int64(nodes)
@@ -131,6 +173,9 @@ def decode_full_tree(
     leaf_codes: wp.array(dtype=wp.int64),
     leaf_depths: wp.array(dtype=wp.int8),
     leaf_values: wp.array(dtype=wp.float32),
+    rows: wp.array(dtype=wp.int32),
+    run_firsts: wp.array(dtype=wp.int64),
+    run_blocks: wp.array(dtype=wp.int64),
     status: wp.array(dtype=wp.int64),
 ):
     """The leaves of a full (.ot) stream: per node its float32 log-odds and a byte whose bit i
@@ -140,6 +185,7 @@ def decode_full_tree(
     tid = wp.tid()
     if tid != 0:
         return
+    status[STATUS_LAST_BLOCK] = wp.int64(-1)
     n = values.shape[0]
     capacity = leaf_codes.shape[0]
     leaves = int(0)
@@ -153,6 +199,7 @@ def decode_full_tree(
         leaf_codes[0] = wp.int64(0)
         leaf_depths[0] = wp.int8(0)
         leaf_values[0] = values[0]
+        place_leaf(wp.int64(0), 0, 0, rows, run_firsts, run_blocks, status)
         leaves = 1
         index = 1
     else:
@@ -184,6 +231,7 @@ def decode_full_tree(
             leaf_codes[leaves] = leaf_code(code, child_depth)
             leaf_depths[leaves] = wp.int8(child_depth)
             leaf_values[leaves] = values[index]
+            place_leaf(leaf_codes[leaves], child_depth, leaves, rows, run_firsts, run_blocks, status)
             leaves += 1
         else:
             if child_depth == TREE_DEPTH:
@@ -200,3 +248,41 @@ def decode_full_tree(
     status[STATUS_READ] = wp.int64(index)
     status[STATUS_FAULT] = wp.int64(fault)
     status[STATUS_WHERE] = wp.int64(where)
+
+
+@wp.func
+def local_of_morton(m: int) -> int:
+    """Block-local voxel index (hashing.index_in_block: x 64 + y 8 + z) of a 9-bit Morton code
+    (bits 3j, 3j + 1, 3j + 2 are bit j of x, y, z)."""
+    x = (m & 1) | ((m >> 2) & 2) | ((m >> 4) & 4)
+    y = ((m >> 1) & 1) | ((m >> 3) & 2) | ((m >> 5) & 4)
+    z = ((m >> 2) & 1) | ((m >> 4) & 2) | ((m >> 6) & 4)
+    return (x * 8 + y) * 8 + z
+
+
+@wp.kernel
+def fill_leaf_voxels(
+    codes: wp.array(dtype=wp.int64),
+    depths: wp.array(dtype=wp.int8),
+    rows: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=wp.float32),
+    log_odds: wp.array(dtype=wp.float32),
+):
+    """Write each leaf's value into its voxels: a leaf at depth >= 13 fills 8^(16 - depth)
+    voxels of block slot rows[tid], from the voxel its Morton code names; a shallower one fills
+    the 8^(13 - depth) whole blocks from slot rows[tid] on. Leaves are disjoint: so are writes."""
+    tid = wp.tid()
+    depth = int(depths[tid])
+    value = values[tid]
+    row = rows[tid]
+    if depth >= 13:
+        count = 1 << (3 * (TREE_DEPTH - depth))
+        first = int(codes[tid] & wp.int64(511))
+        for j in range(count):
+            log_odds[row * 512 + local_of_morton(first + j)] = value
+    else:
+        blocks = 1 << (3 * (13 - depth))
+        for b in range(blocks):
+            base = (row + b) * 512
+            for i in range(512):
+                log_odds[base + i] = value

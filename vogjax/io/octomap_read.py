@@ -1,7 +1,7 @@
 """Reading OctoMap trees: .bt and .ot files, and the data of octomap_msgs/Octomap messages.
 
     tree = read_octree("map.bt")                  # checked whole; nothing is built yet
-    blocks, values = octree_blocks(tree, leaf_values, max_voxels=1 << 28, where="...")
+    placed = leaf_blocks(tree, max_voxels=1 << 28, where="...")  # blocks, each leaf's slot
 
 `vj.VoxelMap.from_octomap(path)` is the front door; this module does the reading and checking.
 Every fault is a one-line ValueError naming its source, raised before any map is built:
@@ -18,8 +18,9 @@ Every fault is a one-line ValueError naming its source, raised before any map is
   children, a node with children at depth 16, a NaN or infinite log-odds, or a node count other
   than the header's `size`.
 
-Pruned nodes (a leaf above depth 16) stand for all their voxels; `octree_blocks` counts the
-voxels and 8x8x8 blocks a tree expands to and refuses one past the budget before allocating.
+Pruned nodes (a leaf above depth 16) stand for all their voxels; `leaf_blocks` counts the 8x8x8
+blocks a tree expands to and refuses one past the budget before allocating them, and places
+each leaf in them (`kernels/octree.py` writes the voxels).
 Inner nodes' values are not read: a coarse value is recomputed from the leaves (the maximum of
 the children, OctoMap's `updateInnerOccupancy`), so a tree written without that update reads
 the same as one written with it.
@@ -68,6 +69,10 @@ class OctreeLeaves:
     occupied:   (L,) bool (binary trees) or None
     values:     (L,) float32 finite log-odds (full trees) or None
     nodes:      nodes of the tree, inner ones included
+    rows:       (L,) int32 slot of each leaf's block in a store of the tree's blocks in Morton
+                order (a leaf of whole blocks: its first block's; see `leaf_blocks`)
+    run_firsts, run_blocks: (R,) int64 the runs of consecutive blocks, in order: Morton code of
+                the first block (voxel code >> 9) and the run's length
     """
 
     resolution: float
@@ -78,6 +83,9 @@ class OctreeLeaves:
     occupied: np.ndarray | None
     values: np.ndarray | None
     nodes: int
+    rows: np.ndarray
+    run_firsts: np.ndarray
+    run_blocks: np.ndarray
 
     def __len__(self) -> int:
         return len(self.codes)
@@ -225,7 +233,8 @@ def decode(
     if size == 0 or (size is None and len(data) == 0):
         if len(data):
             raise ValueError(f"{where} holds {len(data)} bytes of data after a tree of size 0")
-        return _leaves(resolution, binary, tree_type, np.zeros(0, np.int64), np.zeros(0, np.int8), np.zeros(0), 0)
+        empty = [np.zeros(0, t) for t in (np.int64, np.int8, np.float32, np.int32, np.int64, np.int64)]
+        return _leaves(resolution, binary, tree_type, empty, 0)
     if binary:
         return _decode_binary(data, tree_type, resolution, where, size)
     return _decode_full(data, tree_type, resolution, where, size)
@@ -237,9 +246,9 @@ def _decode_binary(data: np.ndarray, tree_type: str, resolution: float, where: s
     for i in range(8):
         bits = (words >> (2 * i)) & 3
         capacity += int(np.count_nonzero((bits == 1) | (bits == 2)))
-    codes, depths, occupied, status = _run(octree.decode_binary_tree, [data], capacity, wp.uint8, path_dtype=wp.int32)
+    out, status = _run(octree.decode_binary_tree, [data], capacity, wp.uint8)
     _check_status(status, len(data), "bytes", where, size)
-    return _leaves(resolution, True, tree_type, codes, depths, occupied.astype(bool), int(status[octree.STATUS_NODES]))
+    return _leaves(resolution, True, tree_type, out, int(status[octree.STATUS_NODES]))
 
 
 def _decode_full(data: np.ndarray, tree_type: str, resolution: float, where: str, size: int | None) -> OctreeLeaves:
@@ -257,31 +266,27 @@ def _decode_full(data: np.ndarray, tree_type: str, resolution: float, where: str
         raise ValueError(f"{where} holds a NaN or infinite log-odds ({values[bad[0]]}) in node {int(bad[0])}")
     children = np.ascontiguousarray(records["children"])
     capacity = int(np.count_nonzero(children == 0))
-    codes, depths, leaf_values, status = _run(
-        octree.decode_full_tree, [values, children], capacity, wp.float32, path_dtype=wp.int32
-    )
+    out, status = _run(octree.decode_full_tree, [values, children], capacity, wp.float32)
     _check_status(status, len(values), "nodes", where, size)
-    return _leaves(resolution, False, tree_type, codes, depths, leaf_values, int(status[octree.STATUS_NODES]))
+    return _leaves(resolution, False, tree_type, out, int(status[octree.STATUS_NODES]))
 
 
-def _run(kernel, inputs: list, capacity: int, leaf_dtype, path_dtype) -> tuple:
-    """One decode on the CPU: (codes, depths, per-leaf field, status) as NumPy arrays."""
+def _run(kernel, inputs: list, capacity: int, leaf_dtype) -> tuple:
+    """One decode on the CPU: ([codes, depths, per-leaf field, rows, run_firsts, run_blocks] as
+    NumPy arrays, status)."""
     device = "cpu"
     arrays = [wp.array(a, dtype=wp.dtype_from_numpy(a.dtype), device=device, copy=False) for a in inputs]
-    path = [
-        wp.zeros(TREE_DEPTH + 1, dtype=path_dtype, device=device),
-        wp.zeros(TREE_DEPTH + 1, dtype=wp.int64, device=device),
-        wp.zeros(TREE_DEPTH + 1, dtype=wp.int32, device=device),
-    ]
+    path = [wp.zeros(TREE_DEPTH + 1, dtype=t, device=device) for t in (wp.int32, wp.int64, wp.int32)]
     room = max(capacity, 1)
-    codes = wp.empty(room, dtype=wp.int64, device=device)
-    depths = wp.empty(room, dtype=wp.int8, device=device)
-    field = wp.empty(room, dtype=leaf_dtype, device=device)
-    status = wp.zeros(5, dtype=wp.int64, device=device)
-    wp.launch(kernel, dim=1, inputs=[*arrays, *path], outputs=[codes, depths, field, status], device=device)
+    outputs = [
+        wp.empty(room, dtype=t, device=device) for t in (wp.int64, wp.int8, leaf_dtype, wp.int32, wp.int64, wp.int64)
+    ]
+    status = wp.zeros(octree.STATUS_SIZE, dtype=wp.int64, device=device)
+    wp.launch(kernel, dim=1, inputs=[*arrays, *path], outputs=[*outputs, status], device=device)
     status = status.numpy()
-    count = int(status[octree.STATUS_LEAVES])
-    return codes.numpy()[:count], depths.numpy()[:count], field.numpy()[:count], status
+    leaves, runs = int(status[octree.STATUS_LEAVES]), int(status[octree.STATUS_RUNS])
+    host = [a.numpy() for a in outputs]
+    return [*(a[:leaves] for a in host[:4]), *(a[:runs] for a in host[4:])], status
 
 
 def _check_status(status: np.ndarray, length: int, unit: str, where: str, size: int | None) -> None:
@@ -296,7 +301,9 @@ def _check_status(status: np.ndarray, length: int, unit: str, where: str, size: 
         raise ValueError(f"{where} holds a tree of {nodes} nodes; its header's size says {size}")
 
 
-def _leaves(resolution, binary, tree_type, codes, depths, field, nodes) -> OctreeLeaves:
+def _leaves(resolution: float, binary: bool, tree_type: str, out: list, nodes: int) -> OctreeLeaves:
+    """OctreeLeaves of a decoder's outputs [codes, depths, field, rows, run_firsts, run_blocks]."""
+    codes, depths, field, rows, firsts, blocks = out
     return OctreeLeaves(
         resolution,
         binary,
@@ -306,21 +313,13 @@ def _leaves(resolution, binary, tree_type, codes, depths, field, nodes) -> Octre
         np.asarray(field, bool) if binary else None,
         None if binary else np.asarray(field, np.float32),
         nodes,
+        np.asarray(rows, np.int32),
+        np.asarray(firsts, np.int64),
+        np.asarray(blocks, np.int64),
     )
 
 
 # ------------------------------------------------------------------ leaves -> blocks
-def _local_index_table() -> np.ndarray:
-    """(512,) the block-local voxel index (x 64 + y 8 + z, hashing.index_in_block) of each
-    9-bit Morton code within a block."""
-    m = np.arange(512)
-    axes = [sum(((m >> (3 * j + a)) & 1) << j for j in range(3)) for a in range(3)]
-    return (axes[0] * 64 + axes[1] * 8 + axes[2]).astype(np.int64)
-
-
-_LOCAL = _local_index_table()
-
-
 def block_coordinates(block_codes: np.ndarray) -> np.ndarray:
     """(K,3) int64 vogjax block coordinates of Morton block codes (a voxel code >> 9)."""
     block_codes = np.asarray(block_codes, np.int64)
@@ -333,59 +332,34 @@ def block_coordinates(block_codes: np.ndarray) -> np.ndarray:
 
 def count_blocks(tree: OctreeLeaves) -> int:
     """8x8x8 blocks the tree's leaves fill (without expanding them)."""
-    depths = tree.depths.astype(np.int64)
-    big = depths <= BLOCK_DEPTH
-    small_blocks = tree.codes[~big] >> 9  # sorted: leaves come in Morton order
-    distinct = int(len(small_blocks) and 1 + np.count_nonzero(small_blocks[1:] != small_blocks[:-1]))
-    return distinct + int(np.sum(np.left_shift(1, 3 * (BLOCK_DEPTH - depths[big]))))
+    return int(tree.run_blocks.sum())
 
 
-def octree_blocks(tree: OctreeLeaves, leaf_values: np.ndarray, max_voxels: int, where: str):
-    """The tree's voxels as vogjax blocks: block coordinates (K,3) int64 (voxel key >> 3) and
-    log-odds (K,512) float32 (NaN where no leaf is), every pruned leaf expanded to its voxels.
+def leaf_blocks(tree: OctreeLeaves, max_voxels: int, where: str) -> np.ndarray:
+    """The coordinates (K,3) int64 (voxel key >> 3) of the blocks a tree's leaves fill, in the
+    order of the slots `tree.rows` names, every pruned leaf standing for its voxels; checked
+    against the budget before anything of their number is made.
 
     Parameters
     ----------
     tree : OctreeLeaves
         A decoded tree.
-    leaf_values : numpy.ndarray
-        (L,) float32, the log-odds each leaf's voxels get.
     max_voxels : int
-        Budget: the voxel slots the blocks take (512 a block) may not exceed it.
+        Budget: the voxel slots of the blocks (512 a block) may not exceed it.
     where : str
         The tree's source, for the error message.
 
     Raises
     ------
     ValueError
-        When the tree would take more than `max_voxels` voxel slots (checked before allocating).
+        When the tree would take more than `max_voxels` voxel slots.
     """
-    blocks = count_blocks(tree)
-    if blocks * 512 > max_voxels:
+    total = count_blocks(tree)
+    if 512 * total > max_voxels or total >= 1 << 31:
         raise ValueError(
-            f"{where} expands to {tree.voxel_count()} voxels in {blocks} blocks of 512 ({blocks * 512} voxel "
+            f"{where} expands to {tree.voxel_count()} voxels in {total} blocks of 512 ({512 * total} voxel "
             f"slots), more than max_voxels={max_voxels}; pass a larger max_voxels to read it"
         )
-    depths = tree.depths.astype(np.int64)
-    values = np.asarray(leaf_values, np.float32)
-    big = depths <= BLOCK_DEPTH
-    # leaves within a block: each voxel's Morton code (a pruned leaf's are consecutive)
-    codes, small_depths, small_values = tree.codes[~big], depths[~big], values[~big]
-    if np.any(small_depths != TREE_DEPTH):
-        counts = np.left_shift(1, 3 * (TREE_DEPTH - small_depths))
-        firsts = np.cumsum(counts) - counts
-        codes = np.repeat(codes, counts) + (np.arange(int(counts.sum())) - np.repeat(firsts, counts))
-        small_values = np.repeat(small_values, counts)
-    voxel_blocks = codes >> 9
-    new_block = np.r_[True, voxel_blocks[1:] != voxel_blocks[:-1]] if len(codes) else np.zeros(0, bool)
-    small_rows = np.cumsum(new_block) - 1
-    small_ids = voxel_blocks[new_block]
-    # leaves of whole blocks: each block once, filled
-    per_leaf = np.left_shift(1, 3 * (BLOCK_DEPTH - depths[big]))
-    firsts = np.cumsum(per_leaf) - per_leaf
-    big_ids = np.repeat(tree.codes[big] >> 9, per_leaf) + (np.arange(int(per_leaf.sum())) - np.repeat(firsts, per_leaf))
-    ids = np.concatenate([small_ids, big_ids])
-    out = np.full((len(ids), 512), np.nan, np.float32)
-    out.reshape(-1)[small_rows * 512 + _LOCAL[codes & 511]] = small_values
-    out[len(small_ids) :] = np.repeat(values[big], per_leaf)[:, None]
-    return block_coordinates(ids), out
+    counts = tree.run_blocks
+    offsets = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    return block_coordinates(np.repeat(tree.run_firsts, counts) + offsets)

@@ -203,6 +203,32 @@ class GlobalMap(BlockMap):
             time.perf_counter() - start,
         )
 
+    def _follow(self, vog: VogMap) -> None:
+        """Make the map equal `merge(vog)` at vog's current poses, bit for bit, doing as little
+        as it can: submaps whose pose changed at all are undone and redone, new ones added; a
+        submap written since it was applied (its old contribution is gone) forces a merge.
+        (How a VogMap answers coarse queries: from a global map it keeps beside its submaps.)"""
+        self._check_vog(vog)
+        count = vog.num_submaps
+        submaps = vog.submaps(range(count))
+        changed = any(
+            i >= count or a.uid != submaps[i].uid or a.revision != submaps[i].revision for i, a in self._applied.items()
+        )
+        if changed or not self._applied:
+            self.merge(vog)
+            return
+        poses = vog.poses()
+        moved = [i for i, a in sorted(self._applied.items()) if np.any(a.pose != poses[i])]
+        new = [i for i in range(count) if i not in self._applied]
+        if not moved and not new:
+            return
+        self._check_key_range(vog, moved + new)
+        with self._lock.writing():
+            touched = []
+            self._contribute([(submaps[i], self._applied[i].pose) for i in moved], -1, touched)
+            self._apply(vog, moved + new, touched, None)
+            self._refresh(touched, release=True)
+
     def moved_submaps(
         self,
         vog: VogMap,
