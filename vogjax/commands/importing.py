@@ -1,15 +1,21 @@
-"""`vogjax import`: a ROS bag's scans and odometry as a vogjax run file (no ground truth)."""
+"""`vogjax import`: a ROS bag's scans and odometry as a vogjax run file (no ground truth); an
+OctoMap .bt/.ot file, or an octomap_msgs/Octomap message of a bag, as a map file
+(`vogjax.commands.octomap_import`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from vogjax.commands import octomap_import
+
 
 def add_parser(commands) -> None:
     bag = commands.add_parser("import", help="convert a ROS 1/ROS 2/MCAP bag into a run file for `vogjax map`")
-    bag.add_argument("bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file")
-    bag.add_argument("--points", required=True, help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
-    bag.add_argument("--odometry", required=True, help="topic of nav_msgs/Odometry (the vehicle's poses)")
+    bag.add_argument(
+        "bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file; or an OctoMap .bt/.ot file"
+    )
+    bag.add_argument("--points", help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
+    bag.add_argument("--odometry", help="topic of nav_msgs/Odometry (the vehicle's poses)")
     bag.add_argument("--out", type=Path, required=True, help="run file to write (HDF5)")
     bag.add_argument(
         "--frame",
@@ -24,10 +30,15 @@ def add_parser(commands) -> None:
         help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)",
     )
     bag.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    octomap_import.add_arguments(bag)
     bag.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args) -> None:
+    if octomap_import.wanted(args):
+        return octomap_import.run(args)
+    if args.points is None or args.odometry is None:
+        raise ValueError("--points and --odometry are required to import a bag's scans (or --octomap TOPIC: a map)")
     from vogjax.io.rosbag import import_bag
 
     # as `vogjax simulate` does: an existing run is refused before the bag is read (import_bag

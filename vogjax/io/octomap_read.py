@@ -175,7 +175,7 @@ def read_header(blob: bytes, where: str) -> tuple[bool, str, int, float, int]:
     missing = [name for name in ("id", "size", "res") if name not in fields]
     if missing:
         raise ValueError(f"{where} has an OctoMap header without {', '.join(missing)}")
-    if not fields["size"].isdigit() or len(fields["size"]) > 18:
+    if not (fields["size"].isascii() and fields["size"].isdigit()) or len(fields["size"]) > 18:
         raise ValueError(f"{where} has an OctoMap header whose size {fields['size'][:30]!r} is no node count")
     return binary, fields["id"], int(fields["size"]), _resolution(fields["res"], where), position
 

@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 
 from vogjax.config import MapConfig
+from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import octree
 from vogjax.maps import integrator, parallel
@@ -179,8 +180,9 @@ class VoxelMap(BlockMap):
 
         if isinstance(max_voxels, bool) or not isinstance(max_voxels, (int, np.integer)) or max_voxels < 0:
             raise ValueError(f"max_voxels must be a non-negative integer, got {max_voxels!r}")
-        if config is None:
-            config = MapConfig(voxel_size=tree.resolution)
+        if config is None:  # the defaults, the range cut to what integration takes at this voxel size
+            reach = min(MapConfig.max_range, MAX_RANGE_VOXELS * tree.resolution)
+            config = MapConfig(voxel_size=tree.resolution, max_range=reach)
         elif not isinstance(config, MapConfig):
             raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
         elif config.voxel_size != tree.resolution:
