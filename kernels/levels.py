@@ -28,26 +28,31 @@ def larger_observed(best: wp.float32, value: wp.float32) -> wp.float32:
 
 @wp.kernel
 def fill_coarse_blocks(
-    slots: wp.array(dtype=wp.int32),
-    slot_keys: wp.array(dtype=wp.int64),
+    keys: wp.array(dtype=wp.int64),
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
     child_table_keys: wp.array(dtype=wp.int64),
     child_table_slots: wp.array(dtype=wp.int32),
     child_log_odds: wp.array(dtype=wp.float32),
     log_odds: wp.array(dtype=wp.float32),
+    observed_octants: wp.array(dtype=wp.int32),
 ):
-    """Recompute every voxel of coarse blocks `slots` (slots of the coarse store, whose keys are
-    `slot_keys`) from the level below (child_*). One thread per (block, octant): tid = 8 b + o."""
+    """Recompute every voxel of the coarse blocks with packed keys `keys` (all in the coarse
+    store's table) from the level below (child_*). One thread per (block, octant): tid = 8 b + o;
+    observed_octants[tid] = 1 when the octant holds an observed voxel (0: the block may be empty)."""
     tid = wp.tid()
-    slot = slots[tid / 8]
+    key = keys[tid / 8]
+    slot = find_slot(table_keys, table_slots, key)
     octant = tid % 8
     ox = (octant >> 2) & 1
     oy = (octant >> 1) & 1
     oz = octant & 1
-    block = unpack_block(slot_keys[slot])
+    block = unpack_block(key)
     child_block = wp.vec3i(2 * block[0] + ox, 2 * block[1] + oy, 2 * block[2] + oz)
     child_slot = find_slot(child_table_keys, child_table_slots, pack_block(child_block))
     base = slot * BLOCK_VOXELS
     child_base = child_slot * BLOCK_VOXELS
+    seen = int(0)
     for lx in range(4):
         for ly in range(4):
             for lz in range(4):
@@ -58,18 +63,6 @@ def fill_coarse_blocks(
                         best = larger_observed(best, child_log_odds[child_base + index_in_block(child)])
                 voxel = wp.vec3i(4 * ox + lx, 4 * oy + ly, 4 * oz + lz)
                 log_odds[base + index_in_block(voxel)] = best
-
-
-@wp.kernel
-def flag_unobserved_blocks(
-    slots: wp.array(dtype=wp.int32), log_odds: wp.array(dtype=wp.float32), flags: wp.array(dtype=wp.int32)
-):
-    """flags[i] = 1 when no voxel of block slots[i] is observed (the block can be released)."""
-    tid = wp.tid()
-    base = slots[tid] * BLOCK_VOXELS
-    empty = int(1)
-    for i in range(BLOCK_VOXELS):
-        if observed(log_odds[base + i]):
-            empty = 0
-            break
-    flags[tid] = empty
+                if observed(best):
+                    seen = 1
+    observed_octants[tid] = seen

@@ -94,7 +94,9 @@ class BlockMap:
         self._ray_tables_cache = None  # (key, RayTables), rebuilt after writes
         self._level_ray_tables: dict = {}  # level >= 1 -> (key, RayTables)
         self._ray_tables_lock = threading.Lock()
-        self._levels = Levels(self.device)  # the coarse levels built so far
+        # the coarse levels built so far: a voxel of a map without a "count" layer (a VoxelMap)
+        # never goes back to unobserved, so its coarse blocks never empty
+        self._levels = Levels(self.device, releases="count" in layers)
         self._levels_lock = threading.Lock()
         # Ray casts on a CPU read a voxel's state at every step without a test for a block change
         # (queries.cast_rays_dense, cast_rays_on_grid: a branch at each block crossing
@@ -119,8 +121,10 @@ class BlockMap:
         level = check_level(level)
         if level == 0:
             return self._store
-        if self._levels.count < level:
-            with self._levels_lock:  # concurrent readers share one build
+        if self._levels.count < level or self._levels.stale:
+            # writes only note blocks under the write lock, so no reader is mid-way through a
+            # level while another one brings it up to date here; concurrent readers share one
+            with self._levels_lock:
                 self._levels.extend(self._store, level)
         return self._levels.store(level)
 
@@ -132,13 +136,13 @@ class BlockMap:
     def _values_changed(self, keys: np.ndarray | None = None) -> None:
         """Call (under the write lock) after writing log-odds: the ray-cast states go stale, and
         the coarse levels above the written blocks (packed keys `keys` (K,) int64; None: the
-        store was replaced, every level is rebuilt) are recomputed."""
+        store was replaced, every level is rebuilt) are noted for the next coarse query."""
         self._values_revision += 1
         if self._levels.count:
             if keys is None:
                 self._levels.rebuild(self._store)
             else:
-                self._levels.update(self._store, keys)
+                self._levels.note(self._store, keys)
 
     def _ray_tables(self, level: int = 0) -> RayTables:
         """What ray casts read, rebuilt after the log-odds or the blocks changed; call under the

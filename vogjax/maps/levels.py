@@ -3,10 +3,15 @@
 Level k (1 <= k <= MAX_LEVEL) is a BlockStore of its own, of voxels 2^k times the map's edge,
 each holding the maximum log-odds of its observed level-0 voxels (NaN: none observed), so the
 queries of level 0 run on it unchanged with the voxel size scaled by 2^k. A map builds a level
-the first time it is queried and from then on keeps every level it built current: after each
-write it recomputes, level by level, the coarse blocks above the level-0 blocks it wrote, from
-their children. A coarse block with no observed voxel left is released, so a level holds the
-blocks a fresh build would, whatever happened before.
+the first time it is queried and from then on keeps every level it built current.
+
+Keeping them current: each write notes the level-0 blocks it wrote (`note`, a list of keys:
+nothing else), and the next coarse query first recomputes, level by level, the coarse blocks
+above every block noted since, from their children (`flush`), so a query always sees every
+write before it, and the scans integrated between two queries share one recomputation. A log
+grown past FLUSH_KEYS keys is flushed by the write itself. A coarse block with no observed
+voxel left is released, so a level holds the blocks a fresh build would, whatever happened
+before.
 
 Measured in benchmarks/bench_octomap.py (docs/benchmarks/octomap.md).
 """
@@ -24,6 +29,8 @@ from vogjax.maps.blocks import EMPTY_KEY, BlockStore, pack_blocks, unpack_blocks
 # aligned with vogjax's keys: OctoMap's keys are offset by 2^15.)
 MAX_LEVEL = 15
 LAYERS = {"log_odds": (wp.float32, np.nan)}
+# Noted block keys a map holds before a write recomputes its levels itself (8 MiB of keys).
+FLUSH_KEYS = 1 << 20
 
 
 def check_level(level) -> int:
@@ -49,16 +56,28 @@ def parent_keys(keys: np.ndarray) -> np.ndarray:
 
 
 class Levels:
-    """The coarse levels 1..count of one map, on its device."""
+    """The coarse levels 1..count of one map, on its device.
 
-    def __init__(self, device):
+    releases: whether a level-0 voxel can go back to unobserved (a GlobalMap's can; a
+    VoxelMap's cannot), so that coarse blocks may empty and must be checked for release.
+    """
+
+    def __init__(self, device, releases: bool = True):
         self.device = device
+        self.releases = releases
         self.stores: list[BlockStore] = []
+        self._noted: list[np.ndarray] = []
+        self._noted_keys = 0
 
     @property
     def count(self) -> int:
         """The coarsest level kept (0: none)."""
         return len(self.stores)
+
+    @property
+    def stale(self) -> bool:
+        """Whether writes were noted that the levels do not show yet."""
+        return bool(self._noted)
 
     def store(self, level: int) -> BlockStore:
         return self.stores[level - 1]
@@ -68,6 +87,7 @@ class Levels:
 
     def extend(self, base: BlockStore, level: int) -> None:
         """Build levels count+1 .. `level` from scratch (each from the one below)."""
+        self.flush(base)
         while self.count < level:
             below = self.stores[-1] if self.stores else base
             store = BlockStore(self.device, LAYERS)
@@ -78,14 +98,27 @@ class Levels:
         """Every kept level from scratch (after the level-0 store was replaced)."""
         count = self.count
         self.stores = []
+        self._noted, self._noted_keys = [], 0
         self.extend(base, count)
 
-    def update(self, base: BlockStore, keys: np.ndarray) -> None:
-        """Bring every kept level up to date after the level-0 blocks with packed keys `keys`
-        (any order, repeats allowed; released blocks included) were written."""
-        below = base
-        changed = np.unique(np.asarray(keys, np.int64))
+    def note(self, base: BlockStore, keys: np.ndarray) -> None:
+        """Record that the level-0 blocks with packed keys `keys` (any order, repeats allowed,
+        released blocks included) were written; recomputed at the next `flush`."""
+        if not self.stores or len(keys) == 0:
+            return
+        self._noted.append(np.asarray(keys, np.int64))
+        self._noted_keys += len(keys)
+        if self._noted_keys > FLUSH_KEYS:
+            self.flush(base)
+
+    def flush(self, base: BlockStore) -> None:
+        """Recompute, in every kept level, the coarse blocks above the blocks noted since."""
+        if not self._noted:
+            return
+        changed = np.unique(np.concatenate(self._noted))
+        self._noted, self._noted_keys = [], 0
         changed = changed[changed != EMPTY_KEY]
+        below = base
         for store in self.stores:
             if len(changed) == 0:
                 return
@@ -100,35 +133,29 @@ class Levels:
         device = self.device
         d_keys = wp.array(keys, dtype=wp.int64, device=device)
         store.ensure_blocks(d_keys)
-        slots = store.find(d_keys)
+        observed = wp.empty(len(keys) * 8, dtype=wp.int32, device=device)
         parallel.split_launch(
             lambda part, lo, hi: wp.launch(
                 levels.fill_coarse_blocks,
                 dim=(hi - lo) * 8,
                 inputs=[
-                    slots[lo:hi],
-                    store.slot_keys,
+                    d_keys[lo:hi],
+                    store.table_keys,
+                    store.table_slots,
                     below.table_keys,
                     below.table_slots,
                     below.layers["log_odds"],
                 ],
-                outputs=[store.layers["log_odds"]],
+                outputs=[store.layers["log_odds"], observed[lo * 8 : hi * 8]],
                 device=device,
             ),
             len(keys),
             parallel.num_parts(device, len(keys) * 64),
         )
-        flags = wp.empty(len(keys), dtype=wp.int32, device=device)
-        wp.launch(
-            levels.flag_unobserved_blocks,
-            dim=len(keys),
-            inputs=[slots, store.layers["log_odds"]],
-            outputs=[flags],
-            device=device,
-        )
-        empty = flags.numpy() == 1
-        if np.any(empty):
-            store.release(slots.numpy()[empty])
+        if self.releases:
+            empty = ~observed.numpy().reshape(-1, 8).any(axis=1)
+            if np.any(empty):
+                store.release(store.find(d_keys).numpy()[empty])
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:
