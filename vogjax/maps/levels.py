@@ -66,6 +66,7 @@ class Levels:
         self.device = device
         self.releases = releases
         self.stores: list[BlockStore] = []
+        self._keys: list[np.ndarray] = []  # per level, its blocks' packed keys, sorted (a host mirror)
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
 
@@ -92,12 +93,13 @@ class Levels:
             below = self.stores[-1] if self.stores else base
             store = BlockStore(self.device, LAYERS)
             self.stores.append(store)
-            self._recompute(below, store, parent_keys(_live_keys(below)))
+            self._keys.append(np.zeros(0, np.int64))
+            self._recompute(self.count, below, parent_keys(_live_keys(below)))
 
     def rebuild(self, base: BlockStore) -> None:
         """Every kept level from scratch (after the level-0 store was replaced)."""
         count = self.count
-        self.stores = []
+        self.stores, self._keys = [], []
         self._noted, self._noted_keys = [], 0
         self.extend(base, count)
 
@@ -119,20 +121,25 @@ class Levels:
         self._noted, self._noted_keys = [], 0
         changed = changed[changed != EMPTY_KEY]
         below = base
-        for store in self.stores:
+        for level, store in enumerate(self.stores, start=1):
             if len(changed) == 0:
                 return
             changed = parent_keys(changed)
-            self._recompute(below, store, changed)
+            self._recompute(level, below, changed)
             below = store
 
-    def _recompute(self, below: BlockStore, store: BlockStore, keys: np.ndarray) -> None:
-        """Recompute the coarse blocks `keys` of `store` from `below`; release those left empty."""
+    def _recompute(self, level: int, below: BlockStore, keys: np.ndarray) -> None:
+        """Recompute the coarse blocks `keys` (distinct, sorted) of `level` from `below`;
+        release those left empty."""
         if len(keys) == 0:
             return
-        device = self.device
+        device, store = self.device, self.store(level)
         d_keys = wp.array(keys, dtype=wp.int64, device=device)
-        store.ensure_blocks(d_keys)
+        kept = self._keys[level - 1]
+        new = keys[~np.isin(keys, kept, assume_unique=True)]
+        if len(new):  # the host mirror spares a launch and a read-back when every block exists
+            store.ensure_blocks(wp.array(new, dtype=wp.int64, device=device))
+            self._keys[level - 1] = kept = np.union1d(kept, new)
         observed = wp.empty(len(keys) * 8, dtype=wp.int32, device=device)
         parallel.split_launch(
             lambda part, lo, hi: wp.launch(
@@ -156,6 +163,7 @@ class Levels:
             empty = ~observed.numpy().reshape(-1, 8).any(axis=1)
             if np.any(empty):
                 store.release(store.find(d_keys).numpy()[empty])
+                self._keys[level - 1] = np.setdiff1d(kept, keys[empty], assume_unique=True)
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:
