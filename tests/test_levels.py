@@ -170,20 +170,30 @@ def test_coarse_levels_after_loop_closures_equal_a_fresh_merge():
         assert our_level(gmap, level) == expected
 
 
-def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps():
+def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps(monkeypatch):
+    merges = []
+    merge = vj.GlobalMap.merge
+    monkeypatch.setattr(vj.GlobalMap, "merge", lambda self, *a, **k: merges.append(1) or merge(self, *a, **k))
     rng = np.random.default_rng(4)
     vog = random_vog(rng, 3)
     s = vog.config.voxel_size
     points = (np.floor(rng.uniform(-4, 4, (3000, 3)) / s) + 0.5) * s  # level 0 agrees at voxel centres
     origins, directions = rng.uniform(-2, 2, (500, 3)), rng.normal(size=(500, 3))
-    for change in ("none", "poses", "integrate", "add"):
+    expected_merges = {"none": 1, "poses": 0, "integrate old": 1, "add": 0, "fill last": 0, "fill last again": 0}
+    for change, merged in expected_merges.items():
+        merges.clear()
         if change == "poses":
             vog.set_poses([1], [random_pose(rng)])
-        elif change == "integrate":  # a submap written after it was summed: rebuilt
+        elif change == "integrate old":  # a submap written after it was summed, no copy kept: merged
             vog.submap(0).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
         elif change == "add":
             i = vog.add_submap(random_pose(rng))
             vog.submap(i).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
+        elif change.startswith("fill last"):  # the submap being filled: undone from its copy
+            vog.submap(vog.num_submaps - 1).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
+            vog.set_poses([0], [random_pose(rng)])
+        vog.coarse_map()
+        assert len(merges) == merged, change
         fresh = vj.GlobalMap(vog.config)
         fresh.merge(vog)
         for level in (0, 2, 3):

@@ -30,6 +30,8 @@ from vogjax.maps.views import submap_views
 from vogjax.validation import real_array
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
+# Submaps (the newest) whose copies `_follow` keeps, to undo them once they were written to.
+FOLLOW_SNAPSHOTS = 2
 # Marginals whose x, y, yaw block fails these checks are not covariances.
 _SYMMETRY_TOLERANCE = 1e-9
 
@@ -205,29 +207,41 @@ class GlobalMap(BlockMap):
 
     def _follow(self, vog: VogMap) -> None:
         """Make the map equal `merge(vog)` at vog's current poses, bit for bit, doing as little
-        as it can: submaps whose pose changed at all are undone and redone, new ones added; a
-        submap written since it was applied (its old contribution is gone) forces a merge.
+        as it can: submaps whose pose changed at all are undone and redone, new ones added. A
+        submap written since it was applied is undone from the copy kept of it then (kept of
+        the last FOLLOW_SNAPSHOTS submaps: the one being filled); any other forces a merge.
         (How a VogMap answers coarse queries: from a global map it keeps beside its submaps.)"""
         self._check_vog(vog)
         count = vog.num_submaps
         submaps = vog.submaps(range(count))
-        changed = any(
-            i >= count or a.uid != submaps[i].uid or a.revision != submaps[i].revision for i, a in self._applied.items()
-        )
-        if changed or not self._applied:
+        snapshots = getattr(self, "_snapshots", {})
+        written = [i for i, a in self._applied.items() if i >= count or a.revision != submaps[i].revision]
+        stale = any(
+            i >= count
+            or a.uid != submaps[i].uid
+            or (i in written and snapshots.get(i, submaps[i]).revision != a.revision)
+            for i, a in self._applied.items()
+        ) or any(i not in snapshots for i in written)
+        if stale or not self._applied:
             self.merge(vog)
+            self._snapshots = {i: submaps[i].snapshot() for i in range(max(0, count - FOLLOW_SNAPSHOTS), count)}
             return
         poses = vog.poses()
-        moved = [i for i, a in sorted(self._applied.items()) if np.any(a.pose != poses[i])]
+        moved = [i for i, a in sorted(self._applied.items()) if i in written or np.any(a.pose != poses[i])]
         new = [i for i in range(count) if i not in self._applied]
         if not moved and not new:
             return
         self._check_key_range(vog, moved + new)
         with self._lock.writing():
             touched = []
-            self._contribute([(submaps[i], self._applied[i].pose) for i in moved], -1, touched)
+            undone = [(snapshots[i] if i in written else submaps[i], self._applied[i].pose) for i in moved]
+            self._contribute(undone, -1, touched)
             self._apply(vog, moved + new, touched, None)
             self._refresh(touched, release=True)
+        recent = range(max(0, count - FOLLOW_SNAPSHOTS), count)
+        self._snapshots = {
+            i: snapshots[i] if i in snapshots and i not in moved + new else submaps[i].snapshot() for i in recent
+        }
 
     def moved_submaps(
         self,

@@ -59,6 +59,16 @@ class Submap(VoxelMap):
         self._refresh_derived()
         return self._bounds
 
+    def snapshot(self) -> Submap:
+        """A copy of the submap as it is now (same uid and revision, its own blocks): what a
+        global map undoes the contribution of once the submap itself has changed."""
+        copy = Submap(self.config, self.device)
+        copy.uid = self.uid
+        with self.reading():
+            copy.revision = self.revision
+            copy._store = self._store.copy()
+        return copy
+
     def occupied_points(self) -> np.ndarray:
         """(K,3) submap-frame centres of its OCCUPIED voxels (the cloud ICP aligns)."""
         self._refresh_derived()
