@@ -274,3 +274,54 @@ def test_a_coarse_ray_never_passes_where_level_0_is_occupied(seed, origin, direc
     occupied = centres[values >= cfg.log_occupied]
     jitter = rng.uniform(-0.5, 0.5, occupied.shape) * cfg.voxel_size * 0.999
     assert np.all(vmap.state(occupied + jitter, level) == vj.OCCUPIED)
+
+
+# ------------------------------------------------------------------ the planner on a coarse level
+def room(rng, voxel_size=0.1):
+    """Free water observed around the origin with a wall in it."""
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=voxel_size, max_range=6.0))
+    wall = np.c_[np.full(600, 1.9), rng.uniform(-1.5, 0.5, 600), rng.uniform(-1, 1, 600)]
+    vmap.integrate_scans(np.zeros((1, 3)), wall, np.zeros(600, np.int64))
+    origins = rng.uniform(-0.3, 0.3, (20, 3))
+    directions = rng.normal(size=(20 * 500, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    vmap.integrate_scans(origins, np.repeat(origins, 500, axis=0) + directions * 3.0, np.repeat(np.arange(20), 500))
+    return vmap
+
+
+def test_the_planner_on_a_coarse_level_plans_as_on_a_map_of_its_voxels():
+    from vogjax import planner
+    from vogjax.geometry import pose_from_xyz_yaw
+    from vogjax.maps.blocks import BlockStore
+
+    vmap = room(np.random.default_rng(2))
+    sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(beams=24, fov_deg=40.0, min_range_m=0.3))
+    bounds = np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]])
+    config = planner.PlannerConfig(
+        edge_length_m=1.0, max_nodes=6, tolerance_nodes=18, gain_range_m=3.0, gain_step_m=0.2, clearance_m=0.6, seed=3
+    )
+    T = pose_from_xyz_yaw(0.1, -0.2, 0.1, 0.4)
+    for level in (1, 2):
+        # the coarse voxels as a map of their own, planned on at level 0
+        keys, layers = vmap.store_at(level).host_blocks()
+        coarse = vj.VoxelMap(dataclasses.replace(vmap.config, voxel_size=vmap.config.voxel_size * 2**level))
+        coarse._store = BlockStore.from_host(coarse.device, coarse.store.layer_specs, keys, layers)
+        ours = planner.NbvPlanner(config.replace(collision_level=level, gain_level=level), bounds, sonar).plan(vmap, T)
+        theirs = planner.NbvPlanner(config, bounds, sonar).plan(coarse, T)
+        np.testing.assert_array_equal(ours.tree_states, theirs.tree_states)
+        assert ours.gain_m3 == theirs.gain_m3 > 0 and ours.rays == theirs.rays
+    # a virtual map's coarse level is its global map's
+    vog = vj.VogMap(vmap.config)
+    vog.add_submap(np.eye(4))
+    vog.submap(0).integrate_scans(np.zeros((1, 3)), vmap.voxels()[0][::50], np.zeros(len(vmap.voxels()[0][::50]), int))
+    gmap = vj.GlobalMap(vmap.config)
+    gmap.merge(vog)
+    mixed = config.replace(collision_level=2, gain_level=1)
+    a = planner.NbvPlanner(mixed, bounds, sonar).plan(vog, T)
+    b = planner.NbvPlanner(mixed, bounds, sonar).plan(gmap, T)
+    np.testing.assert_array_equal(a.tree_states, b.tree_states)
+    i = vog.add_submap(np.eye(4))
+    vog.submap(i).integrate_scans(np.zeros((1, 3)), np.ones((3, 3)), np.zeros(3, int))
+    overlay = planner.Overlay(gmap, vog, [i])
+    with pytest.raises(ValueError, match="level 1: an Overlay has no coarse levels"):
+        planner.NbvPlanner(mixed, bounds, sonar).plan(overlay, T)
