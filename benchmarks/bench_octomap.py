@@ -128,10 +128,10 @@ def maintenance(origins, points, scan, device, chunk: int) -> tuple[dict, list]:
     return row, maps
 
 
-def rays_by_level(vmap, count: int, repeats: int) -> list:
+def rays_by_level(vmap, count: int, repeats: int, lengths=RAY_LENGTHS_M) -> list:
     origins, directions = planner_rays(vmap, count, rng=0)
     rows = []
-    for length in RAY_LENGTHS_M:
+    for length in lengths:
         fine = None
         for level in range(4):
             vmap.raycast(origins[:16], directions[:16], length, level=level)  # kernels loaded, tables built
@@ -220,7 +220,7 @@ def global_costs(origins, points, scan, device, repeats: int) -> dict:
     return result
 
 
-def loading(target_voxels: int, device, repeats: int, folder: Path) -> dict:
+def loading(target_voxels: int, device, repeats: int, folder: Path, rays: int) -> dict:
     import octomap
 
     rng = np.random.default_rng(2)
@@ -229,6 +229,8 @@ def loading(target_voxels: int, device, repeats: int, folder: Path) -> dict:
     while len(vmap.voxels()[0]) < target_voxels:
         vmap.integrate_scans(*_random_scans(rng, 10, 2000))
     result = {"voxels": len(vmap.voxels()[0])}
+    # a larger map, whose box holds the rays' whole walk: the walks, not the rays' set-up, dominate
+    result["ray_casts"] = rays_by_level(vmap, rays, repeats, lengths=(11.0,))
     for format in ("bt", "ot"):
         path = folder / f"map.{format}"
         nodes = om.save(vmap, path)
@@ -269,6 +271,45 @@ def _random_scans(rng, scans: int, beams: int):
     return origins, points.astype(np.float32), np.repeat(np.arange(scans), beams)
 
 
+def exploration(submaps: int, levels=(0, 1, 2), folder: Path | None = None) -> list:
+    """The propeller explored on the navigation-only VoxelMap ("standard": the planner's map is
+    one VoxelMap, level 0 and its coarse levels alike) with the planner's collision checks and
+    gain rays at each level: plan time and explored volume (known voxels of the scene's region
+    in the global map) against mission time."""
+    import csv
+
+    from vogjax.sim.explore import explore, scene_planner
+
+    rows = []
+    for level in levels:
+        config = scene_planner("propeller", 0).replace(collision_level=level, gain_level=level)
+        out = Path(folder) / f"explore_level{level}.h5"
+        start = time.perf_counter()
+        summary = explore("propeller", out, submaps=submaps, map_kind="standard", planner_config=config, progress=False)
+        wall = time.perf_counter() - start
+        with open(summary.csv_path) as f:
+            table = list(csv.DictReader(f))
+        plan_s = [float(r["plan_s"]) for r in table]
+        rows.append(
+            {
+                "level": level,
+                "submaps": summary.submaps,
+                "scans": summary.scans,
+                "iterations": summary.iterations,
+                "stopped": summary.stopped,
+                "mission_s": summary.duration_s,
+                "path_m": summary.path_m,
+                "explored_m3": summary.explored_m3,
+                "plan_s_median": statistics.median(plan_s) if plan_s else None,
+                "plan_s_total": sum(plan_s),
+                "rays_median": statistics.median(float(r["rays"]) for r in table) if table else None,
+                "wall_s": wall,
+                "explored_m3_by_time": [[float(r["time_s"]), float(r["explored_m3"])] for r in table],
+            }
+        )
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
@@ -276,6 +317,7 @@ def main():
     parser.add_argument("--rays", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--bt-voxels", type=int, default=3_000_000)
+    parser.add_argument("--explore-submaps", type=int, default=20, help="0: no exploration runs")
     parser.add_argument("--device", default=None)
     args = parser.parse_args()
     device = vj.VoxelMap(device=args.device).device
@@ -288,7 +330,8 @@ def main():
     builds = build_costs(vmap, device, args.repeats)
     global_map = global_costs(origins, points, scan, device, args.repeats)
     with tempfile.TemporaryDirectory() as folder:
-        load = loading(args.bt_voxels, device, args.repeats, Path(folder))
+        load = loading(args.bt_voxels, device, args.repeats, Path(folder), args.rays)
+        explored = exploration(args.explore_submaps, folder=Path(folder)) if args.explore_submaps else []
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     result = {
         "date": time.strftime("%Y-%m-%d"),
@@ -311,6 +354,7 @@ def main():
         "levels_built_from_scratch": builds,
         "global_map": global_map,
         "loading": load,
+        "exploration": explored,
     }
     args.out.mkdir(parents=True, exist_ok=True)
     name = "octomap_cuda.json" if device.is_cuda else "octomap_cpu.json"
@@ -321,6 +365,11 @@ def main():
             f"{r['ray_length_m']:4.0f} m level {r['level']}: {r['seconds'] * 1e3:7.1f} ms "
             f"({r['speedup_vs_level_0']:.2f}x), same hit/miss {r['same_hit_or_miss']:.3f}, "
             f"level-0 hits missed or later {r['level_0_hits_missed_or_later']}"
+        )
+    for r in explored:
+        print(
+            f"explore level {r['level']}: {r['explored_m3']:.1f} m^3 in {r['mission_s']:.0f} s mission, "
+            f"{r['iterations']} plans, median plan {(r['plan_s_median'] or 0) * 1e3:.0f} ms"
         )
     for format in ("bt", "ot"):
         r = load[format]
