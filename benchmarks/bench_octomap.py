@@ -231,6 +231,7 @@ def loading(target_voxels: int, device, repeats: int, folder: Path, rays: int) -
     result = {"voxels": len(vmap.voxels()[0])}
     # a larger map, whose box holds the rays' whole walk: the walks, not the rays' set-up, dominate
     result["ray_casts"] = rays_by_level(vmap, rays, repeats, lengths=(11.0,))
+    result["levels_built_from_scratch"] = build_costs(vmap, device, repeats)
     for format in ("bt", "ot"):
         path = folder / f"map.{format}"
         nodes = om.save(vmap, path)

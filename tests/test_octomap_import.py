@@ -3,6 +3,8 @@ voxel for voxel; every malformed file is a one-line ValueError naming it (fuzzed
 hypothesis against a pure-Python reader written from OctoMap's format); maps from bags."""
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -407,6 +409,14 @@ def test_import_command_writes_a_map_file(tmp_path, capsys):
     expected = octomap_leaves(tree, cfg.voxel_size, lambda leaf: tree.isNodeOccupied(leaf))
     loaded = vj.VoxelMap.load(out)
     assert {k: v == cfg.log_clamp_max for k, v in voxel_dict(loaded).items()} == expected
+    # a fresh process: stdout carries the result line alone (no Warp banner)
+    done = subprocess.run(
+        [sys.executable, "-m", "vogjax.cli", "import", str(tmp_path / "map.bt"), "--out", str(tmp_path / "fresh.vog")],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert done.stdout.count("\n") == 1 and done.stdout.startswith("wrote ")
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["import", str(tmp_path / "map.bt"), "--out", str(out)])
     assert exit_info.value.code == 2

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from vogjax import devices
 from vogjax.kernels import octree
 
 BINARY_HEADER = "# Octomap OcTree binary file"
@@ -274,6 +275,7 @@ def _decode_full(data: np.ndarray, tree_type: str, resolution: float, where: str
 def _run(kernel, inputs: list, capacity: int, leaf_dtype) -> tuple:
     """One decode on the CPU: ([codes, depths, per-leaf field, rows, run_firsts, run_blocks] as
     NumPy arrays, status)."""
+    devices.init()  # quietly: stdout carries results only
     device = "cpu"
     arrays = [wp.array(a, dtype=wp.dtype_from_numpy(a.dtype), device=device, copy=False) for a in inputs]
     path = [wp.zeros(TREE_DEPTH + 1, dtype=t, device=device) for t in (wp.int32, wp.int64, wp.int32)]
