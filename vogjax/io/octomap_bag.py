@@ -44,7 +44,13 @@ class OctomapMessage:
 
 
 def typestore():
-    """A rosbags typestore of the latest ROS 2 types with octomap_msgs/msg/Octomap added."""
+    """The message types bags are read with.
+
+    Returns
+    -------
+    rosbags.typesys.store.Typestore
+        The latest ROS 2 types, with octomap_msgs/msg/Octomap registered from its definition.
+    """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.LATEST)

@@ -190,7 +190,24 @@ def _resolution(text: str, where: str) -> float:
 
 
 def check_resolution(value: float, where: str) -> float:
-    """`value` as a voxel size in [MIN_RESOLUTION_M, MAX_RESOLUTION_M]; ValueError naming `where`."""
+    """A tree's resolution, checked.
+
+    Parameters
+    ----------
+    value : float
+        Metres.
+    where : str
+        The tree's source, for the error message.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Naming `where`, unless `value` is finite and within [MIN_RESOLUTION_M, MAX_RESOLUTION_M].
+    """
     if not (math.isfinite(value) and MIN_RESOLUTION_M <= value <= MAX_RESOLUTION_M):
         raise ValueError(
             f"{where} has resolution {value!r} m; vogjax reads trees of {MIN_RESOLUTION_M:g} to {MAX_RESOLUTION_M:g} m"
@@ -323,7 +340,18 @@ def _leaves(resolution: float, binary: bool, tree_type: str, out: list, nodes: i
 
 # ------------------------------------------------------------------ leaves -> blocks
 def block_coordinates(block_codes: np.ndarray) -> np.ndarray:
-    """(K,3) int64 vogjax block coordinates of Morton block codes (a voxel code >> 9)."""
+    """vogjax block coordinates of Morton block codes.
+
+    Parameters
+    ----------
+    block_codes : numpy.ndarray
+        (K,) int64, a voxel's Morton code (see `OctreeLeaves.codes`) shifted right by 9.
+
+    Returns
+    -------
+    numpy.ndarray
+        (K,3) int64 block coordinates (voxel key >> 3).
+    """
     block_codes = np.asarray(block_codes, np.int64)
     out = np.zeros((len(block_codes), 3), np.int64)
     for j in range(BLOCK_DEPTH):
@@ -333,7 +361,16 @@ def block_coordinates(block_codes: np.ndarray) -> np.ndarray:
 
 
 def count_blocks(tree: OctreeLeaves) -> int:
-    """8x8x8 blocks the tree's leaves fill (without expanding them)."""
+    """The 8x8x8 blocks a tree's leaves fill, counted without expanding them.
+
+    Parameters
+    ----------
+    tree : OctreeLeaves
+
+    Returns
+    -------
+    int
+    """
     return int(tree.run_blocks.sum())
 
 

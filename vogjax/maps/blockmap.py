@@ -115,9 +115,26 @@ class BlockMap:
         return self._lock.reading()
 
     def store_at(self, level: int = 0) -> BlockStore:
-        """The block storage of `level` (0: `store`), built if it was not; call it under
-        `reading()`, for kernel launchers (the planner) that read a coarse level's voxels with
-        the voxel size `level_scales(config.voxel_size, level)[0]`."""
+        """The block storage of a level, built or brought up to date first.
+
+        For kernel launchers (the planner) that read a coarse level's voxels; call it under
+        `reading()` and keep the lock while the store is read.
+
+        Parameters
+        ----------
+        level : int
+            0: the map's own store (`store`); k in [1, 15]: the store of level k, whose voxels
+            have the edge `vogjax.maps.levels.level_scales(config.voxel_size, k)[0]`.
+
+        Returns
+        -------
+        BlockStore
+
+        Raises
+        ------
+        ValueError
+            When `level` is no integer in [0, 15].
+        """
         level = check_level(level)
         if level == 0:
             return self._store
@@ -271,21 +288,72 @@ class BlockMap:
         return np.nan_to_num(self._lookup(points, level), nan=0.0)
 
     def probability(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
-        """(M,) float32 occupancy probability at `points` (M,3) at `level`; 0.5 where unknown."""
+        """Occupancy probability of the voxels holding `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) float32, 0.5 where unknown.
+        """
         return probability_from_log_odds(self.log_odds(points, level))
 
     def state(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
-        """(M,) int8 states at `points` (M,3) at `level`: UNKNOWN (never observed, or between
-        the thresholds), FREE or OCCUPIED. A coarse voxel is OCCUPIED when any of its voxels is,
-        FREE when its most occupied observed voxel is FREE."""
+        """States of the voxels holding `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`. A coarse voxel is OCCUPIED when any of its voxels is, FREE when
+            its most occupied observed voxel is FREE (unobserved ones do not count).
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) int8: UNKNOWN (never observed, or between the thresholds), FREE or OCCUPIED.
+        """
         return classify(self._lookup(points, level), self.config)
 
     # ---------------------------------------------------------------- ray queries
-    def raycast(self, origins, directions, max_range, level: int = 0) -> RaycastResult:
-        """First OCCUPIED voxel along each ray, within `max_range` (float or (R,)) metres.
+    def raycast(
+        self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike, level: int = 0
+    ) -> RaycastResult:
+        """First OCCUPIED voxel along each ray, within `max_range` metres.
 
-        origins (R,3) inside the key range, directions (R,3) (any nonzero length; normalised
-        in the kernel, as `unit_directions` does). Any range is accepted: stretches of unknown
+        Parameters
+        ----------
+        origins : array_like or warp.array
+            (R,3) float64 ray origins inside the key range.
+        directions : array_like or warp.array
+            (R,3) directions of any nonzero length (normalised in the kernel, as
+            `unit_directions` does).
+        max_range : float or array_like or warp.array
+            One range for every ray, or (R,) float64, metres, positive.
+        level : int
+            0: the map's voxels; k in [1, 15]: voxels of edge voxel_size * 2^k (see `state`).
+
+        Returns
+        -------
+        RaycastResult
+            hit (R,) bool, distance (R,) float32, num_unknown and num_free (R,) int32.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument: NaN, infinite or out-of-range origins, zero directions, ranges
+            that are not positive, a bad level.
+
+        Notes
+        -----
+        Any range is accepted: stretches of unknown
         space outside the map's box are counted without walking them, so a ray costs at most
         about the voxels of the map it crosses; voxels outside the key range
         (`hashing.VOXEL_KEY_LIMIT` voxels from the origin per axis) are not counted.
@@ -296,9 +364,9 @@ class BlockMap:
         checks run in a kernel and the result's fields are Warp arrays on the device, final
         when this returns.
 
-        At `level` k >= 1 the rays walk the voxels of edge voxel_size * 2^k (see `state`): a
-        ray meets an OCCUPIED coarse voxel at or before the level-0 voxel it would hit, and the
-        counts are of coarse voxels.
+        At `level` k >= 1 the rays walk the voxels of edge voxel_size * 2^k: a ray meets an
+        OCCUPIED coarse voxel at or before the level-0 voxel it would hit (one it spends more
+        than a millionth of an edge in), and the counts are of coarse voxels.
         """
         level = check_level(level)
         if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
@@ -432,7 +500,7 @@ class BlockMap:
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return out
 
-    def line_query(self, starts, ends, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def line_query(self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Log-odds of every voxel from the voxel of each start to that of its end, inclusive.
 
         Parameters
@@ -476,8 +544,21 @@ class BlockMap:
 
     # ---------------------------------------------------------------- contents
     def voxels(self, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Observed voxels of `level`: centres (K,3) float64 and log-odds (K,) float32, sorted
-        by voxel key (at level k, the voxels of edge voxel_size * 2^k holding an observed one)."""
+        """The observed voxels of a level.
+
+        Parameters
+        ----------
+        level : int
+            0: the map's voxels; k in [1, 15]: the voxels of edge voxel_size * 2^k holding an
+            observed one, with their maximum log-odds.
+
+        Returns
+        -------
+        centres : numpy.ndarray
+            (K,3) float64 voxel centres, metres, sorted by voxel key.
+        log_odds : numpy.ndarray
+            (K,) float32.
+        """
         level = check_level(level)
         with self._lock.reading():
             keys, layers = self.store_at(level).host_blocks()

@@ -33,8 +33,23 @@ LAYERS = {"log_odds": (wp.float32, np.nan)}
 FLUSH_KEYS = 1 << 20
 
 
-def check_level(level) -> int:
-    """`level` as an int in [0, MAX_LEVEL]; ValueError naming it otherwise."""
+def check_level(level: int) -> int:
+    """A query's level, checked.
+
+    Parameters
+    ----------
+    level : int
+        0 (the map's voxels) to MAX_LEVEL.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ValueError
+        Naming `level`, when it is no integer (a bool is not one) in [0, MAX_LEVEL].
+    """
     if isinstance(level, (bool, np.bool_)) or not isinstance(level, (int, np.integer)) or not 0 <= level <= MAX_LEVEL:
         raise ValueError(
             f"level must be an integer in [0, {MAX_LEVEL}] (voxels of voxel_size * 2^level), got {level!r}"
@@ -43,8 +58,23 @@ def check_level(level) -> int:
 
 
 def level_scales(voxel_size: float, level: int) -> tuple[np.float64, np.float64]:
-    """(resolution, 1 / resolution) of level `level`, both exact powers of two times level 0's,
-    so a point's coarse key is its level-0 key shifted right by `level`, bit for bit."""
+    """The voxel edge of a level and its inverse, as the kernels take them.
+
+    Both are level 0's times an exact power of two (`voxel_size * 2^level` and
+    `(1 / voxel_size) * 2^-level`), so a point's coarse key is its level-0 key shifted right by
+    `level`, bit for bit.
+
+    Parameters
+    ----------
+    voxel_size : float
+        Level 0's voxel edge, metres.
+    level : int
+        The level.
+
+    Returns
+    -------
+    resolution, inv_resolution : numpy.float64
+    """
     return np.float64(np.ldexp(voxel_size, level)), np.float64(np.ldexp(1.0 / voxel_size, -level))
 
 

@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import math
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +30,9 @@ from vogjax.maps.locking import ReadWriteLock
 from vogjax.maps.views import submap_views
 from vogjax.maps.voxelmap import VoxelMap
 from vogjax.validation import float_array
+
+if TYPE_CHECKING:
+    from vogjax.maps.globalmap import GlobalMap
 
 _SUBMAP_UIDS = itertools.count(1)
 
@@ -60,8 +64,14 @@ class Submap(VoxelMap):
         return self._bounds
 
     def snapshot(self) -> Submap:
-        """A copy of the submap as it is now (same uid and revision, its own blocks): what a
-        global map undoes the contribution of once the submap itself has changed."""
+        """A copy of the submap as it is now.
+
+        Returns
+        -------
+        Submap
+            The same uid and revision, blocks of its own: what a global map undoes the
+            contribution of once the submap itself has been written to.
+        """
         copy = Submap(self.config, self.device)
         copy.uid = self.uid
         with self.reading():
@@ -195,9 +205,15 @@ class VogMap:
                 )
         return fixed_point_values(sums.numpy(), counts.numpy(), self.config)
 
-    def coarse_map(self):
-        """The GlobalMap equal to `GlobalMap.merge(self)` at the current poses that coarse
-        queries read (made, or brought up to date, now)."""
+    def coarse_map(self) -> GlobalMap:
+        """The global map coarse queries read, made or brought up to date now.
+
+        Returns
+        -------
+        GlobalMap
+            Equal to `GlobalMap.merge(self)` at the current poses, bit for bit; kept by this
+            VogMap (do not write to it).
+        """
         from vogjax.maps.globalmap import GlobalMap  # globalmap imports this module
 
         with self._coarse_lock, self._lock.reading():
@@ -228,20 +244,63 @@ class VogMap:
         return np.nan_to_num(self._values_at(points), nan=0.0)
 
     def probability(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
-        """(M,) float32 occupancy probability at `points` (M,3) at `level`; 0.5 where unknown."""
+        """Occupancy probability at `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) float32, 0.5 where unknown.
+        """
         return probability_from_log_odds(self.log_odds(points, level))
 
     def state(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
-        """(M,) int8 states (UNKNOWN, FREE, OCCUPIED) at `points` (M,3) at `level`."""
+        """States at `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) int8: UNKNOWN, FREE or OCCUPIED.
+        """
         if check_level(level):
             return self.coarse_map().state(points, level)
         points = float_array("points", points, (-1, 3), np.float64)
         return classify(self._values_at(points), self.config)
 
-    def raycast(self, origins, directions, max_range, level: int = 0) -> RaycastResult:
-        """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre (long
-        stretches before and after the submaps' boxes are counted, not walked, likewise); rays
-        as NumPy arrays only. At `level` k >= 1, GlobalMap.raycast of the coarse map."""
+    def raycast(
+        self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike, level: int = 0
+    ) -> RaycastResult:
+        """First OCCUPIED voxel along each ray, as `VoxelMap.raycast`.
+
+        On the world voxel grid, each voxel valued at its centre (long stretches before and
+        after the submaps' boxes are counted, not walked, likewise); rays as NumPy arrays only.
+
+        Parameters
+        ----------
+        origins, directions : array_like
+            (R,3) float64.
+        max_range : float or array_like
+            One range, or (R,), metres.
+        level : int
+            0: the virtual map; k >= 1: `GlobalMap.raycast` of `coarse_map()` at level k.
+
+        Returns
+        -------
+        RaycastResult
+        """
         if check_level(level):
             if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
                 raise ValueError("origins, directions and max_range must be NumPy arrays or numbers for a VogMap")
@@ -321,9 +380,23 @@ class VogMap:
             )
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
-    def line_query(self, starts, ends, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """As VoxelMap.line_query: virtual log-odds at the centres of the voxels on each line
-        (at `level` k >= 1, GlobalMap.line_query of the coarse map)."""
+    def line_query(self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Virtual log-odds at the centres of the voxels on each line, as `VoxelMap.line_query`.
+
+        Parameters
+        ----------
+        starts, ends : array_like
+            (R,3) world points, metres.
+        level : int
+            0: the virtual map; k >= 1: `GlobalMap.line_query` of `coarse_map()` at level k.
+
+        Returns
+        -------
+        values : numpy.ndarray
+            (R,S) float32, NaN past each line's end.
+        lengths : numpy.ndarray
+            (R,) int32.
+        """
         if check_level(level):
             return self.coarse_map().line_query(starts, ends, level)
         keys, lengths = line_voxels(self.config, self.device, starts, ends)

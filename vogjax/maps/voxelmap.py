@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -15,6 +16,9 @@ from vogjax.maps import integrator, parallel
 from vogjax.maps.blockmap import BlockMap
 from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, pack_blocks
 from vogjax.validation import float_array, index_array
+
+if TYPE_CHECKING:
+    from vogjax.io.octomap_read import OctreeLeaves
 
 # Scans integrated per pass: each voxel a pass touches carries two bits per scan. A GPU takes
 # more per pass: its time goes to the host work of each pass (launches, block allocation,
@@ -167,15 +171,34 @@ class VoxelMap(BlockMap):
     @classmethod
     def from_octree(
         cls,
-        tree,
+        tree: OctreeLeaves,
         config: MapConfig | None = None,
         device=None,
         max_voxels: int = OCTOMAP_MAX_VOXELS,
         where: str = "tree",
     ) -> VoxelMap:
-        """A map of a decoded OctoMap tree (`vogjax.io.octomap_read.OctreeLeaves`, from a file
-        or an octomap_msgs/Octomap message), as `from_octomap` builds it; `where` names the
-        tree's source in error messages."""
+        """A map of a decoded OctoMap tree, as `from_octomap` builds it.
+
+        Parameters
+        ----------
+        tree : vogjax.io.octomap_read.OctreeLeaves
+            From `read_octree` (a file) or `vogjax.io.octomap_bag.read_octomap_message`.
+        config, device, max_voxels
+            As for `from_octomap`.
+        where : str
+            The tree's source, for error messages.
+
+        Returns
+        -------
+        VoxelMap
+
+        Raises
+        ------
+        ValueError
+            Naming `where`: the tree expands past `max_voxels`, or does not fit `config`
+            (another voxel size, log-odds outside its clamping, a binary tree with infinite
+            clamping bounds or bounds its thresholds do not call occupied and free).
+        """
         from vogjax.io.octomap_read import leaf_blocks
 
         if isinstance(max_voxels, bool) or not isinstance(max_voxels, (int, np.integer)) or max_voxels < 0:
