@@ -272,19 +272,22 @@ def _random_scans(rng, scans: int, beams: int):
     return origins, points.astype(np.float32), np.repeat(np.arange(scans), beams)
 
 
-def exploration(submaps: int, levels=(0, 1, 2), folder: Path | None = None) -> list:
+EXPLORE_LEVELS = ((0, 0), (1, 1), (2, 2), (2, 0))  # (collision_level, gain_level)
+
+
+def exploration(submaps: int, levels=EXPLORE_LEVELS, folder: Path | None = None) -> list:
     """The propeller explored on the navigation-only VoxelMap ("standard": the planner's map is
     one VoxelMap, level 0 and its coarse levels alike) with the planner's collision checks and
-    gain rays at each level: plan time and explored volume (known voxels of the scene's region
-    in the global map) against mission time."""
+    gain rays at the levels given ((collision_level, gain_level) pairs): plan time and explored
+    volume (known voxels of the scene's region in the global map) against mission time."""
     import csv
 
     from vogjax.sim.explore import explore, scene_planner
 
     rows = []
-    for level in levels:
-        config = scene_planner("propeller", 0).replace(collision_level=level, gain_level=level)
-        out = Path(folder) / f"explore_level{level}.h5"
+    for collision, gain in levels:
+        config = scene_planner("propeller", 0).replace(collision_level=collision, gain_level=gain)
+        out = Path(folder) / f"explore_levels{collision}{gain}.h5"
         start = time.perf_counter()
         summary = explore("propeller", out, submaps=submaps, map_kind="standard", planner_config=config, progress=False)
         wall = time.perf_counter() - start
@@ -293,7 +296,8 @@ def exploration(submaps: int, levels=(0, 1, 2), folder: Path | None = None) -> l
         plan_s = [float(r["plan_s"]) for r in table]
         rows.append(
             {
-                "level": level,
+                "collision_level": collision,
+                "gain_level": gain,
                 "submaps": summary.submaps,
                 "scans": summary.scans,
                 "iterations": summary.iterations,
@@ -369,8 +373,9 @@ def main():
         )
     for r in explored:
         print(
-            f"explore level {r['level']}: {r['explored_m3']:.1f} m^3 in {r['mission_s']:.0f} s mission, "
-            f"{r['iterations']} plans, median plan {(r['plan_s_median'] or 0) * 1e3:.0f} ms"
+            f"explore levels {r['collision_level']}/{r['gain_level']}: {r['explored_m3']:.1f} m^3 in "
+            f"{r['mission_s']:.0f} s mission, {r['iterations']} plans, "
+            f"median plan {(r['plan_s_median'] or 0) * 1e3:.0f} ms"
         )
     for format in ("bt", "ot"):
         r = load[format]

@@ -80,6 +80,7 @@ class GlobalMap(BlockMap):
     def __init__(self, config: MapConfig | None = None, device=None):
         super().__init__(config, device, layers=LAYERS)
         self._applied: dict[int, Applied] = {}
+        self._snapshots: dict = {}  # id -> Submap copy as applied, kept by `_follow` (a VogMap's coarse map)
 
     @property
     def applied_ids(self) -> tuple:
@@ -105,7 +106,7 @@ class GlobalMap(BlockMap):
         self._check_key_range(vog, range(vog.num_submaps))
         with self._lock.writing():
             self._store = BlockStore(self.device, self._store.layer_specs)
-            self._applied = {}
+            self._applied, self._snapshots = {}, {}
             touched = []
             pulls = self._apply(vog, range(vog.num_submaps), touched, volumes)
             self._refresh(touched, rebuilt=True)
@@ -214,18 +215,18 @@ class GlobalMap(BlockMap):
         self._check_vog(vog)
         count = vog.num_submaps
         submaps = vog.submaps(range(count))
-        snapshots = getattr(self, "_snapshots", {})
-        written = [i for i, a in self._applied.items() if i >= count or a.revision != submaps[i].revision]
-        stale = any(
+        snapshots = self._snapshots
+        stale = not self._applied or any(
             i >= count
             or a.uid != submaps[i].uid
-            or (i in written and snapshots.get(i, submaps[i]).revision != a.revision)
+            or (a.revision != submaps[i].revision and (i not in snapshots or snapshots[i].revision != a.revision))
             for i, a in self._applied.items()
-        ) or any(i not in snapshots for i in written)
-        if stale or not self._applied:
+        )
+        if stale:
             self.merge(vog)
             self._snapshots = {i: submaps[i].snapshot() for i in range(max(0, count - FOLLOW_SNAPSHOTS), count)}
             return
+        written = {i for i, a in self._applied.items() if a.revision != submaps[i].revision}
         poses = vog.poses()
         moved = [i for i, a in sorted(self._applied.items()) if i in written or np.any(a.pose != poses[i])]
         new = [i for i in range(count) if i not in self._applied]
