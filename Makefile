@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_crm.py --out benchmarks/results
 	$(PY) benchmarks/bench_explore.py --out benchmarks/results
 	$(PY) benchmarks/bench_paper.py --out benchmarks/results
+	$(PY) benchmarks/bench_octomap.py --out benchmarks/results
 
 clean:
 	rm -rf $(VENV) .cache demo_out

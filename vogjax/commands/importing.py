@@ -1,9 +1,12 @@
-"""`vogjax import`: a ROS bag's scans and odometry as a vogjax run file (no ground truth)."""
+"""`vogjax import`: a ROS bag's scans and odometry as a vogjax run file (no ground truth); an
+OctoMap .bt/.ot file, or an octomap_msgs/Octomap message of a bag, as a map file
+(`vogjax.commands.octomap_import`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from vogjax.commands import octomap_import
 from vogjax.commands.common import add_output_flags, refuse_existing, ruled
 
 DESCRIPTION = """\
@@ -11,12 +14,17 @@ Convert a ROS bag into a run file for `vogjax map`: the scans of a PointCloud2 o
 topic, each paired with the vehicle's pose from a nav_msgs/Odometry topic (interpolated to the
 scan's time), and the sensor's mount from /tf_static or /tf when --frame names the sensor's
 frame. ROS 1 .bag files, ROS 2 bag folders and .mcap/.db3 files are read without a ROS
-installation (rosbags). The run has no ground truth: `vogjax map` then skips AUC and RMSE."""
+installation (rosbags). The run has no ground truth: `vogjax map` then skips AUC and RMSE.
+
+An OctoMap map imports too: a .bt or .ot file given as BAG, or an octomap_msgs/Octomap topic
+of a bag with --octomap, becomes a vogjax map file (.vog)."""
 
 EPILOG = """\
 examples:
   vogjax import survey.bag --points /velodyne_points --odometry /odom --frame velodyne --out survey.h5
-  vogjax import rosbag2_folder --points /scan --odometry /odometry/filtered --out run.h5 --max-range 30"""
+  vogjax import rosbag2_folder --points /scan --odometry /odometry/filtered --out run.h5 --max-range 30
+  vogjax import map.bt --out map.vog
+  vogjax import mapping.bag --octomap /octomap_full --out map.vog"""
 
 
 def add_parser(commands) -> None:
@@ -33,10 +41,14 @@ def add_parser(commands) -> None:
         description=DESCRIPTION,
         epilog=EPILOG,
     )
-    bag.add_argument("bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file")
-    bag.add_argument("--points", required=True, help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
-    bag.add_argument("--odometry", required=True, help="topic of nav_msgs/Odometry (the vehicle's poses)")
-    bag.add_argument("--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5)")
+    bag.add_argument(
+        "bag", type=Path, help="a ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file; or an OctoMap .bt/.ot file"
+    )
+    bag.add_argument("--points", help="topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan")
+    bag.add_argument("--odometry", help="topic of nav_msgs/Odometry (the vehicle's poses)")
+    bag.add_argument(
+        "--out", type=Path, required=True, metavar="RUN.h5", help="run file to write (HDF5; .vog for an OctoMap map)"
+    )
     bag.add_argument(
         "--frame",
         default=None,
@@ -50,6 +62,7 @@ def add_parser(commands) -> None:
         help="the sensor's reach in metres (default: LaserScan's range_max, or a cloud's farthest point)",
     )
     bag.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    octomap_import.add_arguments(bag)
     add_output_flags(bag)
 
 
@@ -61,6 +74,10 @@ def run(args) -> None:
     args : argparse.Namespace
         The parsed arguments of `vogjax import`.
     """
+    if octomap_import.wanted(args):
+        return octomap_import.run(args)
+    if args.points is None or args.odometry is None:
+        raise ValueError("--points and --odometry are required to import a bag's scans (or --octomap TOPIC: a map)")
     from vogjax.io.rosbag import MAX_RANGE_M, import_bag
 
     # as `vogjax simulate` does: an existing run is refused before the bag is read (import_bag

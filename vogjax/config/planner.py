@@ -55,6 +55,12 @@ class PlannerConfig(Config):
         confidence-rich map's cost): an edge's gain is also multiplied by exp(-risk_weight *
         risk). 0 disables it; > 0 needs a `risk` callable.
     seed: seed of the sampling.
+    collision_level, gain_level: the map level the collision checks and the gain rays read: 0
+        the map's voxels; k >= 1 voxels of voxel_size * 2^k holding the most occupied of their
+        observed voxels (`docs/concepts/multi-resolution.md`). A coarse level never lets an edge
+        through an OCCUPIED voxel, but reads a coarse voxel as FREE when its observed voxels
+        are, unknown ones among them; a coarse gain counts coarse voxels (their volume), so
+        partly seen ones count as seen. Needs a VoxelMap, GlobalMap or VogMap (not an Overlay).
     """
 
     edge_length_m: float = positive(2.0)
@@ -78,6 +84,8 @@ class PlannerConfig(Config):
     min_gain_m3: float = non_negative(0.0)
     risk_weight: float = non_negative(0.0)
     seed: int = integer(0, low=0)
+    collision_level: int = integer(0, low=0, high=15)
+    gain_level: int = integer(0, low=0, high=15)
 
     def check(self) -> None:
         if self.tolerance_nodes < self.max_nodes:

@@ -30,6 +30,8 @@ from vogjax.maps.views import submap_views
 from vogjax.validation import real_array
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
+# Submaps (the newest) whose copies `_follow` keeps, to undo them once they were written to.
+FOLLOW_SNAPSHOTS = 2
 # Marginals whose x, y, yaw block fails these checks are not covariances.
 _SYMMETRY_TOLERANCE = 1e-9
 
@@ -78,6 +80,7 @@ class GlobalMap(BlockMap):
     def __init__(self, config: MapConfig | None = None, device=None):
         super().__init__(config, device, layers=LAYERS)
         self._applied: dict[int, Applied] = {}
+        self._snapshots: dict = {}  # id -> Submap copy as applied, kept by `_follow` (a VogMap's coarse map)
 
     @property
     def applied_ids(self) -> tuple:
@@ -103,10 +106,10 @@ class GlobalMap(BlockMap):
         self._check_key_range(vog, range(vog.num_submaps))
         with self._lock.writing():
             self._store = BlockStore(self.device, self._store.layer_specs)
-            self._applied = {}
+            self._applied, self._snapshots = {}, {}
             touched = []
             pulls = self._apply(vog, range(vog.num_submaps), touched, volumes)
-            self._refresh(touched)
+            self._refresh(touched, rebuilt=True)
         return pulls
 
     def add(self, vog: VogMap, ids, marginals=None) -> int:
@@ -202,6 +205,44 @@ class GlobalMap(BlockMap):
             pulls,
             time.perf_counter() - start,
         )
+
+    def _follow(self, vog: VogMap) -> None:
+        """Make the map equal `merge(vog)` at vog's current poses, bit for bit, doing as little
+        as it can: submaps whose pose changed at all are undone and redone, new ones added. A
+        submap written since it was applied is undone from the copy kept of it then (kept of
+        the last FOLLOW_SNAPSHOTS submaps: the one being filled); any other forces a merge.
+        (How a VogMap answers coarse queries: from a global map it keeps beside its submaps.)"""
+        self._check_vog(vog)
+        count = vog.num_submaps
+        submaps = vog.submaps(range(count))
+        snapshots = self._snapshots
+        stale = not self._applied or any(
+            i >= count
+            or a.uid != submaps[i].uid
+            or (a.revision != submaps[i].revision and (i not in snapshots or snapshots[i].revision != a.revision))
+            for i, a in self._applied.items()
+        )
+        if stale:
+            self.merge(vog)
+            self._snapshots = {i: submaps[i].snapshot() for i in range(max(0, count - FOLLOW_SNAPSHOTS), count)}
+            return
+        written = {i for i, a in self._applied.items() if a.revision != submaps[i].revision}
+        poses = vog.poses()
+        moved = [i for i, a in sorted(self._applied.items()) if i in written or np.any(a.pose != poses[i])]
+        new = [i for i in range(count) if i not in self._applied]
+        if not moved and not new:
+            return
+        self._check_key_range(vog, moved + new)
+        with self._lock.writing():
+            touched = []
+            undone = [(snapshots[i] if i in written else submaps[i], self._applied[i].pose) for i in moved]
+            self._contribute(undone, -1, touched)
+            self._apply(vog, moved + new, touched, None)
+            self._refresh(touched, release=True)
+        recent = range(max(0, count - FOLLOW_SNAPSHOTS), count)
+        self._snapshots = {
+            i: snapshots[i] if i in snapshots and i not in moved + new else submaps[i].snapshot() for i in recent
+        }
 
     def moved_submaps(
         self,
@@ -405,15 +446,15 @@ class GlobalMap(BlockMap):
             touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
         return int(pulls.numpy().sum())
 
-    def _refresh(self, touched: list, release: bool = False) -> None:
-        """Recompute the queryable log-odds of touched blocks; release those no submap uses."""
-        self._values_changed()
-        if not touched:
-            return
-        slots = np.unique(np.concatenate(touched)).astype(np.int32)
+    def _refresh(self, touched: list, release: bool = False, rebuilt: bool = False) -> None:
+        """Recompute the queryable log-odds of touched blocks; release those no submap uses;
+        then the coarse levels above them (all of them when the store was `rebuilt`)."""
+        slots = np.unique(np.concatenate(touched)).astype(np.int32) if touched else np.zeros(0, np.int32)
         if len(slots) == 0:
+            self._values_changed(None if rebuilt else np.zeros(0, np.int64))
             return
         store, device = self._store, self.device
+        keys = store.slot_keys.numpy()[slots]  # before any is released
         d_slots = wp.array(slots, dtype=wp.int32, device=device)
         voxels = len(slots) * BLOCK_VOXELS
         parallel.split_launch(
@@ -443,6 +484,7 @@ class GlobalMap(BlockMap):
                 device=device,
             )
             store.release(slots[unused.numpy() == 1])
+        self._values_changed(None if rebuilt else keys)
 
     # ---------------------------------------------------------------- contents and files
     def sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

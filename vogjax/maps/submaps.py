@@ -5,8 +5,11 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
+import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax import devices
@@ -22,10 +25,14 @@ from vogjax.maps.blockmap import (
     probability_from_log_odds,
     ray_arguments,
 )
+from vogjax.maps.levels import check_level
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.maps.views import submap_views
 from vogjax.maps.voxelmap import VoxelMap
 from vogjax.validation import float_array
+
+if TYPE_CHECKING:
+    from vogjax.maps.globalmap import GlobalMap
 
 _SUBMAP_UIDS = itertools.count(1)
 
@@ -56,6 +63,22 @@ class Submap(VoxelMap):
         self._refresh_derived()
         return self._bounds
 
+    def snapshot(self) -> Submap:
+        """A copy of the submap as it is now.
+
+        Returns
+        -------
+        Submap
+            The same uid and revision, blocks of its own: what a global map undoes the
+            contribution of once the submap itself has been written to.
+        """
+        copy = Submap(self.config, self.device)
+        copy.uid = self.uid
+        with self.reading():
+            copy.revision = self.revision
+            copy._store = self._store.copy()
+        return copy
+
     def occupied_points(self) -> np.ndarray:
         """(K,3) submap-frame centres of its OCCUPIED voxels (the cloud ICP aligns)."""
         self._refresh_derived()
@@ -68,6 +91,13 @@ class VogMap:
     The value at a world point is the clamped sum, over the submaps whose box holds it, of the
     log-odds of each submap's voxel containing the point (a fixed-point sum, as in GlobalMap).
     `set_poses` only moves submaps, which is what makes loop closures free for this map.
+
+    Coarse levels (`level` k >= 1 in the queries) hold, per voxel of voxel_size * 2^k, the
+    largest of the virtual values at the centres of its voxels: no sum over submaps gives that,
+    so they come from a GlobalMap this map keeps beside its submaps, made on the first coarse
+    query and brought to the current poses on each one after (submaps that moved undone and
+    redone, as `GlobalMap.update_poses` does; a submap written since forces a full merge). It
+    equals `GlobalMap.merge(vog)` bit for bit, and at voxel centres the virtual map.
     """
 
     def __init__(self, config: MapConfig | None = None, device=None):
@@ -78,6 +108,8 @@ class VogMap:
         self._submaps: list[Submap] = []
         self._poses = np.zeros((0, 4, 4))
         self._lock = ReadWriteLock()
+        self._coarse = None  # the GlobalMap coarse queries read, made on the first one
+        self._coarse_lock = threading.Lock()
 
     # ---------------------------------------------------------------- submaps and poses
     @property
@@ -173,22 +205,106 @@ class VogMap:
                 )
         return fixed_point_values(sums.numpy(), counts.numpy(), self.config)
 
-    def log_odds(self, points) -> np.ndarray:
-        """(M,) float32 virtual log-odds at `points` (M,3); 0.0 where no submap observed them."""
+    def coarse_map(self) -> GlobalMap:
+        """The global map coarse queries read, made or brought up to date now.
+
+        Returns
+        -------
+        GlobalMap
+            Equal to `GlobalMap.merge(self)` at the current poses, bit for bit; kept by this
+            VogMap (do not write to it).
+        """
+        from vogjax.maps.globalmap import GlobalMap  # globalmap imports this module
+
+        with self._coarse_lock, self._lock.reading():
+            if self._coarse is None:
+                self._coarse = GlobalMap(self.config, self.device)
+            self._coarse._follow(self)
+            return self._coarse
+
+    def log_odds(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+        """Virtual log-odds at `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            0: the submaps' sum at each point; k >= 1: the largest value of the voxels of edge
+            voxel_size * 2^k holding each point (see the class docstring).
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) float32, 0.0 where no submap observed them.
+        """
+        if check_level(level):
+            return self.coarse_map().log_odds(points, level)
         points = float_array("points", points, (-1, 3), np.float64)
         return np.nan_to_num(self._values_at(points), nan=0.0)
 
-    def probability(self, points) -> np.ndarray:
-        return probability_from_log_odds(self.log_odds(points))
+    def probability(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+        """Occupancy probability at `points`.
 
-    def state(self, points) -> np.ndarray:
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) float32, 0.5 where unknown.
+        """
+        return probability_from_log_odds(self.log_odds(points, level))
+
+    def state(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+        """States at `points`.
+
+        Parameters
+        ----------
+        points : array_like
+            (M,3) world points, metres.
+        level : int
+            As for `log_odds`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (M,) int8: UNKNOWN, FREE or OCCUPIED.
+        """
+        if check_level(level):
+            return self.coarse_map().state(points, level)
         points = float_array("points", points, (-1, 3), np.float64)
         return classify(self._values_at(points), self.config)
 
-    def raycast(self, origins, directions, max_range) -> RaycastResult:
-        """As VoxelMap.raycast, on the world voxel grid, each voxel valued at its centre (long
-        stretches before and after the submaps' boxes are counted, not walked, likewise); rays
-        as NumPy arrays only."""
+    def raycast(
+        self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike, level: int = 0
+    ) -> RaycastResult:
+        """First OCCUPIED voxel along each ray, as `VoxelMap.raycast`.
+
+        On the world voxel grid, each voxel valued at its centre (long stretches before and
+        after the submaps' boxes are counted, not walked, likewise); rays as NumPy arrays only.
+
+        Parameters
+        ----------
+        origins, directions : array_like
+            (R,3) float64.
+        max_range : float or array_like
+            One range, or (R,), metres.
+        level : int
+            0: the virtual map; k >= 1: `GlobalMap.raycast` of `coarse_map()` at level k.
+
+        Returns
+        -------
+        RaycastResult
+        """
+        if check_level(level):
+            if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
+                raise ValueError("origins, directions and max_range must be NumPy arrays or numbers for a VogMap")
+            return self.coarse_map().raycast(origins, directions, max_range, level)
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         check_extent(self.config, origins=origins)
         cfg, device, count = self.config, self.device, origins.shape[0]
@@ -264,8 +380,25 @@ class VogMap:
             )
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
-    def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:
-        """As VoxelMap.line_query: virtual log-odds at the centres of the voxels on each line."""
+    def line_query(self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Virtual log-odds at the centres of the voxels on each line, as `VoxelMap.line_query`.
+
+        Parameters
+        ----------
+        starts, ends : array_like
+            (R,3) world points, metres.
+        level : int
+            0: the virtual map; k >= 1: `GlobalMap.line_query` of `coarse_map()` at level k.
+
+        Returns
+        -------
+        values : numpy.ndarray
+            (R,S) float32, NaN past each line's end.
+        lengths : numpy.ndarray
+            (R,) int32.
+        """
+        if check_level(level):
+            return self.coarse_map().line_query(starts, ends, level)
         keys, lengths = line_voxels(self.config, self.device, starts, ends)
         values = np.full(keys.shape[:2], np.nan, np.float32)
         inside = np.arange(keys.shape[1])[None, :] < lengths[:, None]

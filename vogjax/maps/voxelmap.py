@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import os
+from typing import TYPE_CHECKING
+
 import numpy as np
+import warp as wp
 
 from vogjax.config import MapConfig
+from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.io import read_map_file, write_map_file
-from vogjax.maps import integrator
+from vogjax.kernels import octree
+from vogjax.maps import integrator, parallel
 from vogjax.maps.blockmap import BlockMap
-from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys
+from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, pack_blocks
 from vogjax.validation import float_array, index_array
+
+if TYPE_CHECKING:
+    from vogjax.io.octomap_read import OctreeLeaves
 
 # Scans integrated per pass: each voxel a pass touches carries two bits per scan. A GPU takes
 # more per pass: its time goes to the host work of each pass (launches, block allocation,
@@ -24,6 +33,8 @@ SCANS_PER_PASS_CUDA = 2048
 # on a GPU the budget is also at most a 32nd of its memory (512 MiB kept on a 16 GiB card).
 MARK_BUDGET_BYTES = 256 << 20
 MARK_BUDGET_BYTES_CUDA = 1 << 30
+# Voxel slots (512 a block) an OctoMap tree may expand to when read: 1 GiB of log-odds.
+OCTOMAP_MAX_VOXELS = 1 << 28
 
 
 class VoxelMap(BlockMap):
@@ -66,15 +77,17 @@ class VoxelMap(BlockMap):
         batch = integrator.beams(self.device, origins, points, scan_index)
         cuda = self.device.is_cuda
         with self._lock.writing():
+            touched = [] if self._levels.count else None  # the written blocks, for the coarse levels
             integrator.integrate(
                 self._store,
                 self.config,
                 batch,
                 SCANS_PER_PASS_CUDA if cuda else SCANS_PER_PASS,
                 min(MARK_BUDGET_BYTES_CUDA, self.device.total_memory // 32) if cuda else MARK_BUDGET_BYTES,
+                touched,
             )
             self.revision += 1
-            self._values_changed()
+            self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
 
     # ---------------------------------------------------------------- files
     def save(self, path) -> None:
@@ -108,4 +121,137 @@ class VoxelMap(BlockMap):
             raise ValueError(f"{where} holds log-odds outside its clamping range")
         vmap = cls(config, device)
         vmap._store = BlockStore.from_host(vmap.device, vmap._store.layer_specs, keys, {"log_odds": values})
+        return vmap
+
+    # ---------------------------------------------------------------- OctoMap
+    @classmethod
+    def from_octomap(
+        cls,
+        path: str | os.PathLike,
+        config: MapConfig | None = None,
+        device=None,
+        max_voxels: int = OCTOMAP_MAX_VOXELS,
+    ) -> VoxelMap:
+        """A map holding the voxels of an OctoMap file (.bt or .ot, told by its first line).
+
+        The tree's resolution becomes the voxel size; a pruned node stands for all its voxels.
+        A .bt (binary) tree holds occupied and free voxels: they get the clamping bounds
+        `config.log_clamp_max` and `log_clamp_min`, as OctoMap reads them. A .ot (full) tree of
+        type OcTree gives every voxel its stored float log-odds.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The OctoMap file.
+        config : MapConfig or None
+            Thresholds, clamping and sensor model of the map; its voxel_size must equal the
+            file's resolution. None: `MapConfig(voxel_size=<the file's resolution>)`.
+        device : str, warp.context.Device or None
+            Where the map lives (None: CUDA if available, else the CPU).
+        max_voxels : int
+            Budget of voxel slots (512 per 8x8x8 block) the tree may expand to; a larger tree is
+            refused before anything is allocated.
+
+        Returns
+        -------
+        VoxelMap
+
+        Raises
+        ------
+        ValueError
+            One line naming the file: it cannot be read, is no OctoMap OcTree, is malformed
+            (truncated, wrong header, inconsistent child bits, NaN log-odds, a resolution
+            outside [1e-4, 1e3] m), expands past `max_voxels`, or does not fit `config`.
+        """
+        from vogjax.io.octomap_read import read_octree
+
+        tree = read_octree(path)
+        return cls.from_octree(tree, config, device, max_voxels, where=f"path {str(path)!r}")
+
+    @classmethod
+    def from_octree(
+        cls,
+        tree: OctreeLeaves,
+        config: MapConfig | None = None,
+        device=None,
+        max_voxels: int = OCTOMAP_MAX_VOXELS,
+        where: str = "tree",
+    ) -> VoxelMap:
+        """A map of a decoded OctoMap tree, as `from_octomap` builds it.
+
+        Parameters
+        ----------
+        tree : vogjax.io.octomap_read.OctreeLeaves
+            From `read_octree` (a file) or `vogjax.io.octomap_bag.read_octomap_message`.
+        config, device, max_voxels
+            As for `from_octomap`.
+        where : str
+            The tree's source, for error messages.
+
+        Returns
+        -------
+        VoxelMap
+
+        Raises
+        ------
+        ValueError
+            Naming `where`: the tree expands past `max_voxels`, or does not fit `config`
+            (another voxel size, log-odds outside its clamping, a binary tree with infinite
+            clamping bounds or bounds its thresholds do not call occupied and free).
+        """
+        from vogjax.io.octomap_read import leaf_blocks
+
+        if isinstance(max_voxels, bool) or not isinstance(max_voxels, (int, np.integer)) or max_voxels < 0:
+            raise ValueError(f"max_voxels must be a non-negative integer, got {max_voxels!r}")
+        if config is None:  # the defaults, the range cut to what integration takes at this voxel size
+            reach = min(MapConfig.max_range, MAX_RANGE_VOXELS * tree.resolution)
+            config = MapConfig(voxel_size=tree.resolution, max_range=reach)
+        elif not isinstance(config, MapConfig):
+            raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
+        elif config.voxel_size != tree.resolution:
+            raise ValueError(
+                f"{where} has resolution {tree.resolution!r} m; config.voxel_size is {config.voxel_size!r} m"
+            )
+        low, high = config.log_clamp_min, config.log_clamp_max
+        if tree.binary:
+            if not (np.isfinite(low) and np.isfinite(high)):
+                raise ValueError(
+                    f"{where} is a binary tree (occupied or free only), read as the clamping bounds; "
+                    "config clamps nothing (clamp_min 0 or clamp_max 1): give one with clamp_min > 0 and clamp_max < 1"
+                )
+            if high < config.log_occupied or low > config.log_free:
+                raise ValueError(
+                    f"{where} is a binary tree, read as the clamping bounds, which config's thresholds "
+                    "do not call occupied and free: give a config with clamp_max >= occupied_threshold and "
+                    "clamp_min <= free_threshold"
+                )
+            values = np.where(tree.occupied, high, low).astype(np.float32)
+        else:
+            values = tree.values
+            if len(values) and (values.min() < low or values.max() > high):
+                raise ValueError(
+                    f"{where} holds log-odds in [{values.min():g}, {values.max():g}], outside config's clamping "
+                    f"range [{low:g}, {high:g}]: give a config with wider clamping (clamp_min, clamp_max)"
+                )
+        blocks = leaf_blocks(tree, int(max_voxels), where)
+        vmap = cls(config, device)
+        device = vmap.device
+        store = BlockStore.from_host(device, vmap._store.layer_specs, pack_blocks(blocks), {})
+        copy = device.is_cuda  # on the CPU, Warp arrays over the host arrays
+        arrays = [
+            wp.array(np.ascontiguousarray(a), dtype=t, device=device, copy=copy)
+            for a, t in ((tree.codes, wp.int64), (tree.depths, wp.int8), (tree.rows, wp.int32), (values, wp.float32))
+        ]
+        parallel.split_launch(
+            lambda part, lo, hi: wp.launch(
+                octree.fill_leaf_voxels,
+                dim=hi - lo,
+                inputs=[a[lo:hi] for a in arrays],
+                outputs=[store.layers["log_odds"]],
+                device=device,
+            ),
+            len(tree),
+            parallel.num_parts(device, len(tree)),
+        )
+        vmap._store = store
         return vmap

@@ -26,6 +26,7 @@ round's collision checks and gains are one launch each, and branches still get d
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -34,6 +35,7 @@ import numpy as np
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
 from vogjax.kernels import hashing
+from vogjax.maps import VogMap
 from vogjax.planner.collision import clear_edges
 from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.source import check_map, opened
@@ -112,14 +114,22 @@ class NbvPlanner:
         check_map(map_)
         root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])
         start_s = time.perf_counter()
-        with opened(map_) as source:
+        cfg = self.config
+        # the levels collision checks and gain rays read (PlannerConfig.collision_level,
+        # gain_level): a VogMap's coarse map brought up to date once, before any lock is taken
+        levels_map = map_.coarse_map() if isinstance(map_, VogMap) and cfg.collision_level + cfg.gain_level else map_
+        with contextlib.ExitStack() as stack:
+            levels = {0: stack.enter_context(opened(map_))}
+            for level in sorted({cfg.collision_level, cfg.gain_level} - {0}):
+                levels[level] = stack.enter_context(opened(levels_map, level))
+            source, sources = levels[0], (levels[cfg.collision_level], levels[cfg.gain_level])
             # checked before the first sample is drawn: a refused plan leaves the random state
             reach = (
                 np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.box_m) + self.config.margin_m
             )
             within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
             tree = _Tree(root)
-            rays = self._grow(source, tree, self.memory, root, chain=True)
+            rays = self._grow(sources, tree, self.memory, root, chain=True)
             iterations = len(self.memory)
             cfg = self.config
             while True:
@@ -129,7 +139,7 @@ class NbvPlanner:
                 if iterations >= cfg.tolerance_nodes * cfg.attempts_per_node:
                     break
                 count = min(cfg.max_nodes, (len(tree.states) + 1) // 2)
-                rays += self._grow(source, tree, self._samples(root, count), root, chain=False)
+                rays += self._grow(sources, tree, self._samples(root, count), root, chain=False)
                 iterations += count
         branch = tree.branch(int(np.argmax(tree.gains)))
         self.memory = branch[1:]
@@ -156,8 +166,9 @@ class NbvPlanner:
         targets[:, 3] = self.rng.uniform(-cfg.max_heading_change_rad, cfg.max_heading_change_rad, count)
         return targets
 
-    def _grow(self, source, tree: _Tree, targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
-        """Steer, check and add edges toward `targets`. With `chain`, targets (x, y, z, yaw) are
+    def _grow(self, sources, tree: _Tree, targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
+        """Steer, check and add edges toward `targets` (sources: the opened maps of the collision
+        checks and of the gain rays). With `chain`, targets (x, y, z, yaw) are
         one branch from the root (the remembered one: it breaks at its first edge that is too
         long, turns too far or collides); else each target (x, y, z, yaw offset) attaches to its
         nearest node. Returns the gain rays cast."""
@@ -180,17 +191,18 @@ class NbvPlanner:
             ok &= (scale >= 1.0) & (np.abs(wrap_angle(ends[:, 3] - starts[:, 3])) <= cfg.max_heading_change_rad + 1e-9)
             ok = np.cumprod(ok).astype(bool)
         box = np.array(cfg.box_m) + 2 * cfg.margin_m
-        ok[ok] = clear_edges(source, starts[ok, :3], ends[ok, :3], box, root[:3], cfg.clearance_m)
+        collide, see = sources
+        ok[ok] = clear_edges(collide, starts[ok, :3], ends[ok, :3], box, root[:3], cfg.clearance_m)
         if chain:
             ok = np.cumprod(ok).astype(bool)
         if not ok.any():
             return 0
         counts, rays = edge_counts(
-            source, starts[ok], ends[ok], self.sensor, cfg.gain_step_m, cfg.gain_range_m, self.region
+            see, starts[ok], ends[ok], self.sensor, cfg.gain_step_m, cfg.gain_range_m, self.region
         )
         visible = (
             cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1] + cfg.gain_occupied * counts[:, 2]
-        ) * source.config.voxel_size**3
+        ) * see.config.voxel_size**3
         if cfg.risk_weight > 0:
             risk = np.asarray(self.risk(starts[ok, :3], ends[ok, :3]), np.float64)
             if risk.shape != (int(ok.sum()),) or not np.all(np.isfinite(risk)) or np.any(risk < 0):
