@@ -149,8 +149,8 @@ def undistort(distorted: npt.ArrayLike, D: tuple[float, ...]) -> npt.NDArray[np.
     Raises
     ------
     ValueError
-        If Newton's method does not converge at some point, or converges where the
-        distortion folds the image (its Jacobian not positive there).
+        If Newton's method does not converge at some point, or converges past the fold of the
+        distortion (where the radial factor, or its growth with the radius, is not positive).
     """
     k1, k2, p1, p2, k3 = (tuple(D) + (0.0,))[:5]
     target = np.asarray(distorted, dtype=np.float64)
@@ -165,7 +165,10 @@ def undistort(distorted: npt.ArrayLike, D: tuple[float, ...]) -> npt.NDArray[np.
         d = radial + 2 * y * y * slope + 6 * p1 * y + 2 * p2 * x
         det = a * d - b * b
         residual = distort(xy, D) - target
-        if np.all(np.abs(residual) <= _UNDISTORT_TOLERANCE) and np.all(det > 0):
+        # a solution where the radial distortion has turned (radial or its growth with r not
+        # positive) lies past the fold of the image: another pixel's point, not this one's
+        unfolded = (radial > 0) & (radial + 2 * r2 * slope > 0) & (det > 0)
+        if np.all(np.abs(residual) <= _UNDISTORT_TOLERANCE) and np.all(unfolded):
             return xy
         with np.errstate(divide="ignore", invalid="ignore"):
             step = np.stack([d * residual[:, 0] - b * residual[:, 1], a * residual[:, 1] - b * residual[:, 0]], axis=1)
@@ -231,6 +234,37 @@ def _frame(name: str) -> str:
     return name.lstrip("/")
 
 
+def check_pixels(width: int, height: int, stride: int, where: str) -> int:
+    """The pixels an image of this size gives at `stride`, refused past what a scan holds.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size, pixels.
+    stride : int
+        Every `stride`-th pixel of every `stride`-th row.
+    where : str
+        What an error names (flag and topic).
+
+    Returns
+    -------
+    int
+        The pixels taken.
+
+    Raises
+    ------
+    ValueError
+        Naming `where` when more than 2^20 pixels would be taken (raise the stride).
+    """
+    taken = -(-height // stride) * -(-width // stride)
+    if taken > MAX_BEAMS:  # refused before any array of that size exists
+        raise ValueError(
+            f"{where}: {width} x {height} pixels give {taken} at stride {stride}, more than the {MAX_BEAMS} "
+            "beams a scan may have (raise --stride)"
+        )
+    return taken
+
+
 def depth_points(
     msg: Any, camera: Camera, rays: npt.NDArray[np.float64], stride: int, where: str
 ) -> npt.NDArray[np.float64]:
@@ -272,12 +306,7 @@ def depth_points(
         raise ValueError(
             f"{where}: an image of {width} x {height} pixels, but its CameraInfo says {camera.width} x {camera.height}"
         )
-    taken = -(-height // stride) * -(-width // stride)
-    if taken > MAX_BEAMS:  # refused before converting
-        raise ValueError(
-            f"{where}: {taken} pixels at stride {stride}, more than the {MAX_BEAMS} beams a scan may have "
-            "(raise --stride)"
-        )
+    check_pixels(width, height, stride, where)
     sample, scale = ENCODINGS[encoding]
     size = np.dtype(sample).itemsize
     data = np.asarray(msg.data, dtype=np.uint8)

@@ -17,7 +17,6 @@ Layouts of the per-point time, told apart by type and by value against the heade
 | float64, small | seconds relative to the header stamp | |
 | float64, near the stamp in s | absolute seconds | Hesai, Robosense (`timestamp`) |
 | float64, near the stamp in ns | absolute nanoseconds | Livox (`timestamp`) |
-| float64, up to 1e9 | nanoseconds relative to the header stamp | |
 
 Every point of a cloud must have fired within `MAX_SWEEP_S` of its stamp in the layout found;
 a cloud whose times fit none (a driver clock apart from the header's, say) is an error, as is a
@@ -83,7 +82,8 @@ def point_offsets(
         5: ["relative_ns"],
         6: ["relative_ns"],
         7: ["relative_s"],
-        8: ["relative_s", "absolute_s", "absolute_ns", "relative_ns"],
+        # not float64 nanoseconds relative: 12.0 would read as 12 ns, where seconds of another clock are likelier
+        8: ["relative_s", "absolute_s", "absolute_ns"],
     }[datatype]
     if layout is not None:
         candidates = [layout] if layout in candidates else []

@@ -69,7 +69,7 @@ from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import interpolate_poses, inverse, rigid_pose
 from vogjax.io.atomic import check_writable
 from vogjax.io.dataset import MAX_RANGE_M, MAX_RING, DatasetWriter
-from vogjax.io.depth_image import Camera, camera_from_info, depth_points
+from vogjax.io.depth_image import Camera, camera_from_info, check_pixels, depth_points
 from vogjax.io.deskew import LAYOUTS, deskew_points, point_offsets
 from vogjax.io.pointcloud2 import read_cloud
 from vogjax.sensors.point_cloud import PointCloudSensor
@@ -354,6 +354,7 @@ def _import(reader, bag: Path, out: Path, options: _Options) -> ImportSummary:
     camera = None
     if message == "Image":
         camera = read_camera(reader, options.camera_info_topic)
+        check_pixels(camera.width, camera.height, options.stride, f"--depth topic {topic!r}")
     odometry = read_odometry(reader, odometry_connections, options.odometry_topic)
     world_frame, vehicle_frame = odometry.frames
     stream = _ScanStream(reader, scan_connections, message, options, camera)
