@@ -330,6 +330,22 @@ def test_min_intensity_drops_and_counts_the_faint_points(tmp_path):
     assert summary.invalid_beams == sum(int((~v).sum()) for *_, v in truth[1:])
 
 
+def test_min_intensity_needs_an_intensity(tmp_path, capsys):
+    from tests.test_import import odometry_messages
+
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 10)
+    xyz = [("x", 7, np.ones(3)), ("y", 7, np.zeros(3)), ("z", 7, np.zeros(3))]
+    messages.append(
+        ("/points", "sensor_msgs/msg/PointCloud2", stamps[2], cloud_message(m, stamps[2], "base_link", xyz))
+    )
+    bag = write_bag(tmp_path / "plain", "mcap", sorted(messages, key=lambda e: e[2]))
+    with pytest.raises(
+        ValueError, match="--min-intensity: the PointCloud2 messages on '/points' have no field intensity"
+    ):
+        import_bag(bag, tmp_path / "x.h5", "/points", "/odom", progress=False, min_intensity=1.0)
+
+
 def test_the_cli_reports_every_field_once_and_refuses_flags_that_do_not_apply(tmp_path, capsys):
     bag, _ = lidar_bag(tmp_path / "o", "mcap", "ouster", scans=4)
     out = tmp_path / "run.h5"

@@ -658,6 +658,9 @@ class _ScanStream:
                 self._time = (cloud.time_field, cloud.fields[cloud.time_field]["type"])
             if self.layout is None and scan.layout is not None:
                 self.layout = scan.layout
+        if options.min_intensity is not None and scan.intensity is None:
+            what = "field intensity" if self.message == "PointCloud2" else "intensities"
+            raise ValueError(f"--min-intensity: the {self.message} messages on {topic!r} have no {what}")
         if self._signature is None:
             self._signature = signature
             present = (("intensity", scan.intensity), ("ring", scan.ring))
