@@ -310,6 +310,28 @@ def test_deskewing_is_exact_for_motion_the_interpolation_reproduces():
         deskew_points(points, offsets - 0.2, stamp, times, poses, T_base_lidar())
 
 
+def test_deskewing_interpolates_as_the_importer_interpolates_the_scans():
+    """Against vogjax.geometry.interpolate_poses (scipy's Slerp), per point, on poses that no
+    screw motion joins: random rotations 10-50 ms apart."""
+    from vogjax.geometry import interpolate_poses
+
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.01, 0.05, 40))
+    poses = np.tile(np.eye(4), (40, 1, 1))
+    poses[:, :3, :3] = Rotation.random(40, random_state=4).as_matrix()
+    poses[:, :3, 3] = rng.normal(size=(40, 3)) * 50
+    points = rng.normal(size=(3000, 3)) * 20
+    stamp = float(times[15]) + 0.004
+    offsets = rng.uniform(-0.12, 0.03, 3000)
+    offsets[:2] = [times[12] - stamp, 0.0]  # a firing time on a pose, one at the stamp
+    fired = interpolate_poses(times, poses, stamp + offsets) @ T_base_lidar()
+    at_stamp = interpolate_poses(times, poses, [stamp])[0] @ T_base_lidar()
+    world = np.einsum("nij,nj->ni", fired[:, :3, :3], points) + fired[:, :3, 3]
+    expected = (world - at_stamp[:3, 3]) @ at_stamp[:3, :3]
+    got = deskew_points(points, offsets, stamp, times, poses, T_base_lidar())
+    np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
+
+
 # ------------------------------------------------------------------ intensity, ring, what is reported
 def test_min_intensity_drops_and_counts_the_faint_points(tmp_path):
     bag, truth = lidar_bag(tmp_path / "v.bag", "ros1", "velodyne", scans=4)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial.transform import Rotation
 
 from vogjax.geometry import interpolate_poses
 
@@ -159,22 +160,46 @@ def deskew_points(
     points = np.asarray(points, dtype=np.float64)
     offsets = np.asarray(offsets_s, dtype=np.float64)
     times = np.asarray(times_s, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64)
     if len(points) == 0:
         return points.reshape(0, 3)
-    # points of one firing share a time: interpolate once per distinct time
-    unique, inverse = np.unique(offsets, return_inverse=True)
-    query = np.r_[stamp_s, stamp_s + unique]
-    if query.min() < times[0] or query.max() > times[-1]:
+    fired = stamp_s + offsets
+    low, high = min(stamp_s, float(fired.min())), max(stamp_s, float(fired.max()))
+    if low < times[0] or high > times[-1]:
         raise ValueError(
-            f"firing times {query.min():.6f} to {query.max():.6f} s reach outside the odometry's "
-            f"{times[0]:.6f} to {times[-1]:.6f} s"
+            f"firing times {low:.6f} to {high:.6f} s reach outside the odometry's {times[0]:.6f} to {times[-1]:.6f} s"
         )
-    # only the poses around the sweep: slerp is piecewise, the result is the same
+    mount = np.asarray(T_vehicle_sensor, dtype=np.float64)
+    # every step is a product of (N,3) vectors with one matrix, or a rotation of each point about
+    # its own axis: no (N,3,3) arrays, nor scipy's slow products of N rotations
+    in_vehicle = points @ mount[:3, :3].T + mount[:3, 3]
+    world = _slerp_apply(times, poses, fired, in_vehicle)
+    # the sensor at the stamp, as the importer places the scan
+    T_world_sensor = interpolate_poses(times, poses, [stamp_s])[0] @ mount
+    return (world - T_world_sensor[:3, 3]) @ T_world_sensor[:3, :3]
+
+
+def _slerp_apply(times: np.ndarray, poses: np.ndarray, query: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``T_world_vehicle(query_i) vectors_i``, with T interpolated as `vogjax.geometry.interpolate_poses`
+    interpolates it (scipy's Slerp, R_k exp(u log(R_k^T R_k+1)); positions linear), equal to it
+    to float rounding. One query applies to every vector when `query` holds one time."""
+    if len(times) == 1:
+        return vectors @ poses[0, :3, :3].T + poses[0, :3, 3]
+    # only the segments around the sweep
     lo = max(int(np.searchsorted(times, query.min(), side="right")) - 1, 0)
     hi = min(int(np.searchsorted(times, query.max(), side="left")), len(times) - 1)
-    T_world_vehicle = interpolate_poses(times[lo : hi + 1], poses[lo : hi + 1], query)
-    T_world_sensor = T_world_vehicle @ np.asarray(T_vehicle_sensor, dtype=np.float64)
-    T_stamp, fired = T_world_sensor[0], inverse.reshape(-1) + 1
-    # T_stamp^-1 T_fired p, without forming (N,4,4) products of inverses
-    world = np.einsum("nij,nj->ni", T_world_sensor[fired, :3, :3], points) + T_world_sensor[fired, :3, 3]
-    return (world - T_stamp[:3, 3]) @ T_stamp[:3, :3]
+    lo, hi = min(lo, len(times) - 2), max(hi, lo + 1)
+    times, poses = times[lo : hi + 1], poses[lo : hi + 1]
+    segment = np.clip(np.searchsorted(times, query, side="right") - 1, 0, len(times) - 2)
+    u = ((query - times[segment]) / (times[segment + 1] - times[segment]))[:, None]
+    rotations = Rotation.from_matrix(poses[:, :3, :3])
+    steps = (rotations[:-1].inv() * rotations[1:]).as_rotvec()
+    # each query's turn from its segment's start, then the segment's start rotation
+    turned = Rotation.from_rotvec(steps[segment] * u).apply(vectors)
+    out = np.empty_like(turned)
+    matrices = rotations.as_matrix()
+    for k in np.unique(segment):
+        rows = segment == k
+        out[rows] = turned[rows] @ matrices[k].T
+    start, end = poses[segment, :3, 3], poses[segment + 1, :3, 3]
+    return out + start + (end - start) * u
