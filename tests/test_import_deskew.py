@@ -467,3 +467,43 @@ def test_optional_fields_are_written_read_and_checked(tmp_path):
         f.create_dataset("ring", data=ring.astype(np.int32))
     with pytest.raises(ValueError, match="field ring has shape"):
         Dataset(tmp_path / "r.h5")
+
+
+def test_a_sweep_across_an_odometry_gap_is_dropped_and_counted(tmp_path):
+    from tests.test_import import odometry_messages
+
+    m = Messages(False)
+    messages, stamps = odometry_messages(m, 60, skip=range(5, 35))  # 1.5 s without odometry at 20 Hz
+    columns = [("x", 7, np.ones(3)), ("y", 7, np.zeros(3)), ("z", 7, np.zeros(3))]
+    for stamp, fired in ((stamps[36], [-0.9, -0.5, 0.0]), (stamps[50], [-0.09, -0.05, 0.0])):
+        times = ("time", 7, np.float32(fired))  # the first sweep began inside the gap
+        message = cloud_message(m, stamp, "base_link", [*columns, times])
+        messages.append(("/points", "sensor_msgs/msg/PointCloud2", stamp, message))
+    bag = write_bag(tmp_path / "gap", "mcap", sorted(messages, key=lambda e: e[2]))
+    summary = import_bag(bag, tmp_path / "x.h5", "/points", "/odom", progress=False)
+    assert summary.scans == 1 and summary.dropped == {"in_odometry_gap": 1}
+
+
+def test_laser_scan_intensities_are_kept_and_filtered(tmp_path):
+    from tests.test_import import odometry_messages
+
+    m = Messages(True)
+    messages, stamps = odometry_messages(m, 10)
+    ranges = np.float32([1.0, 2.0, np.inf, 3.0, np.nan, 4.0])
+    intensities = np.float32([50, 5, np.nan, 80, 60, 1])  # the no-return beam's intensity means nothing
+    scan = m.laser(stamps[3], "base_link", ranges, -0.5, 0.1, 0.1, 9.0)
+    scan.intensities = intensities
+    messages.append(("/scan", "sensor_msgs/msg/LaserScan", stamps[3], scan))
+    bag = write_bag(tmp_path / "s.bag", "ros1", sorted(messages, key=lambda e: e[2]))
+    import_bag(bag, tmp_path / "all.h5", "/scan", "/odom", progress=False)
+    summary = import_bag(bag, tmp_path / "bright.h5", "/scan", "/odom", progress=False, min_intensity=10.0)
+    with Dataset(tmp_path / "all.h5") as ds:
+        batch = next(ds.batches())
+        np.testing.assert_array_equal(batch.intensity[0], [50, 5, 0, 80, 1])  # NaN range: invalid
+        np.testing.assert_array_equal(batch.no_return[0], [False, False, True, False, False])
+        assert ds.metadata["import"]["fields"]["intensities"]["use"] == "intensity"
+    with Dataset(tmp_path / "bright.h5") as ds:
+        batch = next(ds.batches())
+        np.testing.assert_array_equal(batch.intensity[0, :3], [50, 0, 80])  # the no-return beam stays
+        np.testing.assert_array_equal(batch.ranges[0, :3], [1.0, np.nan, 3.0])
+    assert summary.metadata["import"]["below_min_intensity"] == 2
