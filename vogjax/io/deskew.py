@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from vogjax.geometry import interpolate_poses
 
 MAX_SWEEP_S = 1.0  # a point fired farther from its cloud's stamp is damage or another clock
+_STAMP_RESOLUTION_S = 1e-9  # stamps are whole nanoseconds: closer than this to the span is on it
 LAYOUTS = {
     "relative_s": "seconds relative to the header stamp",
     "relative_ns": "nanoseconds relative to the header stamp",
@@ -165,17 +166,19 @@ def deskew_points(
         return points.reshape(0, 3)
     fired = stamp_s + offsets
     low, high = min(stamp_s, float(fired.min())), max(stamp_s, float(fired.max()))
-    if low < times[0] or high > times[-1]:
+    if low < times[0] - _STAMP_RESOLUTION_S or high > times[-1] + _STAMP_RESOLUTION_S:
         raise ValueError(
             f"firing times {low:.6f} to {high:.6f} s reach outside the odometry's {times[0]:.6f} to {times[-1]:.6f} s"
         )
+    # a point fired on the odometry's first or last stamp may sum to a hair outside it
+    fired = np.clip(fired, times[0], times[-1])
     mount = np.asarray(T_vehicle_sensor, dtype=np.float64)
     # every step is a product of (N,3) vectors with one matrix, or a rotation of each point about
     # its own axis: no (N,3,3) arrays, nor scipy's slow products of N rotations
     in_vehicle = points @ mount[:3, :3].T + mount[:3, 3]
     world = _slerp_apply(times, poses, fired, in_vehicle)
     # the sensor at the stamp, as the importer places the scan
-    T_world_sensor = interpolate_poses(times, poses, [stamp_s])[0] @ mount
+    T_world_sensor = interpolate_poses(times, poses, [min(max(stamp_s, times[0]), times[-1])])[0] @ mount
     return (world - T_world_sensor[:3, 3]) @ T_world_sensor[:3, :3]
 
 
