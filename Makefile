@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_globalmap.py --out benchmarks/results
 	$(PY) benchmarks/bench_slam.py --out benchmarks/results
 	$(PY) benchmarks/bench_sim.py --out benchmarks/results
+	$(PY) benchmarks/bench_import.py --out benchmarks/results
 	$(PY) benchmarks/bench_pipeline.py --out benchmarks/results
 	$(PY) benchmarks/bench_crm.py --out benchmarks/results
 	$(PY) benchmarks/bench_explore.py --out benchmarks/results

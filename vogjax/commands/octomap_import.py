@@ -8,22 +8,34 @@ SUFFIXES = (".bt", ".ot")
 
 
 def add_arguments(parser) -> None:
+    """Declare the flags of a map import on `vogjax import`'s parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The parser of `vogjax import`.
+    """
     parser.add_argument(
         "--octomap",
         default=None,
         metavar="TOPIC",
         help="topic of octomap_msgs/Octomap (binary or full): write one map (the last message, or --index, "
-        "--time) to --out as a .vog map file instead of importing scans",
+        "--time) to --out as a .vog map file instead of importing scans (default: import scans)",
     )
     parser.add_argument(
-        "--index", type=int, default=None, help="with --octomap: the message to take (0 first, -1 last)"
+        "--index",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --octomap: the message to take, 0 first, -1 last (default: the last)",
     )
     parser.add_argument(
         "--time",
         type=float,
         default=None,
         metavar="SECONDS",
-        help="with --octomap: the last message stamped at or before this time (header stamps, seconds)",
+        help="with --octomap: the last message stamped at or before this time, header stamps in seconds "
+        "(default: the last message)",
     )
 
 
@@ -43,8 +55,21 @@ def run(args) -> None:
         raise ValueError(f"--octomap reads a bag; {str(args.bag)!r} is an OctoMap file")
     if not from_file and args.octomap is None:
         raise ValueError("--index and --time pick an --octomap message: pass --octomap TOPIC")
-    scans = [flag for flag, value in (("--points", args.points), ("--odometry", args.odometry)) if value is not None]
-    scans += [flag for flag, value in (("--frame", args.frame), ("--max-range", args.max_range)) if value is not None]
+    scans = [
+        flag
+        for flag, given in (
+            ("--points", args.points is not None),
+            ("--depth", args.depth is not None),
+            ("--odometry", args.odometry is not None),
+            ("--frame", args.frame is not None),
+            ("--max-range", args.max_range is not None),
+            ("--camera-info", args.camera_info is not None),
+            ("--stride", args.stride != 1),
+            ("--no-deskew", args.no_deskew),
+            ("--min-intensity", args.min_intensity is not None),
+        )
+        if given
+    ]
     if scans:
         raise ValueError(f"{scans[0]} belongs to importing scans; a map is imported from an OctoMap tree alone")
     if from_file and (args.index, args.time) != (None, None):

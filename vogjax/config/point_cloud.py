@@ -1,5 +1,5 @@
 """Settings of a recorded range sensor whose beams change from scan to scan (a lidar's point
-cloud or a laser scanner's fan, imported from a ROS bag)."""
+cloud, a laser scanner's fan or a depth camera's pixels, imported from a ROS bag)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ from vogjax.config.schema import Config, integer, non_negative, positive, text
 
 @dataclasses.dataclass(frozen=True)
 class PointCloudConfig(Config):
-    """Settings of a recorded point-cloud or laser-scan sensor, as a bag import derives them.
+    """Settings of a recorded point-cloud, laser-scan or depth-camera sensor, as a bag import derives them.
 
     Attributes
     ----------
     message : str
-        The ROS message the scans came from: "PointCloud2" or "LaserScan".
+        The ROS message the scans came from: "PointCloud2", "LaserScan" or "Image" (a depth
+        camera's).
     beams : int
         Beams per stored scan (scans with fewer real beams are padded with copies of one of their
         own beams, which changes no map).
@@ -33,7 +34,7 @@ class PointCloudConfig(Config):
         If a setting is out of its range or `min_range_m` is not below `max_range_m`.
     """
 
-    message: str = text("PointCloud2", ("PointCloud2", "LaserScan"))
+    message: str = text("PointCloud2", ("PointCloud2", "LaserScan", "Image"))
     beams: int = integer(1, low=1)
     rate_hz: float = positive(10.0)
     min_range_m: float = non_negative(0.0)

@@ -10,7 +10,9 @@ published atomically); each other format has a module of its own:
   `ScanBatch`);
 - `vogjax.io.octomap`: OctoMap .bt and .ot files; `vogjax.io.ply`: PLY point clouds of the
   occupied voxels; `vogjax.io.tum`: trajectories in the TUM format (evo);
-- `vogjax.io.rosbag`: ROS 1 and ROS 2 bags into run files;
+- `vogjax.io.rosbag`: ROS 1 and ROS 2 bags into run files, with `vogjax.io.pointcloud2` (a
+  PointCloud2's fields by name), `vogjax.io.deskew` (per-point time layouts, motion
+  compensation) and `vogjax.io.depth_image` (depth images through the pinhole model);
 - `vogjax.io.atomic`: atomic publication of files and folders, which every writer uses.
 
 Examples

@@ -3,16 +3,19 @@
 Per scan: time_s, pose_nav and (when the run has ground truth) pose_truth (4,4,
 T_world_vehicle), sonar_origin (3,) and sonar_directions (B,3) in the vehicle frame (any range
 sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return) and
-no_return (B,). File attributes: format, format_version, has_truth, metadata (JSON: scene,
-seed, sensor, navigation noise, vogjax version, ...).
+no_return (B,). Optional per-beam fields, written by sources that have them (`vogjax import`
+of a lidar): intensity (B,) float32 (the driver's units) and ring (B,) uint16 (the laser that
+fired); a run without them reads them as None, and readers that predate them ignore them (no
+format version of their own). File attributes: format, format_version, has_truth, metadata
+(JSON: scene, seed, sensor, navigation noise, vogjax version, ...).
 
 Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2; a damaged chunk cannot be
 read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata carries its
 SHA-256, and every batch is checked for physical sense as it is written and as it is read
 (finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km] with NaN
-exactly where no_return is set). Runs of format 1 (no checksums, always with ground truth)
-still load and are checked the same way. A file is published atomically on close
-(`vogjax.io.atomic`): a run is whole or absent.
+exactly where no_return is set; intensity finite, ring an integer). Runs of format 1 (no
+checksums, always with ground truth) still load and are checked the same way. A file is
+published atomically on close (`vogjax.io.atomic`): a run is whole or absent.
 """
 
 from __future__ import annotations
@@ -47,6 +50,12 @@ _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "ranges": (lambda b: (b,), np.float32),
     "no_return": (lambda b: (b,), np.bool_),
 }
+# per-beam fields a run may hold besides those: name -> (shape after the scan axis, dtype)
+OPTIONAL_FIELDS = {
+    "intensity": (lambda b: (b,), np.float32),
+    "ring": (lambda b: (b,), np.uint16),
+}
+MAX_RING = 65534  # 65535 is the ring field's fill value: a chunk HDF5 cannot find fails the checks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +82,10 @@ class ScanBatch:
         Ranges, metres; NaN where there was no return.
     no_return : (S, B) ndarray of bool
         Where a beam had no return.
+    intensity : (S, B) ndarray of float32 or None
+        Each beam's intensity (the driver's units), where the run holds it.
+    ring : (S, B) ndarray of uint16 or None
+        The laser (ring) that fired each beam, where the run holds it.
     """
 
     first: int
@@ -83,6 +96,8 @@ class ScanBatch:
     sonar_directions: npt.NDArray[np.float32]
     ranges: npt.NDArray[np.float32]
     no_return: npt.NDArray[np.bool_]
+    intensity: npt.NDArray[np.float32] | None = None
+    ring: npt.NDArray[np.uint16] | None = None
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -223,6 +238,42 @@ def check_scans(
         raise ValueError(
             f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found [{returned.min():.3g}, {returned.max():.3g}]"
         )
+    check_optional_fields(fields, count, beams, where)
+
+
+def check_optional_fields(fields: dict[str, Any], count: int, beams: int, where: str) -> None:
+    """Check the optional per-beam fields that `fields` holds (those that are not None).
+
+    Parameters
+    ----------
+    fields : dict of str to array_like
+        Fields by name; keys of `OPTIONAL_FIELDS` that are absent or None are not checked.
+    count : int
+        S, the scans the fields hold.
+    beams : int
+        B, beams per scan.
+    where : str
+        What the error message names.
+
+    Raises
+    ------
+    ValueError
+        Naming `where` and the field when it is not of shape (S, B), intensity is not a finite
+        float, or ring is not an integer in [0, 65534].
+    """
+    for name in OPTIONAL_FIELDS:
+        value = fields.get(name)
+        if value is None:
+            continue
+        value = np.asarray(value)
+        if value.shape != (count, beams):
+            raise ValueError(f"{where}: {name} has shape {value.shape}, expected {(count, beams)}")
+        if name == "intensity" and (value.dtype.kind not in "fiu" or not np.all(np.isfinite(value))):
+            raise ValueError(f"{where}: intensity must be finite numbers")
+        if name == "ring" and (
+            value.dtype.kind not in "iu" or (value.size and (value.min() < 0 or value.max() > MAX_RING))
+        ):
+            raise ValueError(f"{where}: ring must be integers in [0, {MAX_RING}]")
 
 
 class DatasetWriter:
@@ -241,6 +292,9 @@ class DatasetWriter:
         JSON-able run metadata (scene, seed, sensor, navigation noise, ...); no NaN.
     truth : bool, optional
         Whether scans carry pose_truth.
+    optional : sequence of str, optional
+        The optional per-beam fields (keys of `OPTIONAL_FIELDS`: "intensity", "ring") the scans
+        carry; `append` then takes them too.
 
     Attributes
     ----------
@@ -250,12 +304,14 @@ class DatasetWriter:
         Beams per scan.
     truth : bool
         Whether scans carry pose_truth.
+    optional : tuple of str
+        The optional per-beam fields written.
 
     Raises
     ------
     ValueError
-        If `beams` is out of range, `metadata` is not a JSON-able dict, or `path` cannot be
-        written.
+        If `beams` is out of range, `metadata` is not a JSON-able dict, `optional` names an
+        unknown field, or `path` cannot be written.
 
     Examples
     --------
@@ -270,30 +326,30 @@ class DatasetWriter:
     1
     """
 
-    def __init__(self, path: str | PathLike, beams: int, metadata: dict, truth: bool = True):
+    def __init__(
+        self, path: str | PathLike, beams: int, metadata: dict, truth: bool = True, optional: Sequence[str] = ()
+    ):
         if not (isinstance(beams, (int, np.integer)) and 1 <= beams <= MAX_BEAMS):
             raise ValueError(f"beams must be an integer in [1, {MAX_BEAMS}], got {beams!r}")
-        try:
-            encoded = json.dumps(metadata, allow_nan=False)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"metadata must be JSON-able: {error}") from None
-        if not isinstance(metadata, dict):
-            raise ValueError("metadata must be a dict")
+        unknown = sorted(set(optional) - set(OPTIONAL_FIELDS))
+        if unknown:
+            raise ValueError(f"optional names unknown fields {unknown} (known: {', '.join(OPTIONAL_FIELDS)})")
+        encoded = _encoded(metadata)
         self.path = Path(path)
         self.beams = int(beams)
         self.truth = bool(truth)
+        self.optional = tuple(n for n in OPTIONAL_FIELDS if n in optional)
         self._last_time_s = -np.inf
         self._publication = AtomicPath(self.path)
         self._file = h5py.File(self._publication.temporary, "w")
         self._file.attrs["format"] = FORMAT
         self._file.attrs["format_version"] = FORMAT_VERSION
         self._file.attrs["has_truth"] = self.truth
-        self._file.attrs["metadata"] = encoded
-        self._file.attrs["metadata_sha256"] = hashlib.sha256(encoded.encode()).hexdigest()
+        self._write_metadata(encoded)
         for name, (shape, dtype) in self._fields().items():
             tail = shape(beams)
             # NaN where HDF5 has no chunk to read (a damaged chunk index): the checks then fail
-            fill = np.nan if np.dtype(dtype).kind == "f" else None
+            fill = np.nan if np.dtype(dtype).kind == "f" else MAX_RING + 1 if name == "ring" else None
             self._file.create_dataset(
                 name,
                 shape=(0, *tail),
@@ -306,7 +362,30 @@ class DatasetWriter:
             )
 
     def _fields(self) -> dict:
-        return {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
+        chosen = {k: v for k, v in _FIELDS.items() if self.truth or k != "pose_truth"}
+        return chosen | {k: OPTIONAL_FIELDS[k] for k in self.optional}
+
+    def _write_metadata(self, encoded: str) -> None:
+        self._file.attrs["metadata"] = encoded
+        self._file.attrs["metadata_sha256"] = hashlib.sha256(encoded.encode()).hexdigest()
+
+    def set_metadata(self, metadata: dict) -> None:
+        """Replace the run's metadata before it is published (what a source learns only at the end).
+
+        Parameters
+        ----------
+        metadata : dict
+            JSON-able run metadata; no NaN.
+
+        Raises
+        ------
+        ValueError
+            If `metadata` is not a JSON-able dict or the file is closed.
+        """
+        encoded = _encoded(metadata)
+        if not self._file:
+            raise ValueError(f"the run {str(self.path)!r} is closed")
+        self._write_metadata(encoded)
 
     def append(self, **fields: npt.ArrayLike) -> None:
         """Append scans, checked first (`check_scans`): a ValueError leaves the file as it was.
@@ -314,8 +393,9 @@ class DatasetWriter:
         Parameters
         ----------
         **fields
-            Every field of the format by name (`ScanBatch`'s, pose_truth only when `truth`),
-            each with a leading scan axis; times after those already written.
+            Every field of the format by name (`ScanBatch`'s, pose_truth only when `truth`,
+            the optional ones named by `optional`), each with a leading scan axis; times after
+            those already written.
 
         Raises
         ------
@@ -364,32 +444,35 @@ class DatasetWriter:
 class Dataset:
     """A run file opened for reading.
 
-    ``len(ds)`` is its number of scans; `batches` streams them, each batch checked as it is
-    read; `validate` checks the whole file. Runs of format 1 and 2 are read. A context manager
-    (closes the file on exit).
+        ``len(ds)`` is its number of scans; `batches` streams them, each batch checked as it is
+        read; `validate` checks the whole file. Runs of format 1 and 2 are read, with or without the
+    optional per-beam fields. A context manager
+        (closes the file on exit).
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A run file written by `DatasetWriter`.
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A run file written by `DatasetWriter`.
 
-    Attributes
-    ----------
-    path : Path
-        The run file.
-    metadata : dict
-        The run's metadata (scene, seed, sensor, navigation noise, vogjax version, ...).
-    has_truth : bool
-        Whether scans carry pose_truth.
-    beams : int
-        Beams per scan.
+        Attributes
+        ----------
+        path : Path
+            The run file.
+        metadata : dict
+            The run's metadata (scene, seed, sensor, navigation noise, vogjax version, ...).
+        has_truth : bool
+            Whether scans carry pose_truth.
+        beams : int
+            Beams per scan.
+        optional : tuple of str
+            The optional per-beam fields the run holds ("intensity", "ring"); the others read as None.
 
-    Raises
-    ------
-    ValueError
-        Naming the file if it does not exist, is not a readable HDF5 vogjax run file, has a
-        format version this vogjax does not read, or is damaged (metadata failing its checksum,
-        fields of the wrong shape or type or of different lengths).
+        Raises
+        ------
+        ValueError
+            Naming the file if it does not exist, is not a readable HDF5 vogjax run file, has a
+            format version this vogjax does not read, or is damaged (metadata failing its checksum,
+            fields of the wrong shape or type or of different lengths).
     """
 
     def __init__(self, path: str | PathLike):
@@ -428,13 +511,14 @@ class Dataset:
             self.metadata = json.loads(encoded)
             if not isinstance(self.metadata, dict):
                 raise ValueError(f"{where} is damaged: its metadata is not a JSON object")
-            names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"]
+            self.optional = tuple(n for n in OPTIONAL_FIELDS if n in self._file)
+            names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"] + list(self.optional)
             lengths = {name: self._file[name].shape[0] for name in names}
             self.beams = int(self._file["ranges"].shape[1])
             if not 1 <= self.beams <= MAX_BEAMS:  # a small file may declare any shape
                 raise ValueError(f"{where} is damaged: {self.beams} beams per scan (at most {MAX_BEAMS})")
             for name in names:
-                shape, dtype = _FIELDS[name]
+                shape, dtype = {**_FIELDS, **OPTIONAL_FIELDS}[name]
                 if self._file[name].shape[1:] != shape(self.beams) or self._file[name].dtype != dtype:
                     raise ValueError(
                         f"{where} is damaged: field {name} has shape {self._file[name].shape} "
@@ -480,6 +564,7 @@ class Dataset:
                 name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
                 for name in _FIELDS
             }
+            fields |= {name: self._file[name][first:last] for name in self.optional}
         except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
             raise ValueError(f"{where} is damaged: {error}") from None
         before = self._last_time_s.get(first, -np.inf)
@@ -536,6 +621,17 @@ class Dataset:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _encoded(metadata: dict) -> str:
+    """`metadata` as JSON, or a ValueError."""
+    try:
+        encoded = json.dumps(metadata, allow_nan=False)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"metadata must be JSON-able: {error}") from None
+    if not isinstance(metadata, dict):
+        raise ValueError("metadata must be a dict")
+    return encoded
 
 
 def _is_text(value, expected: str) -> bool:
