@@ -157,7 +157,7 @@ def test_every_block_is_run_or_says_why_not():
                 skipped.append(where(block))
     assert not unknown, f"blocks of a language the suite neither runs nor shows as output: {unknown}"
     # skips are for what cannot run here (installs, hours-long runs); keep them rare
-    assert len(skipped) <= 16, skipped
+    assert len(skipped) <= 20, skipped
 
 
 def test_the_boxes_survey_is_what_getting_started_runs():
