@@ -7,7 +7,7 @@ import dataclasses
 from vogjax.config.maps import MapConfig
 from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section
 from vogjax.config.sensing import NavNoise
-from vogjax.config.slam import LoopClosureConfig
+from vogjax.config.slam import LoopClosureConfig, PoseGraphConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +39,7 @@ class PipelineConfig(Config):
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
     loop_closure: LoopClosureConfig = section(LoopClosureConfig())
+    pose_graph: PoseGraphConfig = section(PoseGraphConfig())
     timing: TimingConfig = section(TimingConfig())
     scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
     max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
@@ -80,8 +81,8 @@ class ReportConfig(Config):
 @dataclasses.dataclass(frozen=True)
 class JobConfig(Config):
     """Everything `vogjax map` reads from its settings file: tables [map], [nav_noise],
-    [loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [timing] and
-    [pipeline] set `pipeline`; [report] sets `report`."""
+    [loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [pose_graph], [timing]
+    and [pipeline] set `pipeline`; [report] sets `report`."""
 
     pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
     report: ReportConfig = section(ReportConfig())

@@ -41,7 +41,7 @@ from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
 from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
-from vogjax.slam import LoopClosureDetector, PoseGraph
+from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection
 
 
 class Mapper:
@@ -142,7 +142,7 @@ class Mapper:
         # a. pose-graph node with its xyh and zpr factors
         start = time.perf_counter()
         if self.graph is None:
-            self.graph = PoseGraph(cfg.nav_noise, prior_pose=nav_bases[0])
+            self.graph = PoseGraph(cfg.nav_noise, prior_pose=nav_bases[0], config=cfg.pose_graph)
             self.graph.add_submap(nav_bases[0])
         else:
             self.graph.add_submap(nav_bases[k], self.submaps[k].time_s - self.submaps[k - 1].time_s)
@@ -151,18 +151,34 @@ class Mapper:
         # b. loop closures against earlier submaps
         start = time.perf_counter()
         submaps = [self.vog.submap(i) for i in range(k + 1)]
-        accepted, rejected = self.detector.detect(
+        found, rejected = self.detector.detect(
             k, self.clouds, [s.bounds() for s in submaps], poses, nav_bases, np.array([s.time_s for s in self.submaps])
         )
-        self.accepted += accepted
-        self.rejected += rejected
         self.timings["loop_closure"].append(time.perf_counter() - start)
         for phase, seconds in self.detector.seconds.items():  # its parts
             self.timings[phase].append(seconds)
-        # c. iSAM2 with the new constraints
+        # c. iSAM2 with the new constraints, each screened by the graph first
         start = time.perf_counter()
-        for closure in accepted:
-            self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+        accepted = []
+        for closure in found:
+            check = self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+            if check.accepted:
+                accepted.append(dataclasses.replace(closure, distance=check.distance))
+            else:
+                rejected.append(
+                    Rejection(
+                        closure.i,
+                        closure.k,
+                        "inconsistent",
+                        closure.fitness,
+                        _deviation_m(nav_bases[closure.i], nav_bases[k], closure.T_i_k),
+                        check.distance,
+                        check.limit,
+                        closure.T_i_k,
+                    )
+                )
+        self.accepted += accepted
+        self.rejected += rejected
         poses = self.graph.update()
         self.timings["isam2"][-1] += time.perf_counter() - start
         # d. move the submaps (the virtual map's whole update)
@@ -294,6 +310,11 @@ def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:
     sums = np.zeros((len(counts), 3))
     np.add.at(sums, inverse_index.reshape(-1), points)
     return sums / counts[:, None]
+
+
+def _deviation_m(T_world_i_nav: np.ndarray, T_world_k_nav: np.ndarray, T_i_k: np.ndarray) -> float:
+    """x-y offset (m) of a closure from the navigation's relative pose, as the detector measures it."""
+    return float(np.linalg.norm((inverse(inverse(T_world_i_nav) @ T_world_k_nav) @ T_i_k)[:2, 3]))
 
 
 def _stack(parts: list) -> np.ndarray:
