@@ -34,7 +34,10 @@ class PipelineConfig(Config):
     measurable cost in AUC (see the README's paper protocol).
     batch_scans: scans read and integrated per step. standard_map: also build the
     navigation-only map (the no-SLAM baseline); confidence_map: and a confidence-rich map of
-    the same scans (`vj.ConfidenceMap`, about six times the standard map's integration time)."""
+    the same scans (`vj.ConfidenceMap`, about six times the standard map's integration time).
+    slam_thread: batch reprocessing (`pipeline.run`, `vogjax map`) runs each submap's SLAM step
+    on a second thread while the next scans are integrated (`Mapper(overlap=True)`): the same
+    results bit for bit; off, every step runs in order on one thread."""
 
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
@@ -51,6 +54,7 @@ class PipelineConfig(Config):
     batch_scans: int = integer(200, low=1)
     standard_map: bool = flag(True)
     confidence_map: bool = flag(False)
+    slam_thread: bool = flag(True)
 
     @classmethod
     def paper(cls, **changes) -> PipelineConfig:
