@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from vogjax.config.maps import MapConfig
-from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
 from vogjax.config.sensing import NavNoise
 from vogjax.config.slam import LoopClosureConfig, PoseGraphConfig
 
@@ -35,9 +35,11 @@ class PipelineConfig(Config):
     batch_scans: scans read and integrated per step. standard_map: also build the
     navigation-only map (the no-SLAM baseline); confidence_map: and a confidence-rich map of
     the same scans (`vj.ConfidenceMap`, about six times the standard map's integration time).
-    slam_thread: batch reprocessing (`pipeline.run`, `vogjax map`) runs each submap's SLAM step
-    on a second thread while the next scans are integrated (`Mapper(overlap=True)`): the same
-    results bit for bit; off, every step runs in order on one thread."""
+    slam_thread: "on": batch reprocessing (`pipeline.run`, `vogjax map`) runs each submap's SLAM
+    step on a second thread while the next scans are integrated (`Mapper(overlap=True)`), the
+    same results bit for bit; "off": every step in order on one thread; "auto" (default): on
+    when the maps run on a CUDA GPU (their kernels then need no CPU core), off on the CPU, where
+    on the shared 2-core machine the two threads only contended (docs/benchmarks/slam.md)."""
 
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
@@ -54,7 +56,7 @@ class PipelineConfig(Config):
     batch_scans: int = integer(200, low=1)
     standard_map: bool = flag(True)
     confidence_map: bool = flag(False)
-    slam_thread: bool = flag(True)
+    slam_thread: str = text("auto", ("auto", "on", "off"))
 
     @classmethod
     def paper(cls, **changes) -> PipelineConfig:

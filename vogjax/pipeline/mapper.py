@@ -60,10 +60,11 @@ class Mapper:
         while the next scans are integrated; the global map takes each result in before the
         next submap joins the graph, so the maps, poses and closures are the same bits as
         without. Between `add` calls the last submap's SLAM may still be in flight: `sync()`
-        (or `finish_submap()`, `result()`) brings everything up to date. Only with the
-        detector on the host (the maps' kernels on a GPU or the CPU); with a CUDA detector the
-        steps stay in order. Default False (a live mapper, queried between batches, sees every
-        finished submap); `pipeline.run` passes `PipelineConfig.slam_thread`.
+        (or `finish_submap()`, `result()`) brings everything up to date. The detector then
+        runs on the host even when the maps are on a GPU (the host's and the device's front
+        ends agree but at near-exact ties), so no two threads launch on one device. Default
+        False (a live mapper, queried between batches, sees every finished submap);
+        `pipeline.run` passes `PipelineConfig.slam_thread`.
 
     Raises
     ------
@@ -84,17 +85,13 @@ class Mapper:
         self.standard_map = VoxelMap(config.map) if config.standard_map else None
         self.confidence_map = self._confidence_map() if config.confidence_map else None
         self.graph: PoseGraph | None = None
-        # on a GPU the front end's searches run beside the maps; on the CPU the FFTs and trees win
-        self.detector = LoopClosureDetector(
-            config.nav_noise, config.loop_closure, self.global_map.device if self.global_map.device.is_cuda else None
-        )
+        # on a GPU the front end's searches run beside the maps (unless SLAM has its own thread:
+        # then on the host, beside the maps' kernels); on the CPU the FFTs and trees win
+        on_gpu = self.global_map.device.is_cuda and not overlap
+        front_end = self.global_map.device if on_gpu else None
+        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure, front_end)
         self.cutter = SubmapCutter(config)
-        # the second thread for SLAM: only with the front end on the host (see `overlap`)
-        self._executor = (
-            ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam")
-            if overlap and self.detector.device is None
-            else None
-        )
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam") if overlap else None
         self._slam_future: Future | None = None
         self._bounds: list = []  # per finished submap: its observed box (SubmapRecord order)
         self.timings = defaultdict(list)
