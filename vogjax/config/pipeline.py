@@ -6,9 +6,9 @@ import dataclasses
 from typing import Any
 
 from vogjax.config.maps import MapConfig
-from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
 from vogjax.config.sensing import NavNoise
-from vogjax.config.slam import LoopClosureConfig
+from vogjax.config.slam import LoopClosureConfig, PoseGraphConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +52,9 @@ class PipelineConfig(Config):
         The navigation's drift, for the odometry factors and for cutting submaps by Eq. 2.
     loop_closure : LoopClosureConfig
         Loop-closure detection and registration.
+    pose_graph : PoseGraphConfig
+        How closures enter the pose graph: the screen against the graph's own uncertainty and
+        the robust loss.
     timing : TimingConfig
         The timing probes taken while mapping.
     scans_per_submap : int or None
@@ -83,11 +86,18 @@ class PipelineConfig(Config):
     confidence_map : bool
         Also build a confidence-rich map of the same scans (`vj.ConfidenceMap`, about six times
         the standard map's integration time).
+    slam_thread : str
+        "on": batch reprocessing (`pipeline.run`, `vogjax map`) runs each submap's SLAM step on
+        a second thread while the next scans are integrated (`Mapper(overlap=True)`), the same
+        results bit for bit; "off": every step in order on one thread; "auto": on when the maps
+        run on a CUDA GPU (their kernels then need no CPU core), off on the CPU, where on the
+        shared 2-core machine the two threads only contended (docs/benchmarks/slam.md).
     """
 
     map: MapConfig = section(MapConfig())
     nav_noise: NavNoise = section(NavNoise())
     loop_closure: LoopClosureConfig = section(LoopClosureConfig())
+    pose_graph: PoseGraphConfig = section(PoseGraphConfig())
     timing: TimingConfig = section(TimingConfig())
     scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
     max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
@@ -99,6 +109,7 @@ class PipelineConfig(Config):
     batch_scans: int = integer(200, low=1)
     standard_map: bool = flag(True)
     confidence_map: bool = flag(False)
+    slam_thread: str = text("auto", ("auto", "on", "off"))
 
     @classmethod
     def paper(cls, **changes: Any) -> PipelineConfig:
@@ -150,8 +161,8 @@ class JobConfig(Config):
     """Everything `vogjax map` reads from its settings file.
 
     The tables ``[map]``, ``[nav_noise]``, ``[loop_closure]`` (with ``[loop_closure.icp]``,
-    ``[loop_closure.correlative]``), ``[timing]`` and ``[pipeline]`` set `pipeline`; ``[report]``
-    sets `report`.
+    ``[loop_closure.correlative]``), ``[pose_graph]``, ``[timing]`` and ``[pipeline]`` set
+    `pipeline`; ``[report]`` sets `report`.
 
     Attributes
     ----------

@@ -1,4 +1,4 @@
-"""Settings of the SLAM front end: ICP, the correlative search, loop-closure detection."""
+"""Settings of SLAM: ICP, the correlative search, loop-closure detection, the pose graph."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from vogjax.config.schema import Config, integer, non_negative, number, positive
 
 ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
 ALIGNERS = ("correlative_icp",)  # vogjax.slam.loop_closure.ALIGNERS
+ROBUST_LOSSES = ("none", "huber", "cauchy", "geman_mcclure", "dcs")  # GTSAM's noiseModel.mEstimator
+CLOSURE_SCREENS = ("none", "graph")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,9 +61,19 @@ class LoopClosureConfig(Config):
     voxels; min_separation: |i - k| at least this (neighbours are tied by odometry already);
     max_candidates: the earlier submaps nearest to k are aligned, at most this many;
     max_fitness_m2: mean squared inlier distance; drift_sigmas: accept results within this many
-    drift sigmas of odometry; min_sigma_*: floors on the factor's sigmas. ICP's own covariance
-    is overconfident: each submap is bent by the drift within it (0.17 m sigma over 20 s at the
-    default rates), which ICP cannot see."""
+    drift sigmas of odometry.
+    The closure's covariance: ICP's own (fitness times the inverse of J^T J) is overconfident,
+    each submap being bent by the drift within it (0.17 m sigma over 20 s at the default rates),
+    which moves all its points together. registration_sigma_m models that: along each
+    eigen-direction of J^T J with information lambda per inlier the closure's sigma is
+    registration_sigma_m / sqrt(lambda) (0.025 m: the errors measured against the rigid truths
+    on propeller surveys, 0.02-0.03 m times 1 / sqrt(lambda) across lambda = 0.005 to 1);
+    min_information: directions with less information per inlier than this are left out of
+    the factor (to odometry): at 0.05 their sigma would exceed 0.11 m, and such closures were
+    the wrong ones; it applies with registration_sigma_m > 0 (at 0 the factor keeps ICP's
+    directions, icp.lambda_min). min_sigma_*: floors added to the factor's sigmas (0.2 m in
+    translation was the flat model before registration_sigma_m; rotation matters only for
+    full six-direction factors)."""
 
     aligner: str = text("correlative_icp", ALIGNERS)
     method: str = text("point_to_plane", ICP_METHODS)
@@ -77,6 +89,37 @@ class LoopClosureConfig(Config):
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)
+    registration_sigma_m: float = number(0.025, low=0, high=1e3)
+    min_information: float = number(0.05, low=0, high=1)
     # at most 1e5 (m or rad): a sigma floor squared must stay a variance the pose graph takes (<= 1e12)
     min_sigma_rotation_rad: float = number(0.005, low=0, high=1e5)
-    min_sigma_translation_m: float = number(0.2, low=0, high=1e5)
+    min_sigma_translation_m: float = number(0.0, low=0, high=1e5)
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseGraphConfig(Config):
+    """How loop closures enter the pose graph (`vogjax.slam.PoseGraph`).
+
+    screen: "graph" tests each closure against the graph before it enters: its error at the
+    current estimate, whitened by the closure's covariance plus the graph's own uncertainty of
+    the relative pose (iSAM2's joint marginal of the two submaps), must lie within
+    `screen_sigmas` (a chi-square bound over the directions the closure constrains, at the
+    probability of that many sigmas of one normal variable); "none" lets every closure in. A
+    wrong closure is refused while the graph still knows better; one that came first, while
+    nothing contradicted it, is left to the robust loss.
+    robust_loss: the loss of every closure factor, GTSAM's `noiseModel.Robust` with the
+    m-estimator named ("none": Gaussian, a wrong closure pulls with all its weight); robust_width:
+    its parameter, in sigmas of the closure's whitened error (Huber's k, Cauchy's k,
+    Geman-McClure's c; DCS gets its square as phi, its bound on the squared error). Calibrated
+    closures (`LoopClosureConfig.registration_sigma_m`) lay within 3 sigmas of their rigid
+    truths on the surveys measured, so a width of 3 leaves right ones near Gaussian. iSAM2
+    weighs a robust factor where it linearises it and again only when it relinearises it, so a
+    closure's loss starts as wide as the uncertainty it was screened with (`ClosureCheck.scale`):
+    a right closure far from the estimate after a long loop keeps its weight.
+    Measured (docs/benchmarks/slam.md): with 10% of the closures made wrong by 1-3 m and 5-20
+    degrees, the Gaussian graph's trajectory error grows several times over, this one's far less."""
+
+    screen: str = text("graph", CLOSURE_SCREENS)
+    screen_sigmas: float = number(3.0, low=0.5, high=100.0)
+    robust_loss: str = text("cauchy", ROBUST_LOSSES)
+    robust_width: float = number(3.0, low=0.1, high=1000.0)

@@ -116,11 +116,21 @@ class VogMap:
     def num_submaps(self) -> int:
         return len(self._submaps)
 
-    def add_submap(self, pose) -> int:
-        """A new empty submap with base pose `pose` (4,4) T_world_submap; returns its id."""
+    def add_submap(self, pose, submap: Submap | None = None) -> int:
+        """A new submap with base pose `pose` (4,4) T_world_submap; returns its id.
+
+        submap: a Submap built beforehand (of this map's config and device, in no VogMap yet),
+        e.g. integrated on another thread; None: a new empty one."""
         pose = rigid_pose("pose", pose)[None]
+        if submap is not None:
+            if not isinstance(submap, Submap):
+                raise ValueError(f"submap must be a Submap, got {type(submap).__name__}")
+            if submap.config != self.config or submap.device != self.device:
+                raise ValueError("submap must have this VogMap's config and device")
+            if any(s is submap for s in self._submaps):
+                raise ValueError("submap is already in this VogMap")
         with self._lock.writing():
-            self._submaps.append(Submap(self.config, self.device))
+            self._submaps.append(Submap(self.config, self.device) if submap is None else submap)
             self._poses = np.concatenate([self._poses, pose])
             return len(self._submaps) - 1
 

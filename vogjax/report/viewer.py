@@ -278,7 +278,8 @@ def read_loop_closures(path: Path, submaps: int) -> npt.NDArray[np.int_]:
     Returns
     -------
     (C, 2) ndarray of int
-        Submap pairs (i, k) of the closures (columns i and k); (0, 2) when the file is absent.
+        Submap pairs (i, k) of the accepted closures (columns i and k; with a verdict column, the
+        rows "accepted" only); (0, 2) when the file is absent.
 
     Raises
     ------
@@ -287,10 +288,12 @@ def read_loop_closures(path: Path, submaps: int) -> npt.NDArray[np.int_]:
     """
     if not path.is_file():
         return np.zeros((0, 2), dtype=int)
-    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1, dtype=None, encoding="utf-8")
     names = table.dtype.names or ()
     if "i" not in names or "k" not in names:
         raise ValueError(f"path {str(path)!r} needs columns i and k (submap ids), has {names}")
+    if "verdict" in names:
+        table = table[table["verdict"] == "accepted"]
     pairs = np.stack([table["i"], table["k"]], axis=1).astype(int).reshape(-1, 2)
     if len(pairs) and (pairs.min() < 0 or pairs.max() >= submaps):
         raise ValueError(f"path {str(path)!r} names submaps outside 0-{submaps - 1}")

@@ -12,6 +12,15 @@ unambiguous peak, ICP converged near it with a low fitness and enough of the sou
 and a result within the navigation's possible drift of the odometry relative pose. Degenerate
 alignments give partial factors over their well-conditioned directions; the rest get full
 Pose3 factors.
+
+A closure's covariance follows how well ICP's correspondences fix each direction: along an
+eigen-direction of ICP's J^T J with information lambda per inlier, sigma =
+registration_sigma_m / sqrt(lambda). On propeller surveys the closures' errors against the
+rigid truths follow that law (their rms times sqrt(lambda) stays at 0.02-0.03 m from lambda =
+0.005 to 1): a swath's residuals are not independent, a bend or an alias moves them together,
+so a direction carries about one point's worth of information per unit of lambda, not one per
+inlier. Directions below `min_information` per inlier are left to odometry: there the error is
+too large to call the closure right or wrong.
 """
 
 from __future__ import annotations
@@ -42,15 +51,46 @@ class LoopClosure:
     num_inliers: int
     overlap: float = np.nan  # the aligner's overlap score (correlative peak)
     ambiguity: float = np.nan  # runner-up over peak score (0: unambiguous, 1: a tie)
+    distance: float = np.nan  # Mahalanobis distance from the graph's estimate at entry (NaN: not screened)
+
+
+REASONS = ("overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift", "inconsistent")
 
 
 @dataclasses.dataclass(frozen=True)
 class Rejection:
+    """A candidate pair that did not become a closure, and the figure that failed.
+
+    Attributes
+    ----------
+    i, k : int
+        The submaps (i earlier).
+    reason : str
+        The first test it failed (`REASONS`): "overlap" (correlative peak score), "ambiguous"
+        (runner-up over peak), "not converged" (ICP), "fitness" (mean squared inlier distance),
+        "inliers" (share of the source matched), "refinement" (how far ICP moved the peak),
+        "drift" (offset from the navigation), "inconsistent" (the pose graph's screen).
+    fitness : float
+        ICP's mean squared inlier distance, m^2; NaN when ICP did not run.
+    deviation_m : float
+        x-y offset of ICP's result from the navigation's relative pose; NaN without ICP.
+    value : float
+        The figure that failed, in the test's units (score, ratio, m^2, share, m, or the
+        screen's Mahalanobis distance); NaN for "not converged".
+    limit : float
+        The bound it failed against.
+    T_i_k : ndarray or None
+        (4, 4) what the alignment found (None when ICP did not run), for scoring the verdict.
+    """
+
     i: int
     k: int
-    reason: str  # "overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift"
-    fitness: float  # NaN when ICP did not run ("overlap", "ambiguous")
+    reason: str
+    fitness: float
     deviation_m: float
+    value: float = np.nan
+    limit: float = np.nan
+    T_i_k: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -188,9 +228,11 @@ class LoopClosureDetector:
             deviation = (
                 np.nan if result is None else float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
             )
-            reason = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
-            if reason:
-                rejected.append(Rejection(i, k, reason, np.nan if result is None else result.fitness, deviation))
+            failed = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
+            if failed:
+                reason, value, limit = failed
+                fitness, found_T = (np.nan, None) if result is None else (result.fitness, result.T_target_source)
+                rejected.append(Rejection(i, k, reason, fitness, deviation, value, limit, found_T))
             else:
                 accepted.append(self._closure(i, k, alignment))
         return accepted, rejected
@@ -199,36 +241,50 @@ class LoopClosureDetector:
         """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma."""
         return self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
 
-    def _rejection(self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float) -> str | None:
+    def _rejection(
+        self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float
+    ) -> tuple[str, float, float] | None:
+        """(reason, the figure that failed, its bound) of the first test failed, or None."""
         cfg, result = self.config, alignment.icp
         if alignment.overlap < cfg.min_overlap_score:
-            return "overlap"
+            return "overlap", alignment.overlap, cfg.min_overlap_score
         if alignment.ambiguity > cfg.max_ambiguity:
-            return "ambiguous"
+            return "ambiguous", alignment.ambiguity, cfg.max_ambiguity
         if result is None or not result.converged:
-            return "not converged"
+            return "not converged", np.nan, np.nan
         if result.fitness > cfg.max_fitness_m2:
-            return "fitness"
+            return "fitness", result.fitness, cfg.max_fitness_m2
         if result.num_inliers < cfg.min_inlier_fraction * source_points:
-            return "inliers"
+            return "inliers", result.num_inliers / source_points, cfg.min_inlier_fraction
         refinement = float(np.linalg.norm((inverse(alignment.T_seed) @ result.T_target_source)[:2, 3]))
         if refinement > cfg.max_refinement_m:
-            return "refinement"
-        if deviation > self._drift_bound(elapsed_s):
-            return "drift"
+            return "refinement", refinement, cfg.max_refinement_m
+        bound = self._drift_bound(elapsed_s)
+        if deviation > bound:
+            return "drift", deviation, bound
         return None
 
     def _closure(self, i: int, k: int, alignment: Alignment) -> LoopClosure:
         cfg, result = self.config, alignment.icp
-        good = result.eigenvalues >= cfg.icp.lambda_min * result.num_inliers
+        inliers = max(result.num_inliers, 1)
+        floor_information = max(cfg.icp.lambda_min, cfg.min_information if cfg.registration_sigma_m > 0 else 0.0)
+        good = result.eigenvalues >= floor_information * inliers
         vectors = result.eigenvectors
-        # sigma^2 H^-1 over the constrained directions; degenerate ones left unconstrained
-        # (a partial factor drops them, a full factor never sees them: r = 6 then).
-        variance = max(result.fitness, 1e-12)
-        covariance = vectors[:, good] @ np.diag(variance / result.eigenvalues[good]) @ vectors[:, good].T
+        # ICP's sigma^2 H^-1 (fitness as sigma^2) over the constrained directions, plus, with
+        # registration_sigma_m, the misfit a bend or an alias moves all the swath's points by:
+        # registration_sigma_m^2 / lambda per inlier. Directions left out are the partial
+        # factor's to drop (a full factor never sees them: r = 6 then); they get a variance of 1
+        # so the matrix stays positive definite.
+        values = result.eigenvalues[good]
+        variance = max(result.fitness, 1e-12) / values + cfg.registration_sigma_m**2 * inliers / values
+        covariance = vectors[:, good] @ np.diag(variance) @ vectors[:, good].T
+        if cfg.registration_sigma_m > 0:  # (without it, the floors keep the matrix definite, as they always did)
+            covariance = covariance + vectors[:, ~good] @ vectors[:, ~good].T
         floor = np.array([cfg.min_sigma_rotation_rad] * 3 + [cfg.min_sigma_translation_m] * 3) ** 2
         covariance = covariance + np.diag(floor)
-        basis = None if good.all() else result.basis
+        if cfg.registration_sigma_m > 0:
+            covariance = (covariance + covariance.T) / 2
+        basis = None if good.all() else vectors[:, good]
         return LoopClosure(
             i,
             k,
