@@ -69,7 +69,7 @@ def add_parser(commands) -> None:
         default=None,
         help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
         "the scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
-        "[loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [timing], "
+        "[loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [pose_graph], [timing], "
         "[pipeline]; not [report] (`vogjax config --defaults --for explore` prints them all)",
     )
     explore.add_argument("--overwrite", action="store_true", help="replace --out (and its CSV) if it exists")

@@ -57,7 +57,7 @@ def add_parser(commands) -> None:
         metavar="FILE",
         help=config_help(
             "[map], [nav_noise], [loop_closure] (with [loop_closure.icp], "
-            "[loop_closure.correlative]), [timing], [pipeline] and [report]"
+            "[loop_closure.correlative]), [pose_graph], [timing], [pipeline] and [report]"
         ),
     )
     mapping.add_argument(

@@ -62,15 +62,20 @@ FIELDS: dict[str, str] = {
     "loop_closures.rejected": "Candidates rejected.",
     "loop_closures.rejected_by_reason": "Rejections counted by the gate that refused them.",
     "loop_closures.rejected_by_reason.*": "Rejections for one reason (`overlap`, `not converged`, `fitness`, "
-    "`refinement`, `drift`, ...).",
+    "`refinement`, `drift`, `inconsistent` (refused by the pose graph's screen), ...).",
     "loop_closures.precision": "Share of accepted closures within 0.2 m and 1 degree of the truth, in the "
     "directions they constrain.",
     "loop_closures.precision_rigid": "The same against the rigid truths (the bends taken out).",
     "loop_closures.precision_ceiling": "Share of accepted pairs whose rigid truths relate within 0.2 m and 1 "
     "degree of the truth: what a registration recovering every rigid truth exactly would score.",
     "loop_closures.errors": "One entry per accepted closure: submaps `i` and `k`, constrained `directions`, "
-    "and its error against the truth (`translation_m`, `rotation_deg`), the rigid truths (`*_rigid`) and the "
-    "rigid truths' own (`*_bend`).",
+    "what the registration measured (`fitness_m2`, the correlative peak's `overlap` and `ambiguity`, the "
+    "screen's `distance` in sigmas), and its error against the truth (`translation_m`, `rotation_deg`), the "
+    "rigid truths (`*_rigid`) and the rigid truths' own (`*_bend`).",
+    "loop_closures.rejections": "One entry per rejected candidate, in the order they were judged: submaps `i` "
+    "and `k`, the `reason`, the figure that failed (`value`) and its bound (`limit`), and on runs with ground "
+    "truth the error of what the alignment found against the true and the rigid-truth relative pose "
+    "(`translation_m`, `translation_m_rigid`; null where the alignment did not run): whether the gate was right.",
     "timing_s": "Where the time went, seconds (kernel compilation excluded).",
     "timing_s.pipeline": "Wall time of the pipeline, without the timing probes.",
     "timing_s.scans_per_s": "Scans mapped per second.",
@@ -102,7 +107,7 @@ FIELDS: dict[str, str] = {
 }
 
 # Fields below these are described as a whole (settings, lists of series).
-OPAQUE = ("config", "loop_closures.errors", "timing_s.curves.*", "fig9.*")
+OPAQUE = ("config", "loop_closures.errors", "loop_closures.rejections", "timing_s.curves.*", "fig9.*")
 
 
 def describe(path: str) -> str | None:
