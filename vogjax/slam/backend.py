@@ -300,13 +300,14 @@ class PoseGraph:
         ----------
         i, k : int
             Submap ids, different, both in the graph.
-        T_i_k : array_like
-            (4, 4) rigid transform: where submap k's base pose sits in submap i's frame.
-        covariance : array_like
-            (6, 6) symmetric positive definite, GTSAM tangent order (rotation, translation).
-        basis : array_like, optional
-            (6, r) orthonormal columns: only these directions are constrained (a partial
-            factor, with covariance basis^T covariance basis); None constrains all six.
+        T_i_k : (4, 4) array_like of float
+            Rigid transform: where submap k's base pose sits in submap i's frame.
+        covariance : (6, 6) array_like of float
+            Symmetric positive definite, GTSAM tangent order (rotation, translation; rad and
+            m), its eigenvalues in [1e-12, 1e12] (sigmas from a micrometre to a megametre).
+        basis : (6, r) array_like of float or None, optional
+            Orthonormal columns: only these directions are constrained (a partial factor, with
+            covariance basis^T covariance basis); None constrains all six.
 
         Returns
         -------
