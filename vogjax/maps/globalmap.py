@@ -387,8 +387,13 @@ class GlobalMap(BlockMap):
         ----------
         vog : VogMap
             The submaps at their current poses.
-        eps_rot, eps_trans, eps_move_m : float, optional
-            As for `update_poses` (radians, metres, metres).
+        eps_rot : float, optional
+            S1's rotation threshold, radians, as for `update_poses`.
+        eps_trans : float, optional
+            S1's translation threshold, metres, as for `update_poses`.
+        eps_move_m : float, optional
+            S1's threshold on how far a corner of a submap's box moves, metres (0: not
+            applied), as for `update_poses`.
 
         Returns
         -------
