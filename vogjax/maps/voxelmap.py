@@ -277,7 +277,11 @@ class VoxelMap(BlockMap):
         ----------
         tree : vogjax.io.octomap_read.OctreeLeaves
             From `read_octree` (a file) or `vogjax.io.octomap_bag.read_octomap_message`.
-        config, device, max_voxels
+        config : MapConfig or None, optional
+            As for `from_octomap`.
+        device : str or warp.Device or None, optional
+            As for `from_octomap`.
+        max_voxels : int, optional
             As for `from_octomap`.
         where : str, optional
             The tree's source, for error messages.
