@@ -26,3 +26,32 @@ def test_kernels_all_names_every_module():
         assert getattr(kernels, name).__name__ == f"vogjax.kernels.{name}"
     with pytest.raises(AttributeError):
         _ = kernels.no_such_module
+
+
+def test_api_check_finds_what_the_reference_would_miss(monkeypatch):
+    from tests import api_docs
+
+    def scale(points, factor=2.0):
+        return points
+
+    def shift(points: list, offset_m: float = 1.0) -> list:
+        """Shift points.
+
+        Parameters
+        ----------
+        points : list
+            The points.
+
+        Returns
+        -------
+        list
+            The shifted points.
+        """
+        return points
+
+    public = [("vogjax.scale", scale), ("vogjax.shift", shift)]
+    monkeypatch.setattr(api_docs, "public_objects", lambda: public)
+    assert api_docs.problems() == [
+        "vogjax.scale: no docstring",
+        "vogjax.shift: parameters not in its Parameters section: offset_m",
+    ]
