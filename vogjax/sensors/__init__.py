@@ -10,13 +10,16 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.config import PointCloudConfig, SonarConfig
+from vogjax.config.lidar import LidarConfig
 from vogjax.sensors.base import RangeSensor, world_rays
+from vogjax.sensors.lidar import T_VEHICLE_LIDAR, SpinningLidar
 from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
 
 KINDS = {
     ProfilingSonar.kind: (ProfilingSonar, SonarConfig),
     PointCloudSensor.kind: (PointCloudSensor, PointCloudConfig),
+    SpinningLidar.kind: (SpinningLidar, LidarConfig),
 }
 
 
@@ -47,10 +50,12 @@ def as_sensor(sensor) -> RangeSensor:
 
 __all__ = [
     "KINDS",
+    "T_VEHICLE_LIDAR",
     "T_VEHICLE_SONAR",
     "PointCloudSensor",
     "ProfilingSonar",
     "RangeSensor",
+    "SpinningLidar",
     "as_sensor",
     "from_metadata",
     "world_rays",
