@@ -20,8 +20,10 @@ class IcpConfig(Config):
     the number of inliers are degenerate (per inlier, so the threshold does not depend on the
     cloud's size; a unit normal contributes at most 1 to a translation direction; above zero:
     a direction with no information at all must never count as constrained); min_inliers;
-    free: the directions point-to-plane ICP solves for, "all" six or only the "translation"
-    (the rotation held where it starts: when navigation knows it better than the clouds do).
+    free: the directions point-to-plane ICP solves for, "all" six, "yaw" (the translation and
+    the rotation about the source's z axis: pitch and roll held, where they are measured
+    absolutely but the heading drifts) or only the "translation" (the rotation held where it
+    starts: when navigation knows it better than the clouds do).
     A translation-only pair that can only cycle stops before max_iterations, unconverged."""
 
     max_iterations: int = integer(50, low=1, high=10_000)
@@ -30,7 +32,7 @@ class IcpConfig(Config):
     normal_neighbours: int = integer(10, low=3, high=1000)
     lambda_min: float = positive(0.01)
     min_inliers: int = integer(10, low=3)
-    free: str = text("all", ("all", "translation"))
+    free: str = text("all", ("all", "yaw", "translation"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +63,11 @@ class LoopClosureConfig(Config):
     voxels; min_separation: |i - k| at least this (neighbours are tied by odometry already);
     max_candidates: the earlier submaps nearest to k are aligned, at most this many;
     max_fitness_m2: mean squared inlier distance; drift_sigmas: accept results within this many
-    drift sigmas of odometry.
+    drift sigmas of odometry (in x-y: the x and y drift over the time between the two submaps
+    and, when ICP solves the yaw, the x-y error a drifting yaw leaves over the path between
+    them; in yaw, when ICP solves it: the yaw drift); registration_voxel_m: the submap clouds
+    registered are the returns' means per voxel of this size (0: the map's voxel size; a
+    lidar's clouds are registered coarser than they are mapped).
     The closure's covariance: ICP's own (fitness times the inverse of J^T J) is overconfident,
     each submap being bent by the drift within it (0.17 m sigma over 20 s at the default rates),
     which moves all its points together. registration_sigma_m models that: along each
@@ -89,6 +95,7 @@ class LoopClosureConfig(Config):
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)
+    registration_voxel_m: float = number(0.0, low=0, high=1e3)
     registration_sigma_m: float = number(0.025, low=0, high=1e3)
     min_information: float = number(0.05, low=0, high=1)
     # at most 1e5 (m or rad): a sigma floor squared must stay a variance the pose graph takes (<= 1e12)

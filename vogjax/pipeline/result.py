@@ -39,8 +39,10 @@ class Result:
     confidence-rich map or None), one `SubmapRecord` per submap, the optimised
     base poses (N,4,4), loop closures by verdict, per-step `timings` (step -> seconds per
     submap or per batch; "reapplied" and "closures" count per submap), every scan's time (S,),
-    navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None) and the
-    timing `probes` (dicts: submaps, full_merge_s, query_global_s, query_virtual_s)."""
+    navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None), the
+    timing `probes` (dicts: submaps, full_merge_s, query_global_s, query_virtual_s) and `returns`
+    (total: returns read; beyond_reach: those past reach_m, the map's range or the sensor's,
+    which became free space up to it)."""
 
     config: PipelineConfig
     global_map: GlobalMap
@@ -58,6 +60,7 @@ class Result:
     scan_truth: np.ndarray | None
     truth_vog: VogMap | None = None
     probes: tuple = ()
+    returns: dict = dataclasses.field(default_factory=dict)
 
     @property
     def scans(self) -> int:

@@ -7,10 +7,12 @@ turn). The pose is a closed-form function of time (`poses`), so a spinning lidar
 is cast from where the vehicle truly was when it fired. The floor is not perfectly level: the
 base pitches and rolls by a few tenths of a degree as it drives.
 
-Wheel odometry (`WHEEL_ODOMETRY`) is Sodhi et al.'s Eq. 10 drift with a ground vehicle's
-figures: x, y and yaw noise on every step accumulate (wheel slip: the heading random-walks at
-0.2 degrees per square-root second, 100 times the HAUV's gyro variance), while z, pitch and roll
-stay tied to the truth (the floor and an inclinometer measure them absolutely).
+The wheel odometry a run records (`vogjax.config.presets.WHEEL_ODOMETRY`, drifted by
+`vogjax.sim.navigation.drifting_navigation` at `ODOMETRY_RATE_HZ`) is Sodhi et al.'s Eq. 10
+drift with a ground vehicle's figures: x, y and yaw noise on every step accumulate (wheel slip:
+the heading random-walks at 0.18 degrees per square-root second, 100 times the HAUV gyro's
+variance), while z, pitch and roll stay tied to the truth (the floor and an inclinometer
+measure them absolutely).
 """
 
 from __future__ import annotations
@@ -20,14 +22,10 @@ import dataclasses
 import numpy as np
 import numpy.typing as npt
 
-from vogjax.config import NavNoise
 from vogjax.config.schema import Rule
 from vogjax.geometry import rigid_pose, rotation_from_ypr
 from vogjax.validation import float_array
 
-WHEEL_ODOMETRY = NavNoise(
-    sigma2_x=1e-3, sigma2_y=1e-3, sigma2_yaw=1e-5, sigma2_z=1e-6, sigma2_pitch=1e-7, sigma2_roll=1e-7
-)
 ODOMETRY_RATE_HZ = 100.0  # wheel encoders' rate: the deskewing interpolates between these
 # The floor's unevenness: pitch and roll amplitudes (rad) and frequencies (Hz) while driving.
 WOBBLE = ((0.003, 0.7), (0.002, 1.1))

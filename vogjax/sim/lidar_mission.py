@@ -34,6 +34,7 @@ from tqdm import tqdm
 import vogjax
 from vogjax import scenes
 from vogjax.config import LidarConfig, NavNoise
+from vogjax.config.presets import WHEEL_ODOMETRY
 from vogjax.config.sensing import SonarConfig
 from vogjax.geometry import rotation_from_ypr
 from vogjax.io.atomic import check_writable
@@ -42,7 +43,7 @@ from vogjax.io.deskew import deskew_points
 from vogjax.sensors.base import RangeSensor
 from vogjax.sensors.lidar import SpinningLidar
 from vogjax.sim import navigation, ranging
-from vogjax.sim.ground_vehicle import ODOMETRY_RATE_HZ, WHEEL_ODOMETRY, GroundVehicle
+from vogjax.sim.ground_vehicle import ODOMETRY_RATE_HZ, GroundVehicle
 
 SWEEPS = ("deskewed", "raw", "instant")
 MAX_LAPS = scenes.scene.MAX_LAPS
