@@ -5,6 +5,10 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # Warp compiles kernels once per source change; keep them in the checkout so tests and CI reuse them.
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
+# JAX keeps MJX's compiled vehicle too, so each `vogjax simulate` process after the first skips it.
+export JAX_COMPILATION_CACHE_DIR := $(CURDIR)/.cache/jax
+export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS := 0
+export JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES := -1
 # MkDocs Material's banner about its successor is not a build problem
 export NO_MKDOCS_2_WARNING := 1
 

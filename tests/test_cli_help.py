@@ -323,8 +323,11 @@ def test_map_keeps_an_existing_output_unless_overwrite(files, tmp_path, capsys):
 def test_stdout_carries_results_only_and_warp_speaks_only_when_asked(tmp_path):
     """A fresh process each (Warp prints its CUDA-driver warning at start-up, once)."""
     vogjax = [sys.executable, "-m", "vogjax.cli"]
-    quiet = subprocess.run(
-        [*vogjax, "simulate", "--scene", "boxes", "--scans", "5", "--out", str(tmp_path / "a.h5")],
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=0.2, max_range=5.0), device="cpu")
+    vmap.integrate_scan(np.zeros(3), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    vmap.save(tmp_path / "map.vog")
+    quiet = subprocess.run(  # a command that starts Warp (the map's arrays) and prints its result
+        [*vogjax, "export", str(tmp_path / "map.vog"), "--out", str(tmp_path / "a.bt")],
         capture_output=True,
         text=True,
         cwd=tmp_path,

@@ -53,13 +53,13 @@ def octomap_scans(seed=0, scans=8, beams=120, voxel_size=0.1):
 
 
 def test_files_octomap_writes_read_back_voxel_for_voxel(tmp_path):
-    cfg, tree, _ = octomap_scans()
+    cfg, tree, _ = octomap_scans(scans=4, beams=80)
     tree.updateInnerOccupancy()
     (tmp_path / "map.ot").write_bytes(tree.write())
     expected = {k: np.float32(v) for k, v in octomap_leaves(tree, cfg.voxel_size).items()}
     ours = vj.VoxelMap.from_octomap(tmp_path / "map.ot")
     assert ours.config.voxel_size == cfg.voxel_size
-    assert voxel_dict(ours) == expected and len(expected) > 30_000
+    assert voxel_dict(ours) == expected and len(expected) > 10_000
     # writeBinary: max-likelihood at the occupancy threshold, pruned; leaves read as the clamping bounds
     (tmp_path / "map.bt").write_bytes(tree.writeBinary())
     binary = octomap.OcTree(str(tmp_path / "map.bt").encode())

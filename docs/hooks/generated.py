@@ -32,15 +32,16 @@ ROOT = Path(__file__).resolve().parents[2]
 MARKER = re.compile(r"^<!-- generated: ([\w-]+)(?: ([\w.]+))? -->$", re.M)
 
 
-def on_config(config):
-    # a copy, not links: griffe resolves links and would find the checkout's layout again
+def on_startup(command, dirty):
+    # before any plugin's on_config: mkdocstrings drops search paths that do not exist yet, so a
+    # fresh clone would resolve vogjax to the checkout's folder, which has no kernels/ or scenes/.
+    # A copy, not links: griffe resolves links and would find the checkout's layout again.
     source = ROOT / ".cache" / "docs_src" / "vogjax"
     shutil.rmtree(source, ignore_errors=True)
     skip = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(ROOT / "vogjax", source, ignore=skip)
     for package in ("kernels", "scenes"):
         shutil.copytree(ROOT / package, source / package, ignore=skip)
-    return config
 
 
 def on_files(files, config):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
@@ -60,19 +61,33 @@ class RayTables:
 
 @dataclasses.dataclass(frozen=True)
 class RaycastResult:
-    """Per ray: `hit` (R,) bool, an OCCUPIED voxel was met before `max_range`;
-    `distance` (R,) float32, where the ray enters that voxel, else `max_range`;
-    `num_unknown`, `num_free` (R,) int32, voxels of each state passed before it.
-    NumPy arrays, or Warp arrays on the map's device for rays given on the device."""
+    """What a ray cast (`BlockMap.raycast`, `VogMap.raycast`) found along each of R rays.
 
-    hit: np.ndarray
-    distance: np.ndarray
-    num_unknown: np.ndarray
-    num_free: np.ndarray
+    NumPy arrays, or Warp arrays on the map's device for rays given on the device.
+
+    Attributes
+    ----------
+    hit : (R,) ndarray of bool
+        An OCCUPIED voxel was met before `max_range`.
+    distance : (R,) ndarray of float32
+        Where the ray enters that voxel, metres; `max_range` where there was no hit.
+    num_unknown : (R,) ndarray of int32
+        UNKNOWN voxels the ray passed before that voxel (or within its range).
+    num_free : (R,) ndarray of int32
+        FREE voxels the ray passed before that voxel (or within its range).
+    """
+
+    hit: npt.NDArray[np.bool_] | wp.array
+    distance: npt.NDArray[np.float32] | wp.array
+    num_unknown: npt.NDArray[np.int32] | wp.array
+    num_free: npt.NDArray[np.int32] | wp.array
 
 
 class BlockMap:
-    """A map whose voxel blocks carry a float32 "log_odds" layer (NaN: never observed).
+    """The read side shared by every map of hashed 8x8x8 voxel blocks: queries and contents.
+
+    The map's voxel blocks carry a float32 "log_odds" layer (NaN: never observed). `VoxelMap`,
+    `Submap` and `GlobalMap` are BlockMaps: make one of those, not a BlockMap itself.
 
     Queries hold the map's read lock, so they may run from many threads while updates, which
     hold its write lock, wait for them and see no reader mid-way.
@@ -81,9 +96,31 @@ class BlockMap:
     of voxel_size * 2^k aligned as OctoMap's depth 16 - k, each holding the largest log-odds of
     its observed voxels (unknown when none is observed), OctoMap's inner-node value. A level is
     built on its first query and kept current by every write after (`vogjax.maps.levels`).
+
+    Parameters
+    ----------
+    config : MapConfig or None
+        Voxel size, sensor model, thresholds and clamping (None: ``MapConfig()``).
+    device : str or warp.Device or None
+        Warp device; None picks CUDA when available, else the CPU.
+    layers : dict of str to (dtype, value)
+        The layers the blocks carry besides "log_odds": name -> (Warp dtype, value of a voxel
+        never written).
+
+    Attributes
+    ----------
+    config : MapConfig
+        The map's settings.
+    device : warp.Device
+        Where the map lives.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a MapConfig or `device` is not available.
     """
 
-    def __init__(self, config: MapConfig | None, device, layers: dict):
+    def __init__(self, config: MapConfig | None, device: str | wp.Device | None, layers: dict[str, tuple]):
         if config is not None and not isinstance(config, MapConfig):
             raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
         self.config = config or MapConfig()
@@ -110,8 +147,14 @@ class BlockMap:
         """The block storage, for kernel launchers in vogjax.maps (read it under `reading()`)."""
         return self._store
 
-    def reading(self):
-        """Context manager holding the map's read lock: no update runs while it is held."""
+    def reading(self) -> contextlib.AbstractContextManager[None]:
+        """Hold the map's read lock: no update runs while it is held.
+
+        Returns
+        -------
+        contextlib.AbstractContextManager
+            A context manager; other readers may hold the lock at the same time.
+        """
         return self._lock.reading()
 
     def store_at(self, level: int = 0) -> BlockStore:
@@ -122,13 +165,14 @@ class BlockMap:
 
         Parameters
         ----------
-        level : int
+        level : int, optional
             0: the map's own store (`store`); k in [1, 15]: the store of level k, whose voxels
             have the edge `vogjax.maps.levels.level_scales(config.voxel_size, k)[0]`.
 
         Returns
         -------
         BlockStore
+            The level's blocks, current with every write so far.
 
         Raises
         ------
@@ -269,75 +313,95 @@ class BlockMap:
             )
         return values.numpy()
 
-    def log_odds(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+    def log_odds(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
         """Log-odds of the voxels holding `points`.
 
         Parameters
         ----------
-        points : array_like
-            (M,3) world points, metres.
-        level : int
-            0: the map's voxels; k >= 1: the voxel of edge voxel_size * 2^k holding each point
-            (the maximum log-odds of its observed voxels).
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: the voxel of edge voxel_size * 2^k holding each
+            point (the maximum log-odds of its observed voxels).
 
         Returns
         -------
-        numpy.ndarray
-            (M,) float32, 0.0 where unknown.
+        (M,) ndarray of float32
+            The log-odds; 0.0 where unknown (never observed).
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3), holds NaN or infinite values, or `level` is no integer
+            in [0, 15].
         """
         return np.nan_to_num(self._lookup(points, level), nan=0.0)
 
-    def probability(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+    def probability(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
         """Occupancy probability of the voxels holding `points`.
 
         Parameters
         ----------
-        points : array_like
-            (M,3) world points, metres.
-        level : int
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
             As for `log_odds`.
 
         Returns
         -------
-        numpy.ndarray
-            (M,) float32, 0.5 where unknown.
+        (M,) ndarray of float32
+            Probabilities in [0, 1]; 0.5 where unknown.
+
+        Raises
+        ------
+        ValueError
+            As for `log_odds`.
         """
         return probability_from_log_odds(self.log_odds(points, level))
 
-    def state(self, points: npt.ArrayLike, level: int = 0) -> np.ndarray:
+    def state(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.int8]:
         """States of the voxels holding `points`.
 
         Parameters
         ----------
-        points : array_like
-            (M,3) world points, metres.
-        level : int
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
             As for `log_odds`. A coarse voxel is OCCUPIED when any of its voxels is, FREE when
             its most occupied observed voxel is FREE (unobserved ones do not count).
 
         Returns
         -------
-        numpy.ndarray
-            (M,) int8: UNKNOWN (never observed, or between the thresholds), FREE or OCCUPIED.
+        (M,) ndarray of int8
+            UNKNOWN (never observed, or between the thresholds), FREE or OCCUPIED.
+
+        Raises
+        ------
+        ValueError
+            As for `log_odds`.
         """
         return classify(self._lookup(points, level), self.config)
 
     # ---------------------------------------------------------------- ray queries
     def raycast(
-        self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike, level: int = 0
+        self,
+        origins: npt.ArrayLike | wp.array,
+        directions: npt.ArrayLike | wp.array,
+        max_range: float | npt.ArrayLike | wp.array,
+        level: int = 0,
     ) -> RaycastResult:
         """First OCCUPIED voxel along each ray, within `max_range` metres.
 
         Parameters
         ----------
-        origins : array_like or warp.array
-            (R,3) float64 ray origins inside the key range.
-        directions : array_like or warp.array
-            (R,3) directions of any nonzero length (normalised in the kernel, as
+        origins : (R, 3) array_like of float or warp.array
+            Ray origins, metres, world frame, inside the key range (float64).
+        directions : (R, 3) array_like of float or warp.array
+            Directions of any nonzero length (normalised in the kernel, as
             `unit_directions` does).
-        max_range : float or array_like or warp.array
-            One range for every ray, or (R,) float64, metres, positive.
-        level : int
+        max_range : float or (R,) array_like of float or warp.array
+            One range for every ray, or one per ray (float64), metres, positive.
+        level : int, optional
             0: the map's voxels; k in [1, 15]: voxels of edge voxel_size * 2^k (see `state`).
 
         Returns
@@ -348,8 +412,9 @@ class BlockMap:
         Raises
         ------
         ValueError
-            Naming the argument: NaN, infinite or out-of-range origins, zero directions, ranges
-            that are not positive, a bad level.
+            Naming the argument: arrays of the wrong shape, NaN, infinite or out-of-range
+            origins, zero directions, ranges that are not positive, a bad level; for rays on
+            the device, Warp arrays of another dtype, shape or device, or mixed with NumPy ones.
 
         Notes
         -----
@@ -500,22 +565,31 @@ class BlockMap:
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return out
 
-    def line_query(self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def line_query(
+        self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int32]]:
         """Log-odds of every voxel from the voxel of each start to that of its end, inclusive.
 
         Parameters
         ----------
-        starts, ends : array_like
-            (R,3) world points, metres.
-        level : int
-            0: the map's voxels; k >= 1: the voxels of edge voxel_size * 2^k (see `state`).
+        starts, ends : (R, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: the voxels of edge voxel_size * 2^k (see
+            `state`).
 
         Returns
         -------
-        values : numpy.ndarray
-            (R,S) float32, 0.0 where unknown, NaN past each line's end.
-        lengths : numpy.ndarray
-            (R,) int32, the number of voxels of each line.
+        values : (R, S) ndarray of float32
+            Log-odds along each line, S its longest; 0.0 where unknown, NaN past each line's end.
+        lengths : (R,) ndarray of int32
+            The number of voxels of each line.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument: arrays of the wrong shape, NaN, infinite or out-of-range
+            points, a line crossing more than MAX_LINE_VOXELS (65536) voxels, a bad level.
         """
         level = check_level(level)
         starts, ends = line_arguments(self.config, starts, ends, level)
@@ -543,21 +617,26 @@ class BlockMap:
         return values.numpy(), lengths
 
     # ---------------------------------------------------------------- contents
-    def voxels(self, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def voxels(self, level: int = 0) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
         """The observed voxels of a level.
 
         Parameters
         ----------
-        level : int
+        level : int, optional
             0: the map's voxels; k in [1, 15]: the voxels of edge voxel_size * 2^k holding an
             observed one, with their maximum log-odds.
 
         Returns
         -------
-        centres : numpy.ndarray
-            (K,3) float64 voxel centres, metres, sorted by voxel key.
-        log_odds : numpy.ndarray
-            (K,) float32.
+        centres : (K, 3) ndarray of float64
+            Voxel centres, metres, sorted by voxel key.
+        log_odds : (K,) ndarray of float32
+            Their log-odds.
+
+        Raises
+        ------
+        ValueError
+            When `level` is no integer in [0, 15].
         """
         level = check_level(level)
         with self._lock.reading():
@@ -569,11 +648,19 @@ class BlockMap:
 
     @property
     def num_blocks(self) -> int:
+        """8x8x8 blocks allocated so far (512 voxels each, observed or not); blocks a GlobalMap
+        released still count (their slots are reused)."""
         return self._store.num_blocks
 
     def memory_bytes(self) -> int:
-        """Bytes of device memory the map holds (table, block pool, per-block scratch, the
-        ray-cast caches)."""
+        """Device memory the map holds.
+
+        Returns
+        -------
+        int
+            Bytes of the hash table, the block pool, the per-block scratch, the coarse levels
+            and the ray-cast caches.
+        """
         cached = [self._ray_tables_cache, *self._level_ray_tables.values()]
         tables = sum(c[1].memory_bytes() for c in cached if c is not None)
         return self._store.memory_bytes() + self._levels.memory_bytes() + tables

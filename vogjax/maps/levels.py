@@ -44,6 +44,7 @@ def check_level(level: int) -> int:
     Returns
     -------
     int
+        The level, as a Python int.
 
     Raises
     ------
@@ -73,7 +74,10 @@ def level_scales(voxel_size: float, level: int) -> tuple[np.float64, np.float64]
 
     Returns
     -------
-    resolution, inv_resolution : numpy.float64
+    resolution : numpy.float64
+        The level's voxel edge, metres.
+    inv_resolution : numpy.float64
+        Its inverse, 1/m.
     """
     return np.float64(np.ldexp(voxel_size, level)), np.float64(np.ldexp(1.0 / voxel_size, -level))
 

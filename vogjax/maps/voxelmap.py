@@ -6,6 +6,7 @@ import os
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax.config import MapConfig
@@ -40,29 +41,88 @@ OCTOMAP_MAX_VOXELS = 1 << 28
 class VoxelMap(BlockMap):
     """Occupancy map with OctoMap's update rule on dense 8x8x8 blocks in a hash table.
 
-    config: MapConfig (voxel size, sensor model, thresholds, clamping, max range)
-    device: Warp device; None picks CUDA when available, else the CPU
+    A scan updates each voxel it reaches once (OctoMap's ``insertPointCloud``): the voxels its
+    beams cross become freer, their end voxels more occupied (occupied wins where both), with
+    the log-odds clamped after every update; the map equals OctoMap's voxel by voxel. Voxel k
+    covers ``[k*s, (k+1)*s)`` on each axis (s: `MapConfig.voxel_size`).
 
     Queries may run from several threads; integration waits for them and holds them off.
+
+    Parameters
+    ----------
+    config : MapConfig or None, optional
+        Voxel size, sensor model, thresholds, clamping and max range (default: ``MapConfig()``).
+    device : str or warp.Device or None, optional
+        Warp device; None picks CUDA when available, else the CPU.
+
+    Attributes
+    ----------
+    config : MapConfig
+        The map's settings.
+    device : warp.Device
+        Where the map lives.
+    revision : int
+        Counts integrations, so derived data (bounds, clouds) knows it is stale.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a MapConfig or `device` is not available.
+
+    Examples
+    --------
+    >>> import vogjax as vj
+    >>> vmap = vj.VoxelMap(vj.MapConfig(voxel_size=0.1), device="cpu")
+    >>> vmap.integrate_scan([0.0, 0.0, 0.0], [[2.05, 0.05, 0.05]])
+    >>> vmap.state([[2.05, 0.05, 0.05], [1.05, 0.05, 0.05]]).tolist() == [vj.OCCUPIED, vj.FREE]
+    True
     """
 
-    def __init__(self, config: MapConfig | None = None, device=None):
+    def __init__(self, config: MapConfig | None = None, device: str | wp.Device | None = None):
         super().__init__(config, device, layers={})
         self.revision = 0  # counts integrations, so derived data (bounds, clouds) knows it is stale
 
     # ---------------------------------------------------------------- integration
-    def integrate_scan(self, origin, points) -> None:
-        """Integrate one scan: `origin` (3,) sensor position, `points` (N,3) beam endpoints."""
+    def integrate_scan(self, origin: npt.ArrayLike, points: npt.ArrayLike) -> None:
+        """Integrate one scan.
+
+        Parameters
+        ----------
+        origin : (3,) array_like of float
+            Sensor position, metres, world frame.
+        points : (N, 3) array_like of float
+            Beam endpoints, metres, world frame; a beam longer than `MapConfig.max_range`
+            gives free space up to it and no hit.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument, before anything changes: an array of the wrong shape, of
+            values that are not real numbers, NaN or infinite, or beyond the key range.
+        """
         origin = float_array("origin", origin, (3,))
         points = float_array("points", points, (-1, 3))
         self._check_extent(origin[None], points)
         self._integrate(origin[None], points, np.zeros(points.shape[0], dtype=np.int32))
 
-    def integrate_scans(self, origins, points, scan_index) -> None:
-        """Integrate a batch of scans; the same map, bit for bit, as `integrate_scan` in order.
+    def integrate_scans(self, origins: npt.ArrayLike, points: npt.ArrayLike, scan_index: npt.ArrayLike) -> None:
+        """Integrate a batch of scans: the same map, bit for bit, as `integrate_scan` in order.
 
-        origins (S,3): sensor position per scan; points (N,3): beam endpoints;
-        scan_index (N,): the scan each point belongs to, in [0, S).
+        Parameters
+        ----------
+        origins : (S, 3) array_like of float
+            Sensor position per scan, metres, world frame.
+        points : (N, 3) array_like of float
+            Beam endpoints, metres, world frame.
+        scan_index : (N,) array_like of int
+            The scan each point belongs to, in [0, S) (in any order: scans are integrated in
+            the order of their index).
+
+        Raises
+        ------
+        ValueError
+            Naming the argument, before anything changes: as for `integrate_scan`, or
+            `scan_index` not integers in [0, S), one per point.
         """
         origins = float_array("origins", origins, (-1, 3))
         points = float_array("points", points, (-1, 3))
@@ -90,8 +150,20 @@ class VoxelMap(BlockMap):
             self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
 
     # ---------------------------------------------------------------- files
-    def save(self, path) -> None:
-        """Write the map (config included) to one file, atomically."""
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the map, settings included, to one map file, atomically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file to write (replaced if it exists; a reader sees the old file or the
+            whole new one).
+
+        Raises
+        ------
+        ValueError
+            If `path` cannot be written (see `vogjax.io.write_map_file`).
+        """
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
         write_map_file(
@@ -99,7 +171,28 @@ class VoxelMap(BlockMap):
         )
 
     @classmethod
-    def load(cls, path, device=None) -> VoxelMap:
+    def load(cls, path: str | os.PathLike, device: str | wp.Device | None = None) -> VoxelMap:
+        """Read a map written by `save`, checking the whole file and its contents.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file.
+        device : str or warp.Device or None, optional
+            Warp device for the map (None: CUDA when available, else the CPU).
+
+        Returns
+        -------
+        VoxelMap
+            The map, the same bit for bit as the one saved.
+
+        Raises
+        ------
+        ValueError
+            Naming the path if the file is not a valid VoxelMap file (damaged, another kind of
+            map, block keys that are not valid, log-odds of the wrong type or shape, or outside
+            the clamping range of its settings).
+        """
         metadata, arrays = read_map_file(path, "VoxelMap")
         try:
             config = MapConfig.from_dict(metadata["config"])
@@ -129,7 +222,7 @@ class VoxelMap(BlockMap):
         cls,
         path: str | os.PathLike,
         config: MapConfig | None = None,
-        device=None,
+        device: str | wp.Device | None = None,
         max_voxels: int = OCTOMAP_MAX_VOXELS,
     ) -> VoxelMap:
         """A map holding the voxels of an OctoMap file (.bt or .ot, told by its first line).
@@ -143,18 +236,19 @@ class VoxelMap(BlockMap):
         ----------
         path : str or os.PathLike
             The OctoMap file.
-        config : MapConfig or None
+        config : MapConfig or None, optional
             Thresholds, clamping and sensor model of the map; its voxel_size must equal the
             file's resolution. None: `MapConfig(voxel_size=<the file's resolution>)`.
-        device : str, warp.context.Device or None
+        device : str or warp.Device or None, optional
             Where the map lives (None: CUDA if available, else the CPU).
-        max_voxels : int
+        max_voxels : int, optional
             Budget of voxel slots (512 per 8x8x8 block) the tree may expand to; a larger tree is
-            refused before anything is allocated.
+            refused before anything is allocated (default 2^28: 1 GiB of log-odds).
 
         Returns
         -------
         VoxelMap
+            The tree's voxels as a map of `config`'s settings.
 
         Raises
         ------
@@ -173,7 +267,7 @@ class VoxelMap(BlockMap):
         cls,
         tree: OctreeLeaves,
         config: MapConfig | None = None,
-        device=None,
+        device: str | wp.Device | None = None,
         max_voxels: int = OCTOMAP_MAX_VOXELS,
         where: str = "tree",
     ) -> VoxelMap:
@@ -183,14 +277,19 @@ class VoxelMap(BlockMap):
         ----------
         tree : vogjax.io.octomap_read.OctreeLeaves
             From `read_octree` (a file) or `vogjax.io.octomap_bag.read_octomap_message`.
-        config, device, max_voxels
+        config : MapConfig or None, optional
             As for `from_octomap`.
-        where : str
+        device : str or warp.Device or None, optional
+            As for `from_octomap`.
+        max_voxels : int, optional
+            As for `from_octomap`.
+        where : str, optional
             The tree's source, for error messages.
 
         Returns
         -------
         VoxelMap
+            The tree's voxels, as `from_octomap` gives them.
 
         Raises
         ------

@@ -1,4 +1,17 @@
-"""SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection."""
+"""SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection.
+
+- `PoseGraph`: submap base poses on iSAM2, odometry factors from the navigation's drift, loop
+  closures screened against the graph (`ClosureCheck`) and entered with a robust loss;
+- `LoopClosureDetector`: candidate pairs of submaps, aligned and accepted or rejected
+  (`LoopClosure`, `Rejection`);
+- `correlative_xyh`: the x-y-yaw search over the navigation's drift that seeds ICP
+  (`CorrelativeMatch`);
+- `icp`: point-to-plane (degeneracy-aware) and 2D point-to-point ICP, batched (`IcpResult`,
+  `IcpTarget`).
+
+Poses are (4, 4) rigid transforms named by their frames (``T_world_submap``, ``T_i_k``);
+covariances and tangents follow GTSAM's Pose3 order, rotation then translation.
+"""
 
 from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
 from vogjax.geometry import pose_deltas

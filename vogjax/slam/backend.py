@@ -154,16 +154,38 @@ def _covariance(name: str, covariance, size: int) -> np.ndarray:
 class PoseGraph:
     """Submap base poses optimised incrementally with iSAM2.
 
+    Node i is submap i's base pose ``T_world_submap``. Factors (Sodhi et al. Eq. 3): a prior on
+    the first pose; per new submap a relative x-y-yaw factor to the previous one and a unary
+    depth-pitch-roll factor, their covariances the navigation's drift per second times the time
+    between the two base poses; loop closures (`add_loop_closure`), screened against the graph
+    and with a robust loss (`PoseGraphConfig`). iSAM2 receives only the new factors each
+    `update`. Covariances and tangents are in GTSAM's Pose3 order: rotation, then translation.
+
     Parameters
     ----------
-    noise : NavNoise, optional
-        Drift of the navigation per second (the odometry factors' covariances).
-    prior_pose : array_like, optional
-        (4, 4) where the first submap is anchored (identity by default).
-    prior_sigmas : array_like, optional
-        (6,) sigmas of the anchor (rad, rad, rad, m, m, m).
-    config : PoseGraphConfig, optional
-        How loop closures enter: the screen and the robust loss.
+    noise : NavNoise or None, optional
+        Drift of the navigation per second (the odometry factors' covariances; default:
+        ``NavNoise()``).
+    prior_pose : (4, 4) array_like of float or None, optional
+        Where the first submap is anchored, a rigid transform (None: the identity).
+    prior_sigmas : (6,) array_like of float, optional
+        Sigmas of the anchor (rad, rad, rad, m, m, m), each in [1e-6, 1e6] (default: 1e-4 rad
+        and 1e-3 m).
+    config : PoseGraphConfig or None, optional
+        How loop closures enter: the screen and the robust loss (default:
+        ``PoseGraphConfig()``).
+
+    Attributes
+    ----------
+    config : PoseGraphConfig
+        The loop-closure settings.
+    noise : NavNoise
+        The navigation's drift.
+    prior_pose : (4, 4) ndarray of float64
+        The anchor of the first submap.
+    factors : list of tuple
+        (kind, keys) of every factor added, for inspection: kind "prior", "xyh", "zpr", "loop"
+        or "partial_loop", keys the submap ids it ties.
 
     Raises
     ------
@@ -203,10 +225,35 @@ class PoseGraph:
 
     @property
     def num_submaps(self) -> int:
+        """Nodes in the graph, optimised or not yet (their ids are 0 to num_submaps - 1)."""
         return len(self._nav)
 
-    def add_submap(self, T_world_submap_nav, duration_s: float = 0.0) -> int:
-        """A new node at the navigation pose; `duration_s`: time since the previous base pose."""
+    def add_submap(self, T_world_submap_nav: npt.ArrayLike, duration_s: float = 0.0) -> int:
+        """Add a node at a submap's navigation base pose, tied to the previous one by odometry.
+
+        The node starts from the optimised previous pose moved by the navigation's relative
+        motion; it is optimised at the next `update`.
+
+        Parameters
+        ----------
+        T_world_submap_nav : (4, 4) array_like of float
+            The submap's base pose as the navigation has it, a rigid transform.
+        duration_s : float, optional
+            Time since the previous base pose, seconds, in [1e-3, 1e7] (ignored for the first
+            node, which gets the prior): the odometry factors' covariances grow with it.
+
+        Returns
+        -------
+        int
+            The new node's submap id.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes: a pose that is not rigid, `duration_s` not a number in
+            [1e-3, 1e7] s, or a step from the previous base pose of more than 1e7 drift sigmas
+            in x-y (a jump the pose graph cannot weigh).
+        """
         T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
         i = self.num_submaps
         if i > 0 and not (
@@ -253,13 +300,14 @@ class PoseGraph:
         ----------
         i, k : int
             Submap ids, different, both in the graph.
-        T_i_k : array_like
-            (4, 4) rigid transform: where submap k's base pose sits in submap i's frame.
-        covariance : array_like
-            (6, 6) symmetric positive definite, GTSAM tangent order (rotation, translation).
-        basis : array_like, optional
-            (6, r) orthonormal columns: only these directions are constrained (a partial
-            factor, with covariance basis^T covariance basis); None constrains all six.
+        T_i_k : (4, 4) array_like of float
+            Rigid transform: where submap k's base pose sits in submap i's frame.
+        covariance : (6, 6) array_like of float
+            Symmetric positive definite, GTSAM tangent order (rotation, translation; rad and
+            m), its eigenvalues in [1e-12, 1e12] (sigmas from a micrometre to a megametre).
+        basis : (6, r) array_like of float or None, optional
+            Orthonormal columns: only these directions are constrained (a partial factor, with
+            covariance basis^T covariance basis); None constrains all six.
 
         Returns
         -------
@@ -354,8 +402,14 @@ class PoseGraph:
         scale = float(np.sqrt(max(np.linalg.eigvalsh((whitened + whitened.T) / 2).max(), 1.0)))
         return ClosureCheck(bool(distance <= limit), distance, limit, B.shape[1], scale)
 
-    def update(self) -> np.ndarray:
-        """Hand the new factors to iSAM2; (N,4,4) optimised poses."""
+    def update(self) -> npt.NDArray[np.float64]:
+        """Hand the new factors and nodes to iSAM2 and read the estimate back.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            The optimised base poses ``T_world_submap`` of all N submaps, a copy.
+        """
         if self._pending.size() or self._pending_values.size():
             self._isam.update(self._pending, self._pending_values)
             self._pending = gtsam.NonlinearFactorGraph()
@@ -364,15 +418,47 @@ class PoseGraph:
             self._estimates = np.stack([estimate.atPose3(i).matrix() for i in range(self.num_submaps)])
         return self._estimates.copy()
 
-    def poses(self) -> np.ndarray:
-        """(N,4,4) poses as of the last update."""
+    def poses(self) -> npt.NDArray[np.float64]:
+        """The optimised poses as of the last `update`.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            ``T_world_submap`` of the N submaps optimised so far, a copy.
+        """
         return self._estimates.copy()
 
-    def navigation_poses(self) -> np.ndarray:
+    def navigation_poses(self) -> npt.NDArray[np.float64]:
+        """The navigation's base poses, as added.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            ``T_world_submap_nav`` of every node, in the order added.
+        """
         return np.stack(self._nav) if self._nav else np.zeros((0, 4, 4))
 
-    def marginals(self, ids) -> np.ndarray:
-        """(n,6,6) marginal covariances of `ids` (GTSAM tangent order), as of the last update."""
+    def marginals(self, ids: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Marginal covariances of some poses, as of the last `update`.
+
+        What `GlobalMap.update_poses` takes (S2 of Algorithm 1).
+
+        Parameters
+        ----------
+        ids : int or (n,) array_like of int
+            Submap ids, updated at least once.
+
+        Returns
+        -------
+        (n, 6, 6) ndarray of float64
+            iSAM2's marginal covariance of each pose, GTSAM tangent order (rotation, then
+            translation; rad and m).
+
+        Raises
+        ------
+        ValueError
+            If `ids` are not integers, or hold ids unknown or not yet updated.
+        """
         array = np.atleast_1d(np.asarray(ids))
         if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
             raise ValueError(f"ids must be submap ids, got {ids!r}")

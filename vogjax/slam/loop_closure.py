@@ -27,8 +27,11 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
+import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
@@ -40,18 +43,43 @@ from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
 @dataclasses.dataclass(frozen=True)
 class LoopClosure:
     """A constraint T_world_i^-1 T_world_k = T_i_k for PoseGraph.add_loop_closure, with the
-    evidence it was accepted on."""
+    evidence it was accepted on.
+
+    Attributes
+    ----------
+    i : int
+        The earlier submap.
+    k : int
+        The later submap (the new one when detected).
+    T_i_k : (4, 4) ndarray of float64
+        Where submap k's base pose sits in submap i's frame (ICP's T_target_source, i the
+        target).
+    covariance : (6, 6) ndarray of float64
+        The closure's covariance, GTSAM tangent order (rotation, then translation; rad and m).
+    basis : (6, r) ndarray of float64 or None
+        The directions a partial factor constrains (orthonormal columns); None for a full one.
+    fitness : float
+        ICP's mean squared inlier distance, m^2.
+    num_inliers : int
+        ICP's inliers (source points matched).
+    overlap : float
+        The aligner's overlap score (correlative peak); NaN when it has none.
+    ambiguity : float
+        Runner-up over peak score (0: unambiguous, 1: a tie); NaN when it has none.
+    distance : float
+        Mahalanobis distance from the graph's estimate at entry (NaN: not screened).
+    """
 
     i: int
     k: int
-    T_i_k: np.ndarray
-    covariance: np.ndarray  # (6,6), GTSAM order
-    basis: np.ndarray | None  # (6,r) for a partial factor, None for a full one
-    fitness: float  # mean squared inlier distance, m^2
+    T_i_k: npt.NDArray[np.float64]
+    covariance: npt.NDArray[np.float64]
+    basis: npt.NDArray[np.float64] | None
+    fitness: float
     num_inliers: int
-    overlap: float = np.nan  # the aligner's overlap score (correlative peak)
-    ambiguity: float = np.nan  # runner-up over peak score (0: unambiguous, 1: a tie)
-    distance: float = np.nan  # Mahalanobis distance from the graph's estimate at entry (NaN: not screened)
+    overlap: float = np.nan
+    ambiguity: float = np.nan
+    distance: float = np.nan
 
 
 REASONS = (
@@ -73,8 +101,10 @@ class Rejection:
 
     Attributes
     ----------
-    i, k : int
-        The submaps (i earlier).
+    i : int
+        The earlier submap.
+    k : int
+        The later submap (the new one when detected).
     reason : str
         The first test it failed (`REASONS`): "overlap" (correlative peak score), "ambiguous"
         (runner-up over peak), "not converged" (ICP), "fitness" (mean squared inlier distance),
@@ -101,7 +131,7 @@ class Rejection:
     deviation_m: float
     value: float = np.nan
     limit: float = np.nan
-    T_i_k: np.ndarray | None = None
+    T_i_k: npt.NDArray[np.float64] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,12 +188,48 @@ ALIGNERS = {"correlative_icp": correlative_then_icp}
 
 
 class LoopClosureDetector:
-    """Finds loop closures of each new submap with earlier ones. device: None aligns on the host
-    (FFTs and k-d trees); a Warp device runs the correlative searches and ICP's neighbour
-    queries there (`correlative_xyh_batch`, `icp_batch`), with the same closures but at
-    near-exact ties."""
+    """Finds loop closures of each new submap with earlier ones (Ho, thesis 4.2).
 
-    def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None, device=None):
+    Candidates (`candidates`) are aligned by the configured aligner (a correlative x-y-yaw
+    search seeding ICP) and accepted or rejected by the criteria of `LoopClosureConfig`
+    (`detect`). A submap's cloud is prepared for ICP once and kept while its points stay the
+    same.
+
+    Parameters
+    ----------
+    noise : NavNoise or None, optional
+        The navigation's drift per second: how far the search looks and how far a result may
+        lie from odometry (default: ``NavNoise()``).
+    config : LoopClosureConfig or None, optional
+        The search, ICP and acceptance settings (default: ``LoopClosureConfig()``).
+    device : str or warp.Device or None, optional
+        None aligns on the host (FFTs and k-d trees); a Warp device runs the correlative
+        searches and ICP's neighbour queries there (`correlative_xyh_batch`, `icp_batch`), with
+        the same closures but at near-exact ties.
+
+    Attributes
+    ----------
+    noise : NavNoise
+        The navigation's drift.
+    config : LoopClosureConfig
+        The settings.
+    device : warp.Device or None
+        Where alignments run (None: the host).
+    seconds : dict of str to float
+        Seconds per phase ("correlative_search", "icp") in the last `detect` call.
+
+    Raises
+    ------
+    ValueError
+        If `device` is not available.
+    """
+
+    def __init__(
+        self,
+        noise: NavNoise | None = None,
+        config: LoopClosureConfig | None = None,
+        device: str | wp.Device | None = None,
+    ):
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
         self.device = None if device is None else devices.resolve(device)
@@ -184,8 +250,36 @@ class LoopClosureDetector:
             self.seconds["icp"] += time.perf_counter() - start
         return kept
 
-    def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
-        """Earlier submaps worth aligning with k (the thesis's precondition)."""
+    def candidates(
+        self,
+        k: int,
+        clouds: Sequence[npt.NDArray[np.floating]],
+        bounds: Sequence[tuple[npt.NDArray[np.floating], npt.NDArray[np.floating]] | None],
+        poses: npt.NDArray[np.floating],
+    ) -> list[int]:
+        """Earlier submaps worth aligning with k (the thesis's precondition).
+
+        A candidate i is at least `min_separation` before k, both clouds hold at least
+        `min_points` points (and 3), and i's box holds the centroid of k's cloud moved by the
+        current relative estimate; of those, the `max_candidates` whose cloud centroid lies
+        nearest it.
+
+        Parameters
+        ----------
+        k : int
+            The new submap's id.
+        clouds : sequence of (N_i, 3) ndarray of float
+            Each submap's occupied points, metres, in its own frame.
+        bounds : sequence of tuple of two (3,) ndarray of float, or None
+            Each submap's (lo, hi) box in its own frame (`Submap.bounds`), None when empty.
+        poses : (N, 4, 4) ndarray of float
+            The current estimates ``T_world_submap``.
+
+        Returns
+        -------
+        list of int
+            The candidates' ids, ascending.
+        """
         cfg = self.config
         least = max(cfg.min_points, 3)  # ICP's least; fewer points are no cloud to align
         if len(clouds[k]) < least:
@@ -204,13 +298,41 @@ class LoopClosureDetector:
         return sorted(found[j] for j in nearest)
 
     def detect(
-        self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray, times_s: np.ndarray
+        self,
+        k: int,
+        clouds: Sequence[npt.NDArray[np.floating]],
+        bounds: Sequence[tuple[npt.NDArray[np.floating], npt.NDArray[np.floating]] | None],
+        poses: npt.NDArray[np.floating],
+        nav_poses: npt.NDArray[np.floating],
+        times_s: npt.NDArray[np.floating],
     ) -> tuple[list[LoopClosure], list[Rejection]]:
         """Loop closures of submap k with earlier submaps.
 
-        clouds[i]: (N,3) occupied points in submap i's frame; bounds[i]: its (lo, hi) box or None;
-        poses, nav_poses: (N,4,4) current estimates and navigation poses; times_s: (N,) times of
-        the base poses, for the drift allowed between two submaps.
+        Each candidate is searched within the drift the navigation may have gathered between
+        the two base poses (`drift_sigmas` sigmas, capped at `max_search_m`), aligned, and
+        accepted or rejected by the first test it fails (`Rejection.reason`).
+
+        Parameters
+        ----------
+        k : int
+            The new submap's id.
+        clouds : sequence of (N_i, 3) ndarray of float
+            clouds[i]: submap i's occupied points, metres, in its own frame.
+        bounds : sequence of tuple of two (3,) ndarray of float, or None
+            bounds[i]: its (lo, hi) box in its own frame, or None.
+        poses : (N, 4, 4) ndarray of float
+            Current estimates ``T_world_submap``.
+        nav_poses : (N, 4, 4) ndarray of float
+            Navigation base poses ``T_world_submap_nav``.
+        times_s : (N,) ndarray of float
+            Times of the base poses, seconds, for the drift allowed between two submaps.
+
+        Returns
+        -------
+        closures : list of LoopClosure
+            The accepted closures, for `PoseGraph.add_loop_closure`.
+        rejections : list of Rejection
+            The candidates that failed, with the figure that failed.
         """
         accepted, rejected = [], []
         self.seconds = dict.fromkeys(self.seconds, 0.0)
