@@ -306,9 +306,9 @@ def _sensor_settings(sensor: str, reach_m: float, rate_hz: float, beams: int) ->
         "loop_closure.registration_voxel_m": cloud,
         "loop_closure.correlative.resolution_m": grid,
         "loop_closure.correlative.yaw_step_rad": 0.01,
-        "loop_closure.icp.max_correspondence_m": 1.5 * cloud,
-        "loop_closure.max_refinement_m": 2 * grid,
-        "loop_closure.max_fitness_m2": (cloud / 2) ** 2,
+        "loop_closure.icp.max_correspondence_m": round(1.5 * cloud, 6),
+        "loop_closure.max_refinement_m": round(2 * grid, 6),
+        "loop_closure.max_fitness_m2": round((cloud / 2) ** 2, 6),
     }
 
 
