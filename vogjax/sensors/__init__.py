@@ -25,7 +25,23 @@ KINDS = {
 
 def from_metadata(metadata: dict) -> RangeSensor:
     """The sensor a run's metadata describes (runs that predate the `sensor` key carry a
-    profiling sonar under `sonar`). ValueError when it names no known sensor."""
+    profiling sonar under `sonar`).
+
+    Parameters
+    ----------
+    metadata : dict
+        The run's metadata (`RangeSensor.metadata` wrote it).
+
+    Returns
+    -------
+    RangeSensor
+        The sensor, with its settings and mount.
+
+    Raises
+    ------
+    ValueError
+        If it names no known sensor or describes it wrongly.
+    """
     kind = metadata.get("sensor", ProfilingSonar.kind)
     if kind not in KINDS:
         raise ValueError(f"metadata names an unknown sensor {kind!r} (known: {', '.join(KINDS)})")
@@ -39,8 +55,24 @@ def from_metadata(metadata: dict) -> RangeSensor:
         raise ValueError(f"metadata describes its sensor wrongly: {error}") from None
 
 
-def as_sensor(sensor) -> RangeSensor:
-    """A RangeSensor as given, or a ProfilingSonar for a SonarConfig."""
+def as_sensor(sensor: RangeSensor | SonarConfig) -> RangeSensor:
+    """A RangeSensor as given, or a ProfilingSonar for a SonarConfig.
+
+    Parameters
+    ----------
+    sensor : RangeSensor or SonarConfig
+        The sensor, or a sonar's settings.
+
+    Returns
+    -------
+    RangeSensor
+        The sensor.
+
+    Raises
+    ------
+    ValueError
+        If `sensor` is neither.
+    """
     if isinstance(sensor, RangeSensor):
         return sensor
     if isinstance(sensor, SonarConfig):

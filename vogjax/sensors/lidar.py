@@ -45,11 +45,30 @@ class SpinningLidar(RangeSensor):
             raise ValueError(f"config must be a LidarConfig, got {type(config).__name__}")
         super().__init__(config, T_VEHICLE_LIDAR if T_vehicle_sensor is None else T_vehicle_sensor)
 
-    beams = property(lambda self: self.config.columns * self.config.rings)
-    rate_hz = property(lambda self: self.config.rate_hz)
-    min_range_m = property(lambda self: self.config.min_range_m)
-    max_range_m = property(lambda self: self.config.max_range_m)
-    range_noise_m = property(lambda self: self.config.range_noise_m)
+    @property
+    def beams(self) -> int:
+        """Beams a scan."""
+        return self.config.columns * self.config.rings
+
+    @property
+    def rate_hz(self) -> float:
+        """Scans a second."""
+        return self.config.rate_hz
+
+    @property
+    def min_range_m(self) -> float:
+        """Nearest range it measures, metres."""
+        return self.config.min_range_m
+
+    @property
+    def max_range_m(self) -> float:
+        """Farthest range it measures, metres."""
+        return self.config.max_range_m
+
+    @property
+    def range_noise_m(self) -> float:
+        """Standard deviation of its simulated range noise, metres."""
+        return self.config.range_noise_m
 
     def ring_directions(self) -> npt.NDArray[np.float64]:
         """The rings' unit directions at azimuth 0 (the first column), sensor frame.
