@@ -115,7 +115,19 @@ class Mapper:
 
         The batch is checked as a run file's scans are (finite, rigid poses; times increasing
         from the last scan added; the beam count and ground truth of the first batch) before
-        anything changes."""
+        anything changes.
+
+        Parameters
+        ----------
+        batch : ScanBatch
+            Consecutive scans of the run.
+
+        Raises
+        ------
+        ValueError
+            If the batch is not finite, its poses not rigid, its times not increasing, or its
+            beams or ground truth differ from the first batch's.
+        """
         self._check(batch)
         if not len(batch):
             return
@@ -299,7 +311,13 @@ class Mapper:
         self.timings["probes"].append(time.perf_counter() - start)
 
     def result(self) -> Result:
-        """The maps and poses so far (every submap finished)."""
+        """The maps and poses so far (every submap finished).
+
+        Returns
+        -------
+        Result
+            The maps, poses, closures and timings.
+        """
         self.finish_submap()
         if (
             self.config.timing.every_submaps
