@@ -259,7 +259,7 @@ class Result:
         -------
         dict
             ``precision``, ``precision_rigid``, ``precision_ceiling`` and ``errors`` (one entry
-            per closure); {} without ground truth.
+            per closure).
         """
         errors = []
         truth, rigid = self.truth, self.rigid_truth
