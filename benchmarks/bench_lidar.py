@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-REVISIT_M = 5.0  # submaps whose true base positions are this close (x-y) see the same place
+REVISIT_M = 2.0  # submaps whose true paths come this close (x-y) drove the same stretch of aisle
 
 
 def main() -> None:
@@ -107,19 +107,24 @@ def map_one(path: Path, seed: int, scans: int | None) -> dict:
 
 
 def closure_share(result, min_separation: int) -> dict:
-    """The truly revisiting pairs (true base positions within REVISIT_M in x-y, at least
-    `min_separation` submaps apart) and the revisiting submaps k, and the shares that got a
-    closure."""
-    truth = result.truth[:, :2, 3]
+    """The truly revisiting pairs (at least `min_separation` submaps apart, the vehicle's true
+    paths while recording them within REVISIT_M of each other: it drove the same stretch of
+    aisle) and the revisiting submaps k, the shares that got a closure, and the closures'
+    precision against the truth."""
+    paths = [
+        result.scan_truth[s.first_scan : s.first_scan + s.scans, :2, 3][:: max(1, s.scans // 20)]
+        for s in result.submaps
+    ]
     pairs = {
         (i, k)
-        for k in range(len(truth))
+        for k in range(len(paths))
         for i in range(k - min_separation + 1)
-        if np.linalg.norm(truth[k] - truth[i]) < REVISIT_M
+        if np.min(np.linalg.norm(paths[k][:, None] - paths[i][None], axis=2)) < REVISIT_M
     }
     closed = {(c.i, c.k) for c in result.loop_closures}
     revisiting = {k for _, k in pairs}
     closed_k = {k for i, k in closed if (i, k) in pairs}
+    loops = result.metrics["loop_closures"]
     return {
         "accepted": len(closed),
         "accepted_on_true_revisits": len(closed & pairs),
@@ -127,6 +132,8 @@ def closure_share(result, min_separation: int) -> dict:
         "pair_share": len(closed & pairs) / len(pairs) if pairs else None,
         "revisiting_submaps": len(revisiting),
         "submap_share": len(closed_k) / len(revisiting) if revisiting else None,
+        "precision": loops.get("precision"),
+        "precision_rigid": loops.get("precision_rigid"),
     }
 
 
