@@ -118,7 +118,7 @@ def test_a_sonar_runs_preset_is_the_defaults_and_its_map_is_unchanged_bit_for_bi
     maps = {}
     for choice in ("auto", "none"):
         out = tmp_path / choice
-        assert cli.main(["map", str(sonar_run), "--out", str(out), "--sensor-preset", choice, "--quiet"]) == 0
+        assert cli.main(["map", str(sonar_run), "--out", str(out), "--sensor-preset", choice]) == 0
         maps[choice] = out / sonar_run.stem
     err = capsys.readouterr().err
     assert 'preset "sonar"' in err and "nothing derived" in err and "settings as given" in err
@@ -134,7 +134,7 @@ def test_map_prints_the_preset_and_warns_of_returns_past_the_maps_reach(lidar_ru
     settings = tmp_path / "settings.toml"
     settings.write_text("[map]\nmax_range = 10.0\n")
     out = tmp_path / "maps"
-    assert cli.main(["map", str(lidar_run), "--out", str(out), "--config", str(settings), "--quiet"]) == 0
+    assert cli.main(["map", str(lidar_run), "--out", str(out), "--config", str(settings)]) == 0
     captured = capsys.readouterr()
     assert 'preset "lidar + wheel odometry"' in captured.err and "max_range = 10.0 (preset 50.0)" in captured.err
     assert "lidar + wheel" not in captured.out  # stdout carries the results only

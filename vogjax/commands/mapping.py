@@ -112,6 +112,7 @@ def run(args: argparse.Namespace) -> None:
     """
     from vogjax import report
     from vogjax.config import JobConfig, presets
+    from vogjax.io.atomic import check_writable
 
     for path in args.runs:
         refuse_existing(args.out / path.stem, args.overwrite, flag="--out", folder=True)
@@ -121,9 +122,15 @@ def run(args: argparse.Namespace) -> None:
     if args.crm:
         config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))
     progress = not args.quiet
+    for path in args.runs:  # outputs checked before anything is printed or mapped
+        check_writable(args.out / path.stem, folder=True)
     for path in args.runs:  # what each run's preset derives, before any work
-        derived = report.derive_settings(path, config, args.sensor_preset, given)
-        print(f"{path}: " + "\n".join(derived.lines()), file=sys.stderr)
+        try:
+            derived = report.derive_settings(path, config, args.sensor_preset, given)
+        except ValueError:  # an unreadable run: its error comes from mapping it (alone, with --workers)
+            continue
+        if not args.quiet:
+            print(f"{path}: " + "\n".join(derived.lines()), file=sys.stderr)
     if args.workers is None and args.address is None:
         reports = report.map_runs(
             args.runs,
@@ -134,7 +141,7 @@ def run(args: argparse.Namespace) -> None:
             sensor_preset=args.sensor_preset,
             given=given,
         )
-        _warn(reports)
+        _warn(reports, args.quiet)
         print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
         return
@@ -153,7 +160,7 @@ def run(args: argparse.Namespace) -> None:
         given=given,
     )
     reports = [o.report for o in outcomes if o.report is not None]
-    _warn(reports)
+    _warn(reports, args.quiet)
     if reports:
         print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
@@ -174,9 +181,9 @@ def _file_settings(path: Path) -> set[str]:
         return given_settings(tomllib.load(file))
 
 
-def _warn(reports: list[dict]) -> None:
-    """On stderr, per run: the share of returns past the map's reach, and a hint when most
-    closure candidates failed one gate."""
+def _warn(reports: list[dict], quiet: bool) -> None:
+    """On stderr, per run: the share of returns past the map's reach, and (unless quiet) a hint
+    when most closure candidates failed one gate."""
     from vogjax.report.summary import closure_hint
 
     for r in reports:
@@ -189,6 +196,6 @@ def _warn(reports: list[dict]) -> None:
                 "([map] max_range)",
                 file=sys.stderr,
             )
-        hint = closure_hint(r)
+        hint = None if quiet else closure_hint(r)
         if hint:
             print(f"vogjax map: hint: {name}: {hint}", file=sys.stderr)
