@@ -167,3 +167,27 @@ def test_runs_are_deterministic_and_the_cli_picks_the_scenes_sensor(tmp_path, ca
     with pytest.raises(ValueError, match="no ground scene"):
         simulate_lidar_run("boxes", tmp_path / "y.h5", num_scans=1)
     assert vj.sim.simulate_lidar_run is simulate_lidar_run
+
+
+def test_the_wheel_odometry_drifts_in_yaw_at_its_preset_rate_and_keeps_z_pitch_roll():
+    from vogjax.config.presets import WHEEL_ODOMETRY
+    from vogjax.sim.ground_vehicle import ODOMETRY_RATE_HZ
+    from vogjax.sim.navigation import drifting_navigation
+
+    scene = scenes.load("warehouse")
+    vehicle = GroundVehicle(scene.start_pose, scene.survey(1))
+    t = np.arange(int(10 * ODOMETRY_RATE_HZ) + 1) / ODOMETRY_RATE_HZ
+    truth = vehicle.poses(t)
+    steps, z_errors, tilt_errors = [], [], []
+    for seed in range(5):
+        nav = drifting_navigation(truth, t, WHEEL_ODOMETRY, seed)
+        errors = np.linalg.inv(truth) @ nav
+        yaw = np.unwrap(np.arctan2(errors[:, 1, 0], errors[:, 0, 0]))
+        steps.append(np.diff(yaw))
+        z_errors.append(nav[:, 2, 3] - truth[:, 2, 3])
+        tilt_errors.append(np.arccos(np.clip(np.einsum("si,si->s", nav[:, :3, 2], truth[:, :3, 2]), -1, 1)))
+    # the reference: a random walk's steps have variance sigma^2 dt (5,000 of them: within 10%)
+    assert np.var(np.concatenate(steps)) == pytest.approx(WHEEL_ODOMETRY.sigma2_yaw / ODOMETRY_RATE_HZ, rel=0.1)
+    # z, pitch and roll are measured absolutely: one step's noise, not 10 s of walk
+    assert np.var(np.concatenate(z_errors)) < 0.05 * WHEEL_ODOMETRY.sigma2_z * t[-1]
+    assert np.mean(np.square(np.concatenate(tilt_errors))) < 0.05 * 2 * WHEEL_ODOMETRY.sigma2_pitch * t[-1]
