@@ -13,17 +13,40 @@ from __future__ import annotations
 import abc
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config import Config
 from vogjax.geometry import rigid_pose
 
 
 class RangeSensor(abc.ABC):
-    """config: the sensor's settings; T_vehicle_sensor (4,4): where it is mounted."""
+    """A range sensor: its beams, rate, ranges and mount.
+
+    Parameters
+    ----------
+    config : Config
+        The sensor's settings.
+    T_vehicle_sensor : (4, 4) array_like of float or None, optional
+        Where it is mounted on the vehicle (default: the vehicle's origin).
+
+    Attributes
+    ----------
+    kind : str
+        The sensor's name in run files and `vogjax.sensors.KINDS`.
+    config : Config
+        The sensor's settings.
+    T_vehicle_sensor : (4, 4) ndarray of float64
+        Its mount.
+
+    Raises
+    ------
+    ValueError
+        If `T_vehicle_sensor` is not a rigid pose.
+    """
 
     kind: str = ""
 
-    def __init__(self, config: Config, T_vehicle_sensor=None):
+    def __init__(self, config: Config, T_vehicle_sensor: npt.ArrayLike | None = None):
         self.config = config
         self.T_vehicle_sensor = rigid_pose(
             "T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None else T_vehicle_sensor
@@ -31,32 +54,58 @@ class RangeSensor(abc.ABC):
 
     @property
     @abc.abstractmethod
-    def beams(self) -> int: ...
+    def beams(self) -> int:
+        """Beams a scan, B."""
 
     @property
     @abc.abstractmethod
-    def rate_hz(self) -> float: ...
+    def rate_hz(self) -> float:
+        """Scans a second."""
 
     @property
     @abc.abstractmethod
-    def min_range_m(self) -> float: ...
+    def min_range_m(self) -> float:
+        """Nearest range it measures, metres."""
 
     @property
     @abc.abstractmethod
-    def max_range_m(self) -> float: ...
+    def max_range_m(self) -> float:
+        """Farthest range it measures, metres."""
 
     @property
     def range_noise_m(self) -> float:
+        """Standard deviation of its simulated range noise, metres (0: none)."""
         return 0.0
 
     @abc.abstractmethod
     def beam_directions(self) -> np.ndarray:
-        """(B, U, 3) unit directions in the sensor frame: B beams of U sub-rays each (the
-        beam's aperture; a simulated beam returns its nearest sub-ray's range)."""
+        """The beams' directions: B beams of U sub-rays each (the beam's aperture; a simulated
+        beam returns its nearest sub-ray's range).
 
-    def dataset_fields(self, ranges: np.ndarray, no_return: np.ndarray) -> dict:
-        """The run-file fields of S scans with ranges and no_return (S, B): origin and the
-        central direction of each beam in the vehicle frame, ranges (NaN where no return)."""
+        Returns
+        -------
+        (B, U, 3) ndarray of float64
+            Unit directions in the sensor frame.
+        """
+
+    def dataset_fields(self, ranges: npt.ArrayLike, no_return: npt.ArrayLike) -> dict:
+        """The run-file fields of S scans: origin and the central direction of each beam in the
+        vehicle frame, ranges (NaN where no return).
+
+        Parameters
+        ----------
+        ranges : (S, B) array_like of float
+            Measured ranges, metres.
+        no_return : (S, B) array_like of bool
+            Beams without a return.
+
+        Returns
+        -------
+        dict
+            ``sonar_origin`` (S, 3), ``sonar_directions`` (S, B, 3), ``ranges`` (S, B) and
+            ``no_return`` (S, B), as the run file stores them.
+        """
+        ranges, no_return = np.asarray(ranges), np.asarray(no_return)
         count = len(ranges)
         central = self.beam_directions()[:, self.beam_directions().shape[1] // 2]
         directions = central @ self.T_vehicle_sensor[:3, :3].T
@@ -68,7 +117,13 @@ class RangeSensor(abc.ABC):
         }
 
     def metadata(self) -> dict:
-        """What a run file records of the sensor (read back by `vogjax.sensors.from_metadata`)."""
+        """What a run file records of the sensor (read back by `vogjax.sensors.from_metadata`).
+
+        Returns
+        -------
+        dict
+            ``sensor`` (its kind), ``sensor_config`` (its settings) and ``T_vehicle_sensor``.
+        """
         return {
             "sensor": self.kind,
             "sensor_config": self.config.to_dict(),
@@ -84,10 +139,33 @@ def world_rays(
     no_return: np.ndarray,
     max_range_m: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sensor origins (S,3) and beam endpoints (S,B,3) in the world frame of S scans: vehicle
-    poses (S,4,4), origins (S,3) and unit directions (S,B,3) in the vehicle frame, ranges and
-    no_return (S,B). Beams without a return end past `max_range_m`, so a map clears free space
-    up to its range along them and marks nothing occupied."""
+    """Sensor origins and beam endpoints in the world frame of S scans.
+
+    Beams without a return end past `max_range_m`, so a map clears free space up to its range
+    along them and marks nothing occupied.
+
+    Parameters
+    ----------
+    T_world_vehicle : (S, 4, 4) ndarray of float64
+        The vehicle's poses.
+    origins : (S, 3) ndarray of float64
+        The sensor's origin in the vehicle frame, per scan.
+    directions : (S, B, 3) ndarray of float64
+        Unit beam directions in the vehicle frame.
+    ranges : (S, B) ndarray of float64
+        Measured ranges, metres.
+    no_return : (S, B) ndarray of bool
+        Beams without a return.
+    max_range_m : float
+        The map's reach, metres.
+
+    Returns
+    -------
+    origins : (S, 3) ndarray of float64
+        The sensor's origins, world frame.
+    endpoints : (S, B, 3) ndarray of float64
+        The beams' end points, world frame.
+    """
     R, t = T_world_vehicle[:, :3, :3], T_world_vehicle[:, :3, 3]
     world_origins = np.einsum("sij,sj->si", R, origins) + t
     world_directions = np.einsum("sij,sbj->sbi", R, directions)
