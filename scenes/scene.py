@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 from collections.abc import Iterator
 
 import numpy as np
@@ -238,7 +239,15 @@ class Scene:
             If `count` is not an integer in [1, MAX_SURFACE_POINTS].
         """
         Rule("integer", 1, MAX_SURFACE_POINTS).check("count", count)
-        points, _ = trimesh.sample.sample_surface_even(self.mesh, count, seed=seed)
+        # trimesh logs a warning when it returns fewer; that is this method's documented behaviour,
+        # and the line would land among the CLI's progress bars
+        sampler_log = logging.getLogger(trimesh.sample.__name__)
+        level = sampler_log.level
+        sampler_log.setLevel(logging.ERROR)
+        try:
+            points, _ = trimesh.sample.sample_surface_even(self.mesh, count, seed=seed)
+        finally:
+            sampler_log.setLevel(level)
         return np.asarray(points)
 
 
