@@ -129,8 +129,7 @@ def explored_curve(path: Path, scene, voxel_size: float, every: int = 100) -> di
     path_m, last = 0.0, None
     with Dataset(path) as run:
         for batch in run.batches(every):
-            origins, ends = batch.world(batch.pose_truth, vmap.config.max_range)
-            vmap.integrate_scans(origins, ends.reshape(-1, 3), np.repeat(np.arange(len(batch)), ends.shape[1]))
+            vmap.integrate_scans(*batch.beams(batch.pose_truth, vmap.config.max_range))
             positions = batch.pose_truth[:, :3, 3] if last is None else np.vstack([last, batch.pose_truth[:, :3, 3]])
             path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
             last = batch.pose_truth[-1, :3, 3]

@@ -151,12 +151,27 @@ def test_run_round_trip_cli_and_damaged_files(tmp_path, capsys):
         assert [len(b) for b in batches] == [128, 128, 44]
         whole = ds.read(0, 300)
     np.testing.assert_array_equal(np.concatenate([b.ranges for b in batches]), whole.ranges)
-    assert np.array_equal(np.isnan(whole.ranges), whole.no_return) and 0.1 < (~whole.no_return).mean()
+    assert np.array_equal(np.isnan(whole.ranges), whole.no_return | whole.invalid) and 0.1 < whole.returned.mean()
+    assert not np.any(whole.no_return & whole.invalid)
     # beams re-cast from the recorded truth poses land on the scene surface
     origins, ends = whole.world(whole.pose_truth, 11.0)
-    hit = ~whole.no_return
-    _, distance, _ = trimesh.proximity.closest_point(scenes.load("boxes").mesh, ends[hit][::50])
+    hit = whole.returned
+    mesh = scenes.load("boxes").mesh
+    _, distance, _ = trimesh.proximity.closest_point(mesh, ends[hit][::50])
     assert distance.max() < 1e-3
+    # the survey passes within the sonar's 0.5 m blind distance of a box: those beams are
+    # invalid, not "no return"; trimesh's own ray cast (an independent reference) finds their
+    # surface within 0.5 m, and none for the beams without a return
+    assert whole.invalid.sum() > 100
+    starts = np.broadcast_to(origins[:, None], ends.shape)
+    directions = np.einsum("sij,sbj->sbi", whole.pose_truth[:, :3, :3], whole.sonar_directions)
+    for flags, low, high in ((whole.invalid, 0.0, 0.5), (whole.no_return, np.inf, np.inf)):
+        o, d = starts[flags][::7], directions[flags][::7]
+        where, ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
+        nearest = np.full(len(o), np.inf)
+        np.minimum.at(nearest, ray, np.linalg.norm(where - o[ray], axis=1))
+        nearest[nearest > 11.0] = np.inf
+        assert np.all((nearest >= low - 1e-4) & (nearest <= high + 1e-4)), (low, high, nearest.min(), nearest.max())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.h5"]  # no temporary left
 
     data = out.read_bytes()

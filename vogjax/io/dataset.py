@@ -2,16 +2,20 @@
 
 Per scan: time_s, pose_nav and (when the run has ground truth) pose_truth (4,4,
 T_world_vehicle), sonar_origin (3,) and sonar_directions (B,3) in the vehicle frame (any range
-sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return) and
-no_return (B,). File attributes: format, format_version, has_truth, metadata (JSON: scene,
-seed, sensor, navigation noise, vogjax version, ...).
+sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return or an
+invalid beam), no_return (B,) and invalid (B,): a beam without a return saw water up to the
+sensor's range; an invalid one (its surface within the sensor's blind distance) saw nothing,
+and no map clears free space along it. File attributes: format, format_version, has_truth,
+metadata (JSON: scene, seed, sensor, navigation noise, vogjax version, ...).
 
-Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2; a damaged chunk cannot be
-read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata carries its
-SHA-256, and every batch is checked for physical sense as it is written and as it is read
-(finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km] with NaN
-exactly where no_return is set). Runs of format 1 (no checksums, always with ground truth)
-still load and are checked the same way. A file is published atomically on close
+Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2 on; a damaged chunk
+cannot be read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata
+carries its SHA-256, and every batch is checked for physical sense as it is written and as it
+is read (finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km]
+with NaN exactly where no_return or invalid is set, never both). Runs of format 1 (no
+checksums, always with ground truth) and format 2 (no `invalid` field: simulators then
+reported a beam within the blind distance as "no return") still load, with no beam invalid,
+and are checked the same way. A file is published atomically on close
 (`vogjax.io.atomic`): a run is whole or absent.
 """
 
@@ -28,10 +32,11 @@ import numpy as np
 from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import RIGID_TOLERANCE
 from vogjax.io.atomic import AtomicPath
-from vogjax.sensors.base import world_rays
+from vogjax.sensors.base import mapped_beams, world_rays
 
 FORMAT = "vogjax-run"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+INVALID_SINCE = 3  # the first format with the `invalid` field
 MAX_RANGE_M = 10_000.0  # no range sensor reaches farther; larger values are damage
 _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "time_s": (lambda b: (), np.float64),
@@ -41,13 +46,14 @@ _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "sonar_directions": (lambda b: (b, 3), np.float32),
     "ranges": (lambda b: (b,), np.float32),
     "no_return": (lambda b: (b,), np.bool_),
+    "invalid": (lambda b: (b,), np.bool_),
 }
 
 
 @dataclasses.dataclass(frozen=True)
 class ScanBatch:
     """Consecutive scans: each field as in the file, with a leading scan axis (pose_truth None
-    when the run has no ground truth)."""
+    when the run has no ground truth; invalid, when not given, no beam invalid)."""
 
     first: int
     time_s: np.ndarray
@@ -57,6 +63,11 @@ class ScanBatch:
     sonar_directions: np.ndarray
     ranges: np.ndarray
     no_return: np.ndarray
+    invalid: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.invalid is None and np.ndim(self.no_return) == 2:  # else check_scans refuses the batch
+            object.__setattr__(self, "invalid", np.zeros(np.shape(self.no_return), np.bool_))
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -78,8 +89,36 @@ class ScanBatch:
 
     def world(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Sensor origins (S,3) and beam endpoints (S,B,3) in the world, at `poses` (S,4,4).
-        Beams without a return end past max_range_m (free space up to it, no hit)."""
-        return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m)
+        Beams without a return end past max_range_m (free space up to it, no hit); invalid
+        beams end at NaN (`vogjax.sensors.world_rays`)."""
+        return world_rays(
+            poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m, self.invalid
+        )
+
+    def beams(self, poses: np.ndarray, max_range_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What a map integrates of these scans at `poses`.
+
+        Parameters
+        ----------
+        poses : numpy.ndarray, (S, 4, 4) float
+            T_world_vehicle of each scan.
+        max_range_m : float
+            The reach beams without a return clear free space to.
+
+        Returns
+        -------
+        origins : numpy.ndarray, (S, 3) float
+        points : numpy.ndarray, (N, 3) float
+            Endpoints of every beam but the invalid ones.
+        scan_index : numpy.ndarray, (N,) int64
+            The scan of each point (``integrate_scans``'s third argument).
+        """
+        return mapped_beams(*self.world(poses, max_range_m), self.invalid)
+
+    @property
+    def returned(self) -> np.ndarray:
+        """(S,B) bool: the beams with a return (neither without one nor invalid)."""
+        return ~self.no_return & ~self.invalid
 
 
 def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.inf, truth: bool = True) -> None:
@@ -124,12 +163,16 @@ def check_scans(fields: dict, beams: int, where: str, after_time_s: float = -np.
     if not np.all(np.abs(norms - 1.0) < 1e-3):
         raise ValueError(f"{where}: sonar_directions must be unit vectors")
     ranges = np.asarray(fields["ranges"], dtype=np.float64)
-    no_return = np.asarray(fields["no_return"])
-    if no_return.dtype != np.bool_:
-        raise ValueError(f"{where}: no_return must be boolean")
-    returned = ranges[~no_return]
-    if not np.all(np.isnan(ranges[no_return])) or not np.all(np.isfinite(returned)):
-        raise ValueError(f"{where}: ranges must be NaN exactly where no_return is set")
+    no_return, invalid = np.asarray(fields["no_return"]), np.asarray(fields["invalid"])
+    for name, flags in (("no_return", no_return), ("invalid", invalid)):
+        if flags.dtype != np.bool_:
+            raise ValueError(f"{where}: {name} must be boolean")
+    if np.any(no_return & invalid):
+        raise ValueError(f"{where}: a beam is both no_return and invalid")
+    missing = no_return | invalid
+    returned = ranges[~missing]
+    if not np.all(np.isnan(ranges[missing])) or not np.all(np.isfinite(returned)):
+        raise ValueError(f"{where}: ranges must be NaN exactly where no_return or invalid is set")
     if returned.size and (returned.min() < 0 or returned.max() > MAX_RANGE_M):
         raise ValueError(
             f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found [{returned.min():.3g}, {returned.max():.3g}]"
@@ -182,7 +225,11 @@ class DatasetWriter:
 
     def append(self, **fields) -> None:
         """Append scans: every field of the format (pose_truth only when `truth`), each with a
-        leading scan axis. Checked first: a ValueError leaves the file as it was."""
+        leading scan axis; `invalid` may be left out when no beam is invalid (a source that
+        drops its invalid beams, as `vogjax import` does). Checked first: a ValueError leaves
+        the file as it was."""
+        if "invalid" not in fields and np.ndim(fields.get("no_return")) == 2:
+            fields["invalid"] = np.zeros(np.shape(fields["no_return"]), np.bool_)
         expected = set(self._fields())
         if set(fields) != expected:
             missing, extra = expected - set(fields), set(fields) - expected
@@ -258,7 +305,14 @@ class Dataset:
             self.metadata = json.loads(encoded)
             if not isinstance(self.metadata, dict):
                 raise ValueError(f"{where} is damaged: its metadata is not a JSON object")
-            names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"]
+            self.format_version = int(version)
+            # runs before format 3 hold no `invalid` field: no beam of theirs is invalid
+            self._stored = [
+                n
+                for n in _FIELDS
+                if (self.has_truth or n != "pose_truth") and (n != "invalid" or version >= INVALID_SINCE)
+            ]
+            names = self._stored
             lengths = {name: self._file[name].shape[0] for name in names}
             self.beams = int(self._file["ranges"].shape[1])
             if not 1 <= self.beams <= MAX_BEAMS:  # a small file may declare any shape
@@ -289,10 +343,9 @@ class Dataset:
         """Scans first to last, checked (ValueError naming the file when damaged)."""
         where = f"path {str(self.path)!r}"
         try:
-            fields = {
-                name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
-                for name in _FIELDS
-            }
+            fields = {name: (self._file[name][first:last] if name in self._stored else None) for name in _FIELDS}
+            if "invalid" not in self._stored:
+                fields["invalid"] = np.zeros(fields["no_return"].shape, np.bool_)
         except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
             raise ValueError(f"{where} is damaged: {error}") from None
         before = self._last_time_s.get(first, -np.inf)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.config import PointCloudConfig, SonarConfig
-from vogjax.sensors.base import RangeSensor, world_rays
+from vogjax.sensors.base import RangeSensor, mapped_beams, world_rays
 from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
 
@@ -53,5 +53,6 @@ __all__ = [
     "RangeSensor",
     "as_sensor",
     "from_metadata",
+    "mapped_beams",
     "world_rays",
 ]

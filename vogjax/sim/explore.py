@@ -301,13 +301,14 @@ class _Loop:
         times = (self.scans + np.arange(len(truth))) / rate
         nav = self.navigation.extend(truth, times)  # the run's first scan: the truth itself
         scans = ranging.scan(self.scene.warp_mesh, truth @ self.sensor.T_vehicle_sensor, self.sensor, self.rng)
-        fields = self.sensor.dataset_fields(scans.ranges, scans.no_return)
+        fields = self.sensor.dataset_fields(scans.ranges, scans.no_return, scans.invalid)
         # what the run file stores (float32 beams), so reprocessing it sees the same scans
         fields = {
             "sonar_origin": fields["sonar_origin"].astype(np.float32),
             "sonar_directions": fields["sonar_directions"].astype(np.float32),
             "ranges": fields["ranges"].astype(np.float32),
             "no_return": fields["no_return"],
+            "invalid": fields["invalid"],
         }
         self.writer.append(time_s=times, pose_truth=truth, pose_nav=nav, **fields)
         self.mapper.add(ScanBatch(self.scans, times, truth, nav, **fields))

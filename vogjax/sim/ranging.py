@@ -19,12 +19,15 @@ MAX_CAST_BEAMS = 1 << 24
 @dataclasses.dataclass(frozen=True)
 class SimulatedScans:
     """S scans of B beams, world frame: origins (S,3); directions (S,B,3) unit vectors;
-    ranges (S,B) metres (NaN where no return); no_return (S,B) bool."""
+    ranges (S,B) metres (NaN where no return or invalid); no_return (S,B) bool, no surface
+    within the sensor's range; invalid (S,B) bool, a surface within its blind distance
+    (`min_range_m`), so the beam measured nothing."""
 
     origins: np.ndarray
     directions: np.ndarray
     ranges: np.ndarray
     no_return: np.ndarray
+    invalid: np.ndarray
 
 
 def scan(mesh: wp.Mesh, T_world_sensor: np.ndarray, sensor, rng: np.random.Generator | None = None) -> SimulatedScans:
@@ -62,11 +65,12 @@ def scan(mesh: wp.Mesh, T_world_sensor: np.ndarray, sensor, rng: np.random.Gener
             device="cpu",
         )
     ranges = ranges.numpy().astype(np.float64)
-    no_return = ranges < 0
+    no_return = ranges == ranging.NO_RETURN
+    invalid = ranges == ranging.INVALID
     if sensor.range_noise_m > 0:
         rng = rng or np.random.default_rng()
         ranges = ranges + rng.normal(0.0, sensor.range_noise_m, ranges.shape)
-    ranges[no_return] = np.nan
+    ranges[no_return | invalid] = np.nan
     centre = local[:, local.shape[1] // 2]  # the beam's central sub-ray
     directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], centre)
-    return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return)
+    return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return, invalid)
