@@ -101,6 +101,32 @@ def test_controller_reaches_waypoints_within_the_limits():
     assert np.abs([yaw_pitch_roll(p[:3, :3])[1:] for p in poses]).max() < 1e-3  # stays level
 
 
+def test_yaw_along_path_turns_while_translating_and_arrives_together():
+    """With yaw_along_path the heading advances with the position along the straight line (the
+    share of the turn done equals the share of the distance flown, up to the thrusters' lag),
+    and both arrive at once; without it the translation ends early and the rest of the turn
+    is flown in place."""
+    from vogjax.config import ControllerConfig
+
+    start, waypoint = pose(0.0, 0.0, 1.0, 0.0), np.array([[1.0, 0.5, 1.0, 2.0]])  # 1.1 m, 2 rad
+    shares = {}
+    for along in (True, False):
+        poses, index = simulate(start, waypoint, 120, config=ControllerConfig(yaw_along_path=along))
+        flown = np.linalg.norm(poses[:, :2, 3], axis=1) / np.linalg.norm(waypoint[0, :2])
+        turned = np.unwrap([yaw_pitch_roll(p[:3, :3])[0] for p in poses]) / 2.0
+        shares[along] = flown, turned
+        np.testing.assert_allclose(poses[-1, :2, 3], waypoint[0, :2], atol=0.15)
+        assert abs(turned[-1] - 1.0) < 0.05
+    flown, turned = shares[True]
+    moving = (flown > 0.05) & (flown < 0.9)
+    assert np.abs(flown[moving] - turned[moving]).max() < 0.08
+    # the translation alone takes 4.5 s at 0.25 m/s, the turn 13 s at 0.15 rad/s: without the
+    # coupling the vehicle is there long before its heading
+    flown, turned = shares[False]
+    there = np.argmax(flown > 0.9)
+    assert turned[there] < 0.5
+
+
 def test_batched_vehicles_equal_one_at_a_time():
     starts = np.stack([pose(0, 0, 1, 0), pose(1, -1, 2, 1.0)])
     waypoints = np.stack([[[1.0, 1.0, 1.0, 0.5], [0.0, 1.0, 1.5, 1.0]], [[2.0, -1.0, 2.0, 0.0], [2.0, 0.0, 1.0, -1.0]]])

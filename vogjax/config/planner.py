@@ -1,21 +1,30 @@
 """Settings of the next-best-view planner (`vogjax.planner.NbvPlanner`).
 
-Defaults are Ho's propeller experiment (thesis Table 4.2, IROS Table I): 2 m RRT edges,
-N_max = 15, lambda = 0.5, a planner sensor range of 5 m and a 1.0 x 1.0 x 0.5 m collision box.
-For the tank (thesis Table 4.4) use edge_length_m = 1.0, gain_range_m = 5.63, discount = 0.
+Defaults are Ho's propeller experiment (thesis Table 4.2, IROS Table I) for the tree: 2 m RRT
+edges, N_max = 15, lambda = 0.5, a planner sensor range of 5 m and a 1.0 x 1.0 x 0.5 m
+collision box; for the tank (thesis Table 4.4) use edge_length_m = 1.0, gain_range_m = 5.63,
+discount = 0. How a branch is chosen and flown defaults to the time-aware rule (an edge costs
+the time to fly it, the best branch gains the most per second, the vehicle turns while it
+translates); `PAPERS` holds the settings that select the papers' rule instead (gain discounted
+by path length, each axis flown at its own limit), for reproducing their figures.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from vogjax.config.pipeline import PipelineConfig
-from vogjax.config.schema import Config, integer, non_negative, number, positive, section
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
 from vogjax.config.sim import ControllerConfig
 
 # The most nodes a tree may grow to: each round finds its samples' nearest nodes among all of
 # them, and the work grows with the square of the tree (the papers use N_tol of 60 or so).
 MAX_TREE_NODES = 10_000
+SELECTIONS = ("gain_rate", "discounted")
+GAINS = ("volume", "frontier")
+GAIN_REGIONS = ("bounds", "scene")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,20 +50,67 @@ class PlannerConfig(Config):
     margin_m: the box is grown by this much on every side for collision checks: the vehicle's
         estimate drifts from older parts of the map between loop closures (the papers use none;
         without it the tank's walls get grazed).
+    obstacle_margin_m: occupied voxels are kept this much farther off in x and y than unknown
+        ones (a box grown by it as well, swept for them alone): drift misplaces the obstacles
+        the map holds, and under the default navigation noise (a sigma of 0.4 m after 100 s)
+        margin_m alone let the box graze the tank's ladder and a piling; unknown water is no
+        nearer for drift, and a wider box for it would leave the vehicle no edge out of its
+        blind ring. 0 in PAPERS.
     clearance_m: unknown voxels within this distance of the vehicle's position count as free
         (besides those in its own box): a profiling sonar at the bow never sees the water just
         around the vehicle, so without it no edge could leave the vehicle's box. Occupied voxels
         are never free.
+    blind_vertical: the clearance frees unknown water above and below the vehicle's box as well,
+        so a climb may enter water no beam has crossed (the papers' check). Off (default): only
+        in the layer of the vehicle's box; a climb or descent enters water seen free.
+    sloped_fraction: share of the x-y samples that also climb or descend, at most as steeply as
+        the sensor's beams look up or down (4.5 degrees up, 24.5 down for the papers' sonar),
+        so that the layer the vehicle travels in stays one its fan has seen (climbing in steps
+        into space seen free); the rest stay at their parent's depth. 0: none (the papers').
+    global_step: when the local tree's best score falls to global_below or less, `vogjax
+        explore` takes a global step: a trip over the explored graph (every tree so far) to the
+        vertex with the most gain per second of the trip (GBPlanner's repositioning), instead
+        of a local edge, or of stopping when nothing local gains anything. Off in PAPERS.
+    global_below: the local score at or below which a global step is tried (m^3 per second
+        for "gain_rate", m^3 for "discounted").
+    min_round_samples: samples drawn per round of tree growth at least (a round is one launch
+        of collision checks and one of gains; where most samples collide, rounds of one cost a
+        launch each). 1 in PAPERS (their trees grow 1, 1, 2, 3, ... samples a round).
     max_heading_change_rad: bound on the heading change between a node and its parent
         (constrained sampling, thesis 4.5.3; 90 degrees in its Fig. 4.14).
     vertical_fraction: share of samples drawn along z at the vehicle's x, y (the rest in the
-        x-y plane at the vehicle's depth), thesis 4.5.3.
+        x-y plane at the vehicle's depth), thesis 4.5.3: 0.25 in PAPERS, 0.1 by default (a
+        climb straight up needs water seen free above the vehicle, which a forward fan sees
+        only from afar, so most such samples collide; the sloped ones climb instead).
     min_gain_m3: exploration is done when the best branch gains no more than this (m^3; 0: the
         tree grew to N_tol and found nothing to see, the papers' criterion).
     risk_weight: weight of a collision-risk cost per edge (the planner's `risk` hook, e.g. a
         confidence-rich map's cost): an edge's gain is also multiplied by exp(-risk_weight *
         risk). 0 disables it; > 0 needs a `risk` callable.
     seed: seed of the sampling.
+    selection: how the best branch is chosen. "gain_rate" (default): the most gain per second
+        of flight, an edge taking max(length / max_speed_mps, turn / max_yaw_rate_rps) plus
+        edge_overhead_s (FUEL's time cost, with the stop at each waypoint); "discounted": the
+        papers' rule, the most gain discounted by exp(-discount * d) (see discount).
+    max_speed_mps, max_yaw_rate_rps: the vehicle's limits the edge times assume (default the
+        simulated vehicle's, ControllerConfig).
+    edge_overhead_s: seconds an edge costs beyond its time at the limits: the vehicle slows
+        into each waypoint and the planner plans there (about 1 s for the simulated controller).
+    yaw_along_path: yaw is planned along the path: an edge turns at most as far as the
+        yaw-rate limit allows while its translation is flown (max_yaw_rate_rps * length /
+        max_speed_mps), and the vehicle turns while it translates, reaching the node's heading
+        as it reaches its position (the motion the edge's gain views assume). Off: headings are
+        sampled within max_heading_change_rad whatever the edge's length, and each axis runs at
+        its own limit (the papers' flight, where a long turn ends in place).
+    initial_turn_rad: the turn in place before the first plan (nbvplanner's initial motion: a
+        full turn, so that the first tree has a map to grow in), radians; 0: none.
+    gain: what an edge's views count. "volume": voxels by state, weighted by gain_unknown,
+        gain_free and gain_occupied (nbvplanner's volumetric gain); "frontier": the unknown
+        voxels with a FREE face neighbour, on the boundary of the water already measured
+        (FUEL's frontier cells): none lies behind a surface no beam has crossed.
+    gain_region: where gain counts (`vogjax explore`): "bounds", the scene's exploration box
+        (the volume to explore); "scene", the box holding the scene's mesh and that box (the
+        papers' runs counted everything the rays reach).
     """
 
     edge_length_m: float = positive(2.0)
@@ -72,12 +128,26 @@ class PlannerConfig(Config):
     box_y_m: float = positive(1.0)
     box_z_m: float = positive(0.5)
     margin_m: float = non_negative(0.25)
+    obstacle_margin_m: float = non_negative(0.15)
     clearance_m: float = non_negative(1.5)
     max_heading_change_rad: float = number(1.5707963267948966, low=0.0, high=3.141592653589793)
-    vertical_fraction: float = number(0.25, low=0.0, high=1.0)
+    vertical_fraction: float = number(0.1, low=0.0, high=1.0)
     min_gain_m3: float = non_negative(0.0)
     risk_weight: float = non_negative(0.0)
     seed: int = integer(0, low=0)
+    selection: str = text("gain_rate", SELECTIONS)
+    max_speed_mps: float = positive(ControllerConfig().max_speed_mps)
+    max_yaw_rate_rps: float = positive(ControllerConfig().max_yaw_rate_rps)
+    edge_overhead_s: float = non_negative(1.0)
+    yaw_along_path: bool = flag(True)
+    gain: str = text("volume", GAINS)
+    gain_region: str = text("scene", GAIN_REGIONS)
+    initial_turn_rad: float = number(6.283185307179586, low=0.0, high=6.283185307179586)
+    blind_vertical: bool = flag(False)
+    sloped_fraction: float = number(0.5, low=0.0, high=1.0)
+    global_step: bool = flag(True)
+    global_below: float = non_negative(0.1)
+    min_round_samples: int = integer(8, low=1, high=MAX_TREE_NODES)
 
     def check(self) -> None:
         if self.tolerance_nodes < self.max_nodes:
@@ -88,6 +158,42 @@ class PlannerConfig(Config):
     @property
     def box_m(self) -> tuple[float, float, float]:
         return (self.box_x_m, self.box_y_m, self.box_z_m)
+
+    @property
+    def checked_box_m(self) -> tuple[float, float, float]:
+        """The box the collision checks sweep: box_m grown by margin_m on every side."""
+        return (self.box_x_m + 2 * self.margin_m, self.box_y_m + 2 * self.margin_m, self.box_z_m + 2 * self.margin_m)
+
+    @property
+    def obstacle_margins_m(self) -> tuple[float, float, float]:
+        """How much farther occupied voxels are kept, per axis (x, y, z)."""
+        return (self.obstacle_margin_m, self.obstacle_margin_m, 0.0)
+
+    def edge_seconds(self, length_m, turn_rad):
+        """Seconds to fly edges of length_m (metres) and turn_rad (radians, either sign) under
+        the vehicle's limits: max(length / max_speed_mps, |turn| / max_yaw_rate_rps) plus
+        edge_overhead_s (a float for floats, an array for arrays)."""
+        return (
+            np.maximum(np.abs(length_m) / self.max_speed_mps, np.abs(turn_rad) / self.max_yaw_rate_rps)
+            + self.edge_overhead_s
+        )
+
+
+# The settings that select the papers' rule (with the tree settings of PlannerConfig's
+# defaults or `scene_planner`'s): `PlannerConfig(**PAPERS)` reproduces their figures.
+PAPERS = {
+    "selection": "discounted",
+    "yaw_along_path": False,
+    "gain": "volume",
+    "gain_region": "scene",
+    "margin_m": 0.25,
+    "obstacle_margin_m": 0.0,
+    "blind_vertical": True,
+    "sloped_fraction": 0.0,
+    "global_step": False,
+    "min_round_samples": 1,
+    "vertical_fraction": 0.25,
+}
 
 
 @dataclasses.dataclass(frozen=True)

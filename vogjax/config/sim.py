@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from vogjax.config.schema import Config, positive
+from vogjax.config.schema import Config, flag, positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -12,7 +12,13 @@ class ControllerConfig(Config):
     """Speed limits of the papers (0.25 m/s, 0.15 rad/s); position_gain: desired speed per
     metre of error, 1/s; yaw_gain: desired yaw rate per radian of error, 1/s; velocity_gain:
     extra thrust per m/s of velocity error, N s/m; yaw_rate_gain: extra torque per rad/s of
-    yaw-rate error, N m s; a waypoint is reached within tolerance_m and tolerance_rad."""
+    yaw-rate error, N m s; a waypoint is reached within tolerance_m and tolerance_rad.
+
+    yaw_along_path: fly a waypoint as one motion: position and heading are slowed so that both
+    arrive together, the vehicle turning at a steady rate while it translates along the
+    straight line (the motion the planner's gain assumes, `vogjax.planner.edge_views`). Off
+    (the default, and the papers' surveys): each axis runs at its own limit, so a turn that
+    takes longer than the translation ends as a turn in place."""
 
     max_speed_mps: float = positive(0.25)
     max_yaw_rate_rps: float = positive(0.15)
@@ -22,3 +28,4 @@ class ControllerConfig(Config):
     yaw_rate_gain: float = positive(120.0)
     tolerance_m: float = positive(0.15)
     tolerance_rad: float = positive(0.05)
+    yaw_along_path: bool = flag(False)

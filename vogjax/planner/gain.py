@@ -3,6 +3,7 @@ volumetric gain; Ho, thesis 4.3.1 and 4.5.4; IROS Eq. 7).
 
     g = planner.view_gain(map, T_world_sensor, sensor)   # N views in one launch
     g.unknown, g.free, g.occupied, g.unknown_m3
+    g = planner.view_gain(map, T, sensor, frontier=True)  # g.frontier: unknown voxels beside free water
 
 Rays follow the sensor's angular grid (`beam_directions`, every sub-ray), walk the voxel grid
 from the sensor and stop at the first OCCUPIED voxel or at the range. A voxel seen by several
@@ -32,7 +33,8 @@ MAX_EDGE_VIEWS = 1 << 16
 class ViewGain:
     """Per view (or per group of views): voxels first seen that are unknown, free and
     occupied (N,) int64; unknown_m3 (N,) float64 their unknown volume; voxel_m3 the volume of
-    one voxel; rays, the rays cast."""
+    one voxel; rays, the rays cast; frontier (N,) int64, the unknown ones with a FREE face
+    neighbour (counted when asked for, else zeros)."""
 
     unknown: np.ndarray
     free: np.ndarray
@@ -40,6 +42,7 @@ class ViewGain:
     unknown_m3: np.ndarray
     voxel_m3: float
     rays: int
+    frontier: np.ndarray | None = None
 
     def weighted_m3(self, unknown: float = 1.0, free: float = 0.0, occupied: float = 0.0) -> np.ndarray:
         """(N,) gain in m^3: each state's voxels times its weight, in voxel volumes."""
@@ -48,22 +51,44 @@ class ViewGain:
 
 def gain_of(counts: np.ndarray, voxel_size: float, rays: int) -> ViewGain:
     voxel_m3 = float(voxel_size) ** 3
-    return ViewGain(counts[:, 0], counts[:, 1], counts[:, 2], counts[:, 0] * voxel_m3, voxel_m3, int(rays))
+    return ViewGain(
+        counts[:, 0], counts[:, 1], counts[:, 2], counts[:, 0] * voxel_m3, voxel_m3, int(rays), counts[:, 3]
+    )
 
 
-def view_gain(map_, T_world_sensor, sensor, max_range_m: float | None = None, region=None) -> ViewGain:
-    """Gain of N views: T_world_sensor (N,4,4) sensor poses, `sensor` a vogjax.sensors.RangeSensor
-    (or SonarConfig), max_range_m the rays' range (default: the sensor's), region (2,3) a box
-    (lo, hi): only voxels whose centre lies in it count (None: all).
+def view_gain(
+    map_, T_world_sensor, sensor, max_range_m: float | None = None, region=None, frontier: bool = False
+) -> ViewGain:
+    """Gain of N views.
 
-    map_: a vj.VoxelMap, vj.GlobalMap, vj.VogMap (summed over submaps, like its own queries) or
-    vogjax.planner.Overlay. One launch for all views on a GPU; split across cores on the CPU."""
+    Parameters
+    ----------
+    map_ : vj.VoxelMap, vj.GlobalMap, vj.VogMap or vogjax.planner.Overlay
+        The map, read as its own queries read it (a VogMap summed over its submaps).
+    T_world_sensor : array_like, (N, 4, 4) float
+        Sensor poses.
+    sensor : vogjax.sensors.RangeSensor or vj.SonarConfig
+        Whose beams the rays follow.
+    max_range_m : float, optional
+        The rays' range (default: the sensor's).
+    region : array_like, (2, 3) float, optional
+        A box (lo, hi): only voxels whose centre lies in it count (None: all).
+    frontier : bool
+        Also count the unknown voxels that have a FREE face neighbour (`ViewGain.frontier`).
+
+    Returns
+    -------
+    ViewGain
+        One launch for all views on a GPU; split across cores on the CPU.
+    """
     poses = rigid_poses("T_world_sensor", T_world_sensor)
     sensor = as_sensor(sensor)
     max_range = gain_range("max_range_m", sensor, sensor.max_range_m if max_range_m is None else max_range_m)
     region = check_region(region)
     with opened(map_) as source:
-        counts, rays = group_counts(source, poses, np.arange(len(poses)), len(poses), sensor, max_range, region)
+        counts, rays = group_counts(
+            source, poses, np.arange(len(poses)), len(poses), sensor, max_range, region, bool(frontier)
+        )
     return gain_of(counts, source.config.voxel_size, rays)
 
 
@@ -100,9 +125,12 @@ def edge_views(
     return T @ T_vehicle_sensor, edge
 
 
-def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | None = None, region=None) -> ViewGain:
+def edge_gain(
+    map_, starts, ends, sensor, step_m: float, max_range_m: float | None = None, region=None, frontier: bool = False
+) -> ViewGain:
     """Gain along E edges between vehicle states (E,4: x, y, z, yaw): every voxel the sensor
-    would see from the views sampled on an edge (`edge_views`), counted once per edge."""
+    would see from the views sampled on an edge (`edge_views`), counted once per edge; the
+    other arguments as `view_gain`'s."""
     sensor = as_sensor(sensor)
     starts = float_array("starts", starts, (-1, 4), np.float64)
     ends = float_array("ends", ends, (starts.shape[0], 4), np.float64)
@@ -112,16 +140,24 @@ def edge_gain(map_, starts, ends, sensor, step_m: float, max_range_m: float | No
     with opened(map_) as source:
         for name, states in (("starts", starts), ("ends", ends)):
             within_key_range(name, np.abs(states[:, :3]) + max_range, source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
-        counts, rays = edge_counts(source, starts, ends, sensor, step_m, max_range, region)
+        counts, rays = edge_counts(source, starts, ends, sensor, step_m, max_range, region, bool(frontier))
     return gain_of(counts, source.config.voxel_size, rays)
 
 
 def edge_counts(
-    source: Source, starts: np.ndarray, ends: np.ndarray, sensor: RangeSensor, step_m: float, max_range: float, region
+    source: Source,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    sensor: RangeSensor,
+    step_m: float,
+    max_range: float,
+    region,
+    frontier: bool = False,
 ) -> tuple[np.ndarray, int]:
-    """`edge_gain` on an opened map: counts (E,3) unknown, free, occupied, and the rays cast."""
+    """`edge_gain` on an opened map: counts (E,4) unknown, free, occupied, frontier (0 unless
+    `frontier`), and the rays cast."""
     poses, edge = edge_views(starts, ends, sensor.T_vehicle_sensor, step_m, max_range)
-    return group_counts(source, poses, edge, len(starts), sensor, max_range, region)
+    return group_counts(source, poses, edge, len(starts), sensor, max_range, region, frontier)
 
 
 def discounted(gain, distance_m, discount: float) -> np.ndarray:

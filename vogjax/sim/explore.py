@@ -33,6 +33,7 @@ from vogjax.config.planner import ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import DatasetWriter, ScanBatch
+from vogjax.maps import VogMap
 from vogjax.pipeline import Mapper
 from vogjax.planner import NbvPlanner, Overlay
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
@@ -59,6 +60,11 @@ CSV_FIELDS = (
     "z_m",
     "yaw_rad",
     "reached",
+    "score",
+    "branch_s",
+    "predicted_m3",
+    "realised_m3",
+    "step",
 )
 
 
@@ -161,8 +167,12 @@ def explore(
         },
         "vogjax_version": vogjax.__version__,
     }
-    loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata)
-    nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=scene.region())
+    # the vehicle flies an edge as the planner costs it: turning while it translates (or, for
+    # the papers' rule, each axis at its own limit)
+    controller = ControllerConfig(yaw_along_path=planner_config.yaw_along_path)
+    loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata, controller)
+    region = scene.bounds if planner_config.gain_region == "bounds" else scene.region()
+    nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=region)
     rows = []
     stopped = "submaps"
     with (
@@ -171,14 +181,27 @@ def explore(
     ):
         loop.writer = writer
         # nbvplanner's initial motion: a turn in place, so the first tree has a map to grow in
+        # (a full turn flown as four quarter turns; the default)
         x, y, z, yaw = loop.true_state()
-        loop.fly([[x, y, z, yaw + np.pi * k / 2] for k in range(1, 5)])
+        quarters = int(np.ceil(planner_config.initial_turn_rad / (np.pi / 2) - 1e-9))
+        if quarters:
+            step = planner_config.initial_turn_rad / quarters
+            loop.fly([[x, y, z, yaw + step * k] for k in range(1, quarters + 1)])
         while loop.mapper.num_submaps < submaps:
             if max_scans is not None and loop.scans >= max_scans:
                 stopped = "scans"
                 break
             T_plan = loop.estimate(map_kind)
-            plan = nbv.plan(loop.planning_map(map_kind), T_plan)
+            planning_map = loop.planning_map(map_kind)
+            plan = nbv.plan(planning_map, T_plan)
+            seconds, step = plan.seconds, "local"
+            spent = len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3
+            if planner_config.global_step and (spent or plan.score <= planner_config.global_below):
+                # little left to see nearby: a trip over the explored graph, if one gains more
+                trip = nbv.reposition(planning_map, T_plan)
+                seconds += trip.seconds
+                if len(trip.waypoints) and (spent or trip.score > plan.score):
+                    plan, step, spent = trip, "global", False
             row = {
                 "iteration": len(rows),
                 "time_s": loop.scans / sensor.rate_hz,
@@ -186,24 +209,46 @@ def explore(
                 "submaps": loop.mapper.num_submaps,
                 "explored_m3": loop.explored_m3(),
                 "path_m": loop.path_m,
-                "plan_s": plan.seconds,
+                "plan_s": seconds,
                 "rays": plan.rays,
                 "gain_m3": plan.gain_m3,
                 "nodes": plan.nodes,
                 "samples": plan.iterations,
+                "score": plan.score,
+                "branch_s": plan.branch_s,
+                "predicted_m3": plan.first_edge_m3,
+                "step": step,
             }
-            if len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3:
-                rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
+            if spent:
+                flown = dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad", "realised_m3"), float("nan"))
+                rows.append({**row, **flown, "reached": False})
                 stopped = "gain" if plan.nodes else "blocked"
                 if on_iteration:
                     on_iteration(loop.mapper, plan, rows[-1])
                 break
-            goal = plan.waypoints[0]
-            # the motion the plan asks for, relative to where the vehicle believes it is
-            T_goal = loop.truth[-1] @ inverse(T_plan) @ pose_from_xyz_yaw(*goal)
-            target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
-            reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target))
-            rows.append({**row, "x_m": goal[0], "y_m": goal[1], "z_m": goal[2], "yaw_rad": goal[3], "reached": reached})
+            # the motion the plan asks for, relative to where the vehicle believed it was when it
+            # planned: a local step flies the best branch's first edge, a global step its whole trip
+            T_true_plan = loop.truth[-1] @ inverse(T_plan)
+            known_m3 = loop.known_m3(nbv.region)
+            for goal in plan.waypoints if step == "global" else plan.waypoints[:1]:
+                T_goal = T_true_plan @ pose_from_xyz_yaw(*goal)
+                target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
+                reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target, controller))
+                if step == "global":
+                    if not reached:
+                        break
+                    nbv.arrived(goal)
+            rows.append(
+                {
+                    **row,
+                    "x_m": goal[0],
+                    "y_m": goal[1],
+                    "z_m": goal[2],
+                    "yaw_rad": goal[3],
+                    "reached": reached,
+                    "realised_m3": loop.known_m3(nbv.region) - known_m3,
+                }
+            )
             if on_iteration:
                 on_iteration(loop.mapper, plan, rows[-1])
             bar.update(loop.mapper.num_submaps - bar.n)
@@ -233,8 +278,17 @@ def _timeout_s(state: np.ndarray, target: np.ndarray, config: ControllerConfig =
 class _Loop:
     """The simulated vehicle and its mapper: flies, scans, drifts, maps, records."""
 
-    def __init__(self, scene, sensor: RangeSensor, noise: NavNoise, seed: int, config: PipelineConfig, metadata: dict):
-        self.scene, self.sensor = scene, sensor
+    def __init__(
+        self,
+        scene,
+        sensor: RangeSensor,
+        noise: NavNoise,
+        seed: int,
+        config: PipelineConfig,
+        metadata: dict,
+        controller: ControllerConfig = ControllerConfig(),
+    ):
+        self.scene, self.sensor, self.controller = scene, sensor, controller
         self.mapper = Mapper(config, metadata)
         self.navigation = SteppedNavigation(noise, seed)
         self.rng = np.random.default_rng(seed + 1)
@@ -244,6 +298,8 @@ class _Loop:
         self.scans = 0
         self.path_m = 0.0
         self.writer = None
+        self._batches: list[ScanBatch] = []  # the recent scans, from the first the mapper holds
+        self._held, self._held_submaps, self._held_upto = None, -1, 0
 
     def true_state(self) -> np.ndarray:
         T = self.truth[-1]
@@ -252,11 +308,15 @@ class _Loop:
     def estimate(self, map_kind: str) -> np.ndarray:
         """The pose the planner plans from: navigation, corrected by the pose graph through the
         last finished submap (navigation alone for the standard map)."""
-        T_nav = self.nav[-1]
+        return self.correction(map_kind) @ self.nav[-1]
+
+    def correction(self, map_kind: str) -> np.ndarray:
+        """(4,4) what takes a navigation pose into the planning frame: the last finished
+        submap's correction by the pose graph (none for the standard map)."""
         k = self.mapper.num_submaps - 1
         if map_kind == "standard" or k < 0:
-            return T_nav
-        return self.mapper.vog.pose(k) @ inverse(self.mapper.submaps[k].T_world_base_nav) @ T_nav
+            return np.eye(4)
+        return self.mapper.vog.pose(k) @ inverse(self.mapper.submaps[k].T_world_base_nav)
 
     def planning_map(self, map_kind: str):
         mapper = self.mapper
@@ -265,7 +325,32 @@ class _Loop:
         if map_kind == "virtual":
             return mapper.vog
         filling = list(range(mapper.num_submaps, len(mapper.submaps)))
-        return Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map
+        # the mapper holds the scans of the submap being filled until it is complete: without
+        # them the planner would not see the last up to 100 scans, and would plan to look again
+        # at what it has just seen
+        return Overlay(mapper.global_map, mapper.vog, filling, extra=self.held_scans_map())
+
+    def held_scans_map(self) -> VogMap:
+        """The scans the mapper holds (not yet in any submap) as one submap of a VogMap, at the
+        poses the planner estimates for them (their navigation with the last finished
+        submap's correction, as `estimate`), in the planning frame. Kept up to date scan batch
+        by scan batch; rebuilt when a submap is finished (the scans it took leave, and the
+        correction changes)."""
+        mapper = self.mapper
+        first = mapper.submaps[-1].first_scan + mapper.submaps[-1].scans if mapper.submaps else 0
+        if self._held is None or self._held_submaps != mapper.num_submaps:
+            self._held = VogMap(mapper.config.map)
+            self._held.add_submap(np.eye(4))
+            self._held_submaps, self._held_upto = mapper.num_submaps, first
+        self._batches = [b for b in self._batches if b.first + len(b) > first]
+        correction = self.correction("global")
+        for batch in self._batches:
+            if batch.first + len(batch) <= self._held_upto:
+                continue
+            part = batch.rows(max(self._held_upto - batch.first, 0), len(batch))
+            self._held.submap(0).integrate_scans(*part.beams(correction @ part.pose_nav, mapper.reach_m))
+            self._held_upto = part.first + len(part)
+        return self._held
 
     def explored_m3(self) -> float:
         """Known (free or occupied) volume of the scene's region in the global map."""
@@ -276,6 +361,18 @@ class _Loop:
         known = (values <= gmap.config.log_free) | (values >= gmap.config.log_occupied)
         return float(np.count_nonzero(inside & known) * gmap.config.voxel_size**3)
 
+    def known_m3(self, region) -> float:
+        """Known volume inside `region` ((2,3), None: everywhere) of the map that follows the
+        vehicle scan by scan: the navigation-only standard map (the global map takes a submap only
+        once it is complete), else the global map. Drift moves that map's voxels, barely their
+        number, so its change over a flight is the volume the flight revealed."""
+        m = self.mapper.standard_map or self.mapper.global_map
+        centres, values = m.voxels()
+        known = (values <= m.config.log_free) | (values >= m.config.log_occupied)
+        if region is not None:
+            known &= np.all((centres >= region[0]) & (centres <= region[1]), axis=1)
+        return float(np.count_nonzero(known) * m.config.voxel_size**3)
+
     def fly(self, waypoints, timeout_s: float | None = None) -> bool:
         """Fly through waypoints (W,4) in the true frame, scanning, until the last one is reached
         (or timeout_s passes); True when reached."""
@@ -284,8 +381,8 @@ class _Loop:
         limit = np.inf if timeout_s is None else timeout_s * rate
         flown = 0
         while flown < limit:
-            flight = vehicle.fly(self.qpos, self.qvel, waypoints, PIECE_SCANS, rate)
-            done = (flight.index == len(waypoints) - 1) & _near(flight.poses, waypoints[-1])
+            flight = vehicle.fly(self.qpos, self.qvel, waypoints, PIECE_SCANS, rate, self.controller)
+            done = (flight.index == len(waypoints) - 1) & _near(flight.poses, waypoints[-1], self.controller)
             keep = int(np.argmax(done)) + 1 if done.any() else PIECE_SCANS
             self._record(flight.poses[:keep])
             self.qpos, self.qvel = flight.qpos[keep - 1], flight.qvel[keep - 1]
@@ -311,7 +408,9 @@ class _Loop:
             "invalid": fields["invalid"],
         }
         self.writer.append(time_s=times, pose_truth=truth, pose_nav=nav, **fields)
-        self.mapper.add(ScanBatch(self.scans, times, truth, nav, **fields))
+        batch = ScanBatch(self.scans, times, truth, nav, **fields)
+        self.mapper.add(batch)
+        self._batches.append(batch)
         positions = np.concatenate([[self.truth[-1][:3, 3]], truth[:, :3, 3]])
         self.path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
         self.truth.append(truth[-1])
