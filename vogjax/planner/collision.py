@@ -1,10 +1,5 @@
 """Collision checks of edges: the vehicle's box swept along each edge, against the map.
 
-OCCUPIED voxels are also kept `obstacle_margin_m` farther off (a larger box swept for them
-alone): the vehicle's estimate drifts from where an obstacle was mapped, while unknown water
-is no nearer for it; an occupied voxel the larger box already holds at the vehicle's position
-does not block (the vehicle may leave a wall it came close to, not approach it).
-
 OCCUPIED and UNKNOWN voxels are unsafe (Bircher et al., Ho), except in the box at the vehicle's
 own position (it is there: that is water, whatever a drifted map says), and for unknown voxels
 two more exceptions, both forced by what a profiling sonar at the bow can see:
@@ -13,10 +8,16 @@ two more exceptions, both forced by what a profiling sonar at the bow can see:
   only those within the height of the vehicle's box: the water above and below it is as unseen,
   and a climb into it would be blind);
 - on an edge that moves in x-y, those whose column is FREE at the height of the edge's centre
-  line (with `layer_only`, or there lies in the vehicle's box: it is water): the fan spans -24.5 to +4.5 degrees, so the top slab of the box (0.25 m above the
-  centre) is seen only from 3 m away and more, while the layer the vehicle travels in is seen
-  all along. An obstacle lying wholly inside the box's top or bottom slab, never seen, is what
-  this lets through (an overhang at the vehicle's top); occupied voxels are always unsafe.
+  line (with `layer_only`, or there lies in the vehicle's box: it is water): the fan spans
+  -24.5 to +4.5 degrees, so the top slab of the box (0.25 m above the centre) is seen only from
+  3 m away and more, while the layer the vehicle travels in is seen all along. An obstacle
+  lying wholly inside the box's top or bottom slab, never seen, is what this lets through (an
+  overhang at the vehicle's top); occupied voxels are always unsafe.
+
+OCCUPIED voxels are also kept `obstacle_margin_m` farther off (a larger box swept for them
+alone): the vehicle's estimate drifts from where an obstacle was mapped, while unknown water
+is no nearer for it; an occupied voxel the larger box already holds at the vehicle's position
+does not block (the vehicle may leave a wall it came close to, not approach it).
 """
 
 from __future__ import annotations
