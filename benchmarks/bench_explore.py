@@ -71,8 +71,8 @@ SCAN_PERIOD_S = 0.2  # Table 4.2: the sonar's 5 frames per second
 
 
 def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
-    """Ho's propeller parameters (thesis Table 4.2): the planner's defaults, OctoMap resolution
-    0.095 m, 100 scans per submap, and the thesis's drift (Eq. 4.1)."""
+    """Ho's propeller parameters (thesis Table 4.2): the planner's defaults with the papers' rule
+    (`PAPERS`), OctoMap resolution 0.095 m, 100 scans per submap, and the thesis's drift (Eq. 4.1)."""
     # Eq. 4.1 adds dt * N(0, Sigma) to each step (Sigma in m^2/s, Sodhi's values): a variance of
     # dt * Sigma per second, a fifth of what Sodhi's Eq. 10 (NavNoise's reading) accrues at 5 Hz
     sodhi = vj.NavNoise()
@@ -82,7 +82,7 @@ def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
         sigma2_y=sodhi.sigma2_y * SCAN_PERIOD_S,
         sigma2_yaw=sodhi.sigma2_yaw * SCAN_PERIOD_S,
     )
-    return PlannerConfig(seed=seed), vj.PipelineConfig(
+    return PlannerConfig(seed=seed, **PAPERS), vj.PipelineConfig(
         map=vj.MapConfig(voxel_size=0.095), scans_per_submap=100, nav_noise=thesis
     )
 
@@ -555,10 +555,7 @@ def compare_scenes(args) -> dict:
     runs, surveys = [], {}
     for scene_name in args.scenes.split(","):
         for seed in [int(x) for x in args.seeds.split(",")]:
-            config = scene_planner(scene_name, seed)
-            if args.rule == "papers":
-                config = config.replace(**PAPERS)
-            config = config.replace(**settings(args.set))
+            config = scene_planner(scene_name, seed, args.rule).replace(**settings(args.set))
             r = compare_run(scene_name, seed, args.submaps, folder, config, args.label or args.rule)
             if scene_name not in surveys:
                 survey_path = folder / f"{scene_name}_survey.h5"
@@ -686,7 +683,7 @@ def main() -> None:
         "survey": survey,
         "table_4_3": table_4_3(runs),
         "timing": probe.rows if probe else [],
-        "planner": PlannerConfig().to_dict(),
+        "planner": table_4_2(0)[0].to_dict(),
     }
     for row in report["table_4_3"]:
         print(

@@ -8,9 +8,10 @@ OCCUPIED voxels are unsafe. UNKNOWN ones are unsafe unless their centre lies wit
 clearance radius of the vehicle's position (with `layer_only`, and meets the height of the
 vehicle's own box: the water above and below it was never seen, so no climb or descent enters
 it on the clearance's word) or (on an edge
-that moves in x-y) the voxel of their column at the height of the edge's centre line there is
-FREE (with `layer_only`, or lies in the vehicle's box, which is water): a sonar fan sees along
-the layer it travels in, and the box's thin top and bottom slabs take that layer's state.
+that moves in x-y; with `layer_only`, on any edge that moves) the voxel of their column at the
+height of the edge's centre line there is FREE (with `layer_only`, or lies in the vehicle's
+box, which is water): a sonar fan sees along the layer it travels in, and the box's thin top
+and bottom slabs take that layer's state; a climb straight up enters only layers seen free.
 """
 
 import warp as wp
@@ -64,22 +65,31 @@ def centre_layer_free(
     last: int,
     vehicle_lo: wp.vec3d,
     vehicle_hi: wp.vec3d,
-    vehicle_is_water: int,
+    seen_layers: int,
 ) -> bool:
-    """Is the voxel of `voxel`'s column at the height of the edge's centre line FREE (with
-    vehicle_is_water, or in the vehicle's box, where it is)? The height is the line's where it
-    passes nearest the voxel's centre in x-y (none for an edge without x-y motion, nor when that
-    voxel is `voxel` itself)."""
+    """Is the voxel of `voxel`'s column at the height of the edge's centre line FREE? The
+    height is the line's where it passes nearest the voxel's centre in x-y; none for an edge
+    without x-y motion, nor when that voxel is `voxel` itself. With seen_layers, also: an edge
+    straight up or down takes the line's height nearest the voxel's (the layer at the top of a
+    climb for the slab above it: a climb may enter only layers seen free), and on an edge that
+    moves in x-y a layer voxel in the vehicle's box is water (the vehicle is there)."""
     dx = end[0] - start[0]
     dy = end[1] - start[1]
+    dz = end[2] - start[2]
     flat = dx * dx + dy * dy
+    t = wp.float64(0.0)
     if flat == wp.float64(0.0):
-        return False
-    t = wp.clamp(((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0), wp.float64(1.0))
-    layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * (end[2] - start[2])) * m.inv_resolution)))
+        if seen_layers == 0 or dz == wp.float64(0.0):
+            return False
+        t = wp.clamp((centre[2] - start[2]) / dz, wp.float64(0.0), wp.float64(1.0))
+    else:
+        t = wp.clamp(
+            ((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0), wp.float64(1.0)
+        )
+    layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * dz) * m.inv_resolution)))
     if layer[2] == voxel[2]:
         return False
-    if vehicle_is_water != 0:
+    if seen_layers != 0 and flat > wp.float64(0.0):  # a climb's layers must be seen, not assumed
         s = m.resolution
         lo = wp.vec3d(wp.float64(layer[0]) * s, wp.float64(layer[1]) * s, wp.float64(layer[2]) * s)
         if boxes_meet(lo, lo + wp.vec3d(s, s, s), vehicle_lo, vehicle_hi):

@@ -291,11 +291,15 @@ def brute_clear(map_, start, end, box, vehicle, clearance, layer_only=False, obs
     d = end - start
     flat = d[:2] @ d[:2]
     layer_free = np.zeros(len(keys), bool)
+    t = None
     if flat > 0:
         t = np.clip((centres[:, :2] - start[:2]) @ d[:2] / flat, 0, 1)
+    elif layer_only and d[2] != 0:  # straight up or down: the line's height nearest the voxel's
+        t = np.clip((centres[:, 2] - start[2]) / d[2], 0, 1)
+    if t is not None:
         layer = np.c_[keys[:, :2], np.floor((start[2] + t * d[2]) / s).astype(int)]
         layer_free = map_.state((layer + 0.5) * s) == vj.FREE
-        if layer_only:  # the layer's voxel in the vehicle's box is water: the vehicle is there
+        if layer_only and flat > 0:  # the layer's voxel in the vehicle's box is water: the vehicle is there
             layer_free |= np.all((layer * s <= vehicle + half) & ((layer + 1) * s >= vehicle - half), axis=1)
         layer_free &= layer[:, 2] != keys[:, 2]
     clear = not np.any((states == vj.OCCUPIED) & ~at_vehicle) and not np.any(
@@ -327,14 +331,16 @@ def test_edges_clear_matches_brute_force():
     starts[30:] = rng.uniform(-1.5, 1.5, (30, 3))
     ends = starts + rng.normal(size=(60, 3)) * 1.2
     ends[5] = starts[5]  # a turn in place
+    ends[6:12] = starts[6:12] + np.c_[np.zeros((6, 2)), rng.uniform(-1.0, 1.0, 6)]  # straight up or down
+    ends[36:42] = starts[36:42] + np.c_[np.zeros((6, 2)), rng.uniform(-1.0, 1.0, 6)]
     for clearance, layer_only in ((0.0, False), (0.9, False), (0.9, True)):
         clear = planner.edges_clear(vmap, starts, ends, box, vehicle, clearance, layer_only)
         expected = [brute_clear(vmap, a, b, box, vehicle, clearance, layer_only) for a, b in zip(starts, ends)]
         np.testing.assert_array_equal(clear, expected)
         assert 5 < np.sum(expected) < 55
-    # known obstacles kept 0.3 m farther off in x and y: fewer edges pass, as brute force says
-    wide = planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9, True, (0.3, 0.3, 0.0))
-    expected = [brute_clear(vmap, a, b, box, vehicle, 0.9, True, (0.3, 0.3, 0.0)) for a, b in zip(starts, ends)]
+    # known obstacles kept 0.5 m farther off in x and y: fewer edges pass, as brute force says
+    wide = planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9, True, (0.5, 0.5, 0.0))
+    expected = [brute_clear(vmap, a, b, box, vehicle, 0.9, True, (0.5, 0.5, 0.0)) for a, b in zip(starts, ends)]
     np.testing.assert_array_equal(wide, expected)
     assert np.sum(wide) < np.sum(planner.edges_clear(vmap, starts, ends, box, vehicle, 0.9, True))
     # the virtual map of a submap holding the same scans answers the same
@@ -358,7 +364,7 @@ def test_a_climb_into_unseen_water_is_refused_and_into_seen_water_allowed():
     ahead = np.c_[np.full(y.size, 4.0), y.ravel(), z.ravel()]
     vmap.integrate_scans(np.array([[-2.0, 0.0, 0.0]]), ahead, np.zeros(len(ahead), np.int64))  # its own layer
     box, vehicle = np.array([1.0, 1.0, 0.5]), np.zeros(3)
-    up = (np.zeros((1, 3)), np.array([[0.0, 0.0, 0.6]]))
+    up = (np.zeros((1, 3)), np.array([[0.0, 0.0, 0.3]]))  # less than the box is tall: still blind
     assert planner.edges_clear(vmap, *up, box, vehicle, 1.5)  # blind: the clearance sphere lets it through
     assert not planner.edges_clear(vmap, *up, box, vehicle, 1.5, layer_only=True)[0]
     assert brute_clear(vmap, up[0][0], up[1][0], box, vehicle, 1.5, True) is False
@@ -383,15 +389,17 @@ def room_map(rng, walls=True):
 
 BOUNDS = np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]])
 SMALL = planner.PlannerConfig(
-    edge_length_m=1.0,
-    max_nodes=8,
-    tolerance_nodes=24,
-    gain_range_m=3.0,
-    gain_step_m=0.2,
-    clearance_m=0.6,
-    max_heading_change_rad=1.0,
-    seed=5,
-    **PAPERS,
+    **{
+        **PAPERS,
+        "edge_length_m": 1.0,
+        "max_nodes": 8,
+        "tolerance_nodes": 24,
+        "gain_range_m": 3.0,
+        "gain_step_m": 0.2,
+        "clearance_m": 0.6,
+        "max_heading_change_rad": 1.0,
+        "seed": 5,
+    }
 )
 
 
@@ -424,6 +432,8 @@ TIME_RULE = {
     "vertical_fraction": 0.25,
     "blind_vertical": False,
     "obstacle_margin_m": 0.2,
+    "min_edge_length_m": 0.3,
+    "margin_z_m": 0.1,
 }
 
 
@@ -452,6 +462,7 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned(turn_cost, rule):
         assert turn <= SMALL.max_heading_change_rad + 1e-9
         if config.yaw_along_path:  # no edge turns longer than its translation takes
             assert turn <= 0.15 * length / 0.25 + 1e-9
+        assert length >= config.min_edge_length_m - 1e-9
         flat, rise = np.linalg.norm(states[n, :2] - states[p, :2]), states[n, 2] - states[p, 2]
         if flat > 1e-9 and config.sloped_fraction > 0:  # climbs and descents within the fan's look
             assert -slope_down * flat - 1e-9 <= rise <= slope_up * flat + 1e-9
@@ -465,7 +476,7 @@ def test_plan_grows_a_valid_tree_whose_best_branch_is_returned(turn_cost, rule):
             states[0, :3],
             SMALL.clearance_m,
             not config.blind_vertical,
-            config.obstacle_margins_m,
+            config.obstacle_margins_m(),
         )
     assert (sloped > 0) == (config.sloped_fraction > 0)
     gains, scores = node_gains(vmap, states, parents, config, SONAR)
@@ -554,7 +565,7 @@ def test_global_step_takes_the_quickest_trip_to_the_best_vertex_left_behind():
     for a_, b_ in zip(hops[:-1], hops[1:]):
         if (a_, b_) not in flown:
             start, end = graph.states[a_, :3], graph.states[b_, :3]
-            assert brute_clear(vmap, start, end, box, start, config.clearance_m, True, config.obstacle_margins_m)
+            assert brute_clear(vmap, start, end, box, start, config.clearance_m, True, config.obstacle_margins_m())
     # the papers' rule keeps no graph and takes no global step
     papers = planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR)
     papers.plan(vmap, T)

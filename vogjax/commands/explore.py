@@ -29,11 +29,18 @@ def add_parser(commands) -> None:
     )
     explore.add_argument("--seed", type=int, default=0, help="seed of the planner, navigation and range noise")
     explore.add_argument(
+        "--rule",
+        default="time",
+        choices=("time", "papers"),
+        help="how the planner chooses: time-aware (gain per second of flight, yaw along the path; "
+        "default) or the papers' rule (discounted gain, with their settings for the scene)",
+    )
+    explore.add_argument(
         "--config",
         type=Path,
         default=None,
-        help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
-        "the scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
+        help="TOML settings: [planner] (PlannerConfig, over the --rule's settings for the "
+        "scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
         "[loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [timing], "
         "[pipeline]; not [report]",
     )
@@ -46,7 +53,7 @@ def run(args) -> None:
 
     if args.seed < 0:
         raise ValueError(f"--seed must be non-negative, got {args.seed}")
-    planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed)
+    planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed, args.rule)
     summary = explore(
         args.scene,
         args.out,

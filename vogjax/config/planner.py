@@ -1,12 +1,15 @@
 """Settings of the next-best-view planner (`vogjax.planner.NbvPlanner`).
 
 Defaults are Ho's propeller experiment (thesis Table 4.2, IROS Table I) for the tree: 2 m RRT
-edges, N_max = 15, lambda = 0.5, a planner sensor range of 5 m and a 1.0 x 1.0 x 0.5 m
-collision box; for the tank (thesis Table 4.4) use edge_length_m = 1.0, gain_range_m = 5.63,
-discount = 0. How a branch is chosen and flown defaults to the time-aware rule (an edge costs
-the time to fly it, the best branch gains the most per second, the vehicle turns while it
-translates); `PAPERS` holds the settings that select the papers' rule instead (gain discounted
-by path length, each axis flown at its own limit), for reproducing their figures.
+edges, N_max = 15, lambda = 0.5 and a 1.0 x 1.0 x 0.5 m collision box (with the papers' 5 m
+planner range in PAPERS); for the tank (thesis Table 4.4) the papers used edge_length_m = 1.0,
+gain_range_m = 5.63, discount = 0 (`vogjax.sim.explore.scene_planner(..., rule="papers")`).
+
+How a branch is chosen and flown defaults to the time-aware rule (an edge costs the time to
+fly it, the best branch gains the most per second, the vehicle turns while it translates);
+`PAPERS` holds the settings that select the papers' rule instead (gain discounted by path
+length, each axis flown at its own limit, their checks and sampling), for reproducing their
+figures.
 """
 
 from __future__ import annotations
@@ -41,21 +44,35 @@ class PlannerConfig(Config):
         in the time the turn takes (IROS Eq. 7's traversal cost c(sigma); the default is the
         simulated vehicle's speed limit over its yaw-rate limit, ControllerConfig's 0.25 m/s over
         0.15 rad/s). 0: turns are free, as in nbvplanner.
-    gain_range_m: range of the simulated sensor rays in the gain (d_max^planner).
+    gain_range_m: range of the simulated sensor rays in the gain (d_max^planner): 8 m by
+        default, most of the papers' sonar's 11 m reach (what the fan will see: with 5 m the
+        planner counted a fifth of what its flights revealed); 5 m in PAPERS (Table 4.2).
     gain_step_m: spacing of the simulated scans along an edge; a turn is sampled so that the
-        fan moves at most this far at gain_range_m (thesis 4.5.4: the path-segment gain).
+        fan moves at most this far at gain_range_m (thesis 4.5.4: the path-segment gain). 0.2
+        m by default, 0.1 m in PAPERS.
+    min_edge_length_m: an edge shorter than this is not grown (the controller reaches a
+        waypoint within 0.15 m: a shorter edge is no motion at all, and its stop costs a plan);
+        0 in PAPERS.
     gain_unknown, gain_free, gain_occupied: what one voxel of each state adds to a view's gain,
         in voxel volumes (nbvplanner counts unknown voxels only).
     box_x_m, box_y_m, box_z_m: the collision box (extents, world-aligned), swept along every edge.
-    margin_m: the box is grown by this much on every side for collision checks: the vehicle's
-        estimate drifts from older parts of the map between loop closures (the papers use none;
-        without it the tank's walls get grazed).
+    margin_m: the box is grown by this much on every side in x and y for collision checks: the
+        vehicle's estimate drifts from older parts of the map between loop closures (the papers
+        use none; without it the tank's walls get grazed).
+    margin_z_m: the same above and below: depth is measured, not dead-reckoned (0.1 m by
+        default, 0.25 m in PAPERS, as in x-y). The box's top is what a climb must have seen.
     obstacle_margin_m: occupied voxels are kept this much farther off in x and y than unknown
         ones (a box grown by it as well, swept for them alone): drift misplaces the obstacles
         the map holds, and under the default navigation noise (a sigma of 0.4 m after 100 s)
         margin_m alone let the box graze the tank's ladder and a piling; unknown water is no
         nearer for drift, and a wider box for it would leave the vehicle no edge out of its
         blind ring. 0 in PAPERS.
+    drift_margin_sigmas: occupied voxels are kept this many sigmas of the navigation's drift
+        farther off again, the sigma passed to each plan (`vogjax explore`: the x-y drift the
+        navigation noise accrues since the last submap a loop closure anchored; 0 in PAPERS),
+        at most max_drift_margin_m.
+    max_drift_margin_m: the cap of that drift margin, metres (a wider one leaves no way
+        between the pilings).
     clearance_m: unknown voxels within this distance of the vehicle's position count as free
         (besides those in its own box): a profiling sonar at the bow never sees the water just
         around the vehicle, so without it no edge could leave the vehicle's box. Occupied voxels
@@ -119,8 +136,8 @@ class PlannerConfig(Config):
     attempts_per_node: int = integer(8, low=1, high=1000)
     discount: float = non_negative(0.5)
     turn_cost_m_per_rad: float = non_negative(ControllerConfig().max_speed_mps / ControllerConfig().max_yaw_rate_rps)
-    gain_range_m: float = positive(5.0)
-    gain_step_m: float = positive(0.1)
+    gain_range_m: float = positive(8.0)
+    gain_step_m: float = positive(0.2)
     gain_unknown: float = non_negative(1.0)
     gain_free: float = non_negative(0.0)
     gain_occupied: float = non_negative(0.0)
@@ -128,7 +145,10 @@ class PlannerConfig(Config):
     box_y_m: float = positive(1.0)
     box_z_m: float = positive(0.5)
     margin_m: float = non_negative(0.25)
+    margin_z_m: float = non_negative(0.1)
     obstacle_margin_m: float = non_negative(0.15)
+    drift_margin_sigmas: float = non_negative(1.0)
+    max_drift_margin_m: float = non_negative(0.45)
     clearance_m: float = non_negative(1.5)
     max_heading_change_rad: float = number(1.5707963267948966, low=0.0, high=3.141592653589793)
     vertical_fraction: float = number(0.1, low=0.0, high=1.0)
@@ -148,6 +168,7 @@ class PlannerConfig(Config):
     global_step: bool = flag(True)
     global_below: float = non_negative(0.1)
     min_round_samples: int = integer(8, low=1, high=MAX_TREE_NODES)
+    min_edge_length_m: float = non_negative(0.3)
 
     def check(self) -> None:
         if self.tolerance_nodes < self.max_nodes:
@@ -161,13 +182,14 @@ class PlannerConfig(Config):
 
     @property
     def checked_box_m(self) -> tuple[float, float, float]:
-        """The box the collision checks sweep: box_m grown by margin_m on every side."""
-        return (self.box_x_m + 2 * self.margin_m, self.box_y_m + 2 * self.margin_m, self.box_z_m + 2 * self.margin_m)
+        """The box the collision checks sweep: box_m grown by margin_m in x-y, margin_z_m in z."""
+        return (self.box_x_m + 2 * self.margin_m, self.box_y_m + 2 * self.margin_m, self.box_z_m + 2 * self.margin_z_m)
 
-    @property
-    def obstacle_margins_m(self) -> tuple[float, float, float]:
-        """How much farther occupied voxels are kept, per axis (x, y, z)."""
-        return (self.obstacle_margin_m, self.obstacle_margin_m, 0.0)
+    def obstacle_margins_m(self, drift_m: float = 0.0) -> tuple[float, float, float]:
+        """How much farther occupied voxels are kept, per axis (x, y, z), when the vehicle's
+        estimate may have drifted drift_m (one sigma, x-y) from where the map put them."""
+        margin = self.obstacle_margin_m + min(self.drift_margin_sigmas * drift_m, self.max_drift_margin_m)
+        return (margin, margin, 0.0)
 
     def edge_seconds(self, length_m, turn_rad):
         """Seconds to fly edges of length_m (metres) and turn_rad (radians, either sign) under
@@ -187,12 +209,17 @@ PAPERS = {
     "gain": "volume",
     "gain_region": "scene",
     "margin_m": 0.25,
+    "margin_z_m": 0.25,
     "obstacle_margin_m": 0.0,
+    "drift_margin_sigmas": 0.0,
     "blind_vertical": True,
     "sloped_fraction": 0.0,
     "global_step": False,
     "min_round_samples": 1,
     "vertical_fraction": 0.25,
+    "gain_range_m": 5.0,
+    "gain_step_m": 0.1,
+    "min_edge_length_m": 0.0,
 }
 
 

@@ -145,6 +145,8 @@ class NbvPlanner:
         elevation = np.arcsin(np.clip(beams[:, 2], -1.0, 1.0))
         self.slopes = np.tan(np.clip([elevation.max(), -elevation.min()], 0.0, np.pi / 4))
         self.memory = np.zeros((0, 4))  # the rest of the last best branch
+        self._obstacle_margins = config.obstacle_margins_m()  # each plan sets them for its drift
+        self._min_edge_m = config.min_edge_length_m  # 0 while a blocked plan is retried
         self.graph = ExploredGraph(config)  # every tree so far, for global steps
 
     def reset(self) -> None:
@@ -213,7 +215,7 @@ class NbvPlanner:
                         hops[k][:3],
                         cfg.clearance_m,
                         layer_only=not cfg.blind_vertical,
-                        obstacle_margin_m=cfg.obstacle_margins_m,
+                        obstacle_margin_m=self._obstacle_margins,
                     )[0]
                     for k in fresh
                 )
@@ -251,29 +253,33 @@ class NbvPlanner:
         weighted = cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1] + cfg.gain_occupied * counts[:, 2]
         return weighted * voxel_m3, unknown_m3
 
-    def plan(self, map_, T_world_vehicle) -> Plan:
+    def plan(self, map_, T_world_vehicle, drift_m: float = 0.0) -> Plan:
         """Grow a tree from T_world_vehicle (4,4) in `map_` (a VoxelMap, GlobalMap, VogMap or
-        Overlay) and return the best branch."""
+        Overlay) and return the best branch. drift_m: how far (one sigma, x-y, metres) the
+        vehicle's estimate may have drifted from where the map put what it holds: occupied
+        voxels are kept `drift_margin_sigmas` times it farther off (at most
+        max_drift_margin_m)."""
         check_map(map_)
+        if not (np.isfinite(drift_m) and drift_m >= 0):
+            raise ValueError(f"drift_m must be a non-negative number, got {drift_m!r}")
+        self._obstacle_margins = self.config.obstacle_margins_m(float(drift_m))
         root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])
         start_s = time.perf_counter()
         with opened(map_) as source:
             # checked before the first sample is drawn: a refused plan leaves the random state
             reach = np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.checked_box_m)
             within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
-            tree = _Tree(root, self.config)
-            rays = self._grow(source, tree, self.memory, root, chain=True)
-            iterations = len(self.memory)
+            tree, rays, iterations = self._grow_tree(source, root)
             cfg = self.config
-            while True:
-                nodes = len(tree.states) - 1
-                if nodes >= cfg.tolerance_nodes or (nodes >= cfg.max_nodes and tree.scores.max() > 0):
-                    break
-                if iterations >= cfg.tolerance_nodes * cfg.attempts_per_node:
-                    break
-                count = min(cfg.max_nodes, max((len(tree.states) + 1) // 2, cfg.min_round_samples))
-                rays += self._grow(source, tree, self._samples(root, count), root, chain=False)
-                iterations += count
+            relaxed = cfg.obstacle_margins_m()
+            if tree.scores.max() <= 0 and (self._obstacle_margins != relaxed or cfg.min_edge_length_m > 0):
+                # blocked or gaining nothing under the drift margin or the shortest edge: both are
+                # preferences (a tight corner may leave only short ways out), the box and its
+                # margins are not
+                self._obstacle_margins, self._min_edge_m = relaxed, 0.0
+                tree, more_rays, more_iterations = self._grow_tree(source, root)
+                rays, iterations = rays + more_rays, iterations + more_iterations
+                self._min_edge_m = cfg.min_edge_length_m
         if cfg.global_step:  # the explored graph keeps the tree: where a later global step may go
             self.graph.add_tree(self.graph.visit(root), tree.states, tree.parents, tree.visible)
         best = int(np.argmax(tree.scores))
@@ -293,6 +299,25 @@ class NbvPlanner:
             float(tree.unknown[first]) if first > 0 else 0.0,
             float(tree.times[best]),
         )
+
+    def _grow_tree(self, source, root: np.ndarray) -> tuple[_Tree, int, int]:
+        """A tree from `root`: the remembered branch, then rounds of samples until N_max nodes
+        gain something, N_tol nodes are grown or the attempts run out. Returns the tree, the
+        gain rays cast and the samples drawn."""
+        cfg = self.config
+        tree = _Tree(root, cfg)
+        rays = self._grow(source, tree, self.memory, root, chain=True)
+        iterations = len(self.memory)
+        while True:
+            nodes = len(tree.states) - 1
+            if nodes >= cfg.tolerance_nodes or (nodes >= cfg.max_nodes and tree.scores.max() > 0):
+                break
+            if iterations >= cfg.tolerance_nodes * cfg.attempts_per_node:
+                break
+            count = min(cfg.max_nodes, max((len(tree.states) + 1) // 2, cfg.min_round_samples))
+            rays += self._grow(source, tree, self._samples(root, count), root, chain=False)
+            iterations += count
+        return tree, rays, iterations
 
     # ---------------------------------------------------------------- sampling
     def _samples(self, root: np.ndarray, count: int) -> np.ndarray:
@@ -347,6 +372,8 @@ class NbvPlanner:
             turn = turn * (allowed / max(cfg.max_heading_change_rad, 1e-12))
         ends = np.c_[starts[:, :3] + step * scale[:, None], targets[:, 3] if chain else wrap_angle(starts[:, 3] + turn)]
         ok = np.all((ends[:, :3] >= self.sample_box[0] - 1e-9) & (ends[:, :3] <= self.sample_box[1] + 1e-9), axis=1)
+        if self._min_edge_m > 0 and not chain:  # a shorter edge is no motion the controller flies
+            ok &= np.linalg.norm(ends[:, :3] - starts[:, :3], axis=1) >= self._min_edge_m
         if chain:
             ok &= (scale >= 1.0) & (np.abs(wrap_angle(ends[:, 3] - starts[:, 3])) <= cfg.max_heading_change_rad + 1e-9)
             ok = np.cumprod(ok).astype(bool)
@@ -359,7 +386,7 @@ class NbvPlanner:
             root[:3],
             cfg.clearance_m,
             layer_only=not cfg.blind_vertical,
-            obstacle_margin_m=cfg.obstacle_margins_m,
+            obstacle_margin_m=self._obstacle_margins,
         )
         if chain:
             ok = np.cumprod(ok).astype(bool)

@@ -29,7 +29,7 @@ from tqdm import tqdm
 import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
-from vogjax.config.planner import ExploreConfig, PlannerConfig
+from vogjax.config.planner import PAPERS, ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import DatasetWriter, ScanBatch
@@ -90,21 +90,42 @@ class ExploreSummary:
 # The papers' planner settings per scene: Ho's tank (thesis Table 4.4: 1 m edges, the sensor's
 # 5.63 m range, no discount); every other scene takes Table 4.2's (PlannerConfig's defaults).
 SCENE_PLANNERS = {"tank": {"edge_length_m": 1.0, "gain_range_m": 5.63, "discount": 0.0}}
+RULES = ("time", "papers")
 
 
-def scene_planner(scene_name: str, seed: int = 0) -> PlannerConfig:
-    """The planner settings the papers used for a scene, seeded with `seed`."""
-    return PlannerConfig(seed=seed, **SCENE_PLANNERS.get(scene_name, {}))
+def scene_planner(scene_name: str, seed: int = 0, rule: str = "time") -> PlannerConfig:
+    """The planner settings for a scene, seeded with `seed`.
+
+    Parameters
+    ----------
+    scene_name : str
+        A built-in scene.
+    seed : int
+        The sampling's seed.
+    rule : {"time", "papers"}
+        "time": PlannerConfig's defaults (the time-aware rule); "papers": the papers' rule
+        (`vogjax.config.planner.PAPERS`) with the papers' settings for the scene (thesis
+        Table 4.4 for the tank, Table 4.2 for the others).
+
+    Returns
+    -------
+    PlannerConfig
+    """
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {', '.join(RULES)}, got {rule!r}")
+    if rule == "papers":
+        return PlannerConfig(seed=seed, **{**PAPERS, **SCENE_PLANNERS.get(scene_name, {})})
+    return PlannerConfig(seed=seed)
 
 
-def load_settings(path, scene_name: str, seed: int) -> tuple[PlannerConfig, PipelineConfig]:
-    """The planner's and the pipeline's settings: the scene's (`scene_planner`) and
+def load_settings(path, scene_name: str, seed: int, rule: str = "time") -> tuple[PlannerConfig, PipelineConfig]:
+    """The planner's and the pipeline's settings: the scene's for `rule` (`scene_planner`) and
     PipelineConfig's defaults, under what a TOML file (None: none) sets; the planner seeded
     with `seed`."""
     config = ExploreConfig.from_toml(path) if path is not None else ExploreConfig()
     given = tomllib.loads(Path(path).read_text()).get("planner", {}) if path is not None else {}
     changes = {key: getattr(config.planner, key) for key in given}  # checked by from_toml
-    return scene_planner(scene_name, seed).replace(**{**changes, "seed": seed}), config.pipeline
+    return scene_planner(scene_name, seed, rule).replace(**{**changes, "seed": seed}), config.pipeline
 
 
 def csv_path_of(out) -> Path:
@@ -130,8 +151,8 @@ def explore(
 ) -> ExploreSummary:
     """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
     write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
-    planning iteration to RUN.explore.csv. planner_config: default the papers' settings for the
-    scene (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise;
+    planning iteration to RUN.explore.csv. planner_config: default the time-aware rule's
+    settings (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise;
     on_iteration(mapper, plan, row): called after each plan (benchmarks); overwrite: replace an
     existing `out` and its CSV (else that is an error, raised before any work)."""
     if map_kind not in MAPS:
@@ -193,7 +214,7 @@ def explore(
                 break
             T_plan = loop.estimate(map_kind)
             planning_map = loop.planning_map(map_kind)
-            plan = nbv.plan(planning_map, T_plan)
+            plan = nbv.plan(planning_map, T_plan, drift_m=loop.drift_m(pipeline_config.nav_noise))
             seconds, step = plan.seconds, "local"
             spent = len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3
             if planner_config.global_step and (spent or plan.score <= planner_config.global_below):
@@ -360,6 +381,18 @@ class _Loop:
         inside = np.all((centres >= lo) & (centres <= hi), axis=1)
         known = (values <= gmap.config.log_free) | (values >= gmap.config.log_occupied)
         return float(np.count_nonzero(inside & known) * gmap.config.voxel_size**3)
+
+    def drift_m(self, noise: NavNoise) -> float:
+        """How far (one sigma, per x-y axis, metres) the estimate may have drifted from the map:
+        what `noise` accrues since the base scan of the latest submap a loop closure anchored
+        (since the start, before any), the closures having tied the estimate to the map there."""
+        anchored_s = 0.0
+        if self.mapper.accepted:
+            latest = max(max(c.i, c.k) for c in self.mapper.accepted)
+            anchored_s = self.mapper.submaps[latest].time_s
+        return float(
+            np.sqrt(max(noise.sigma2_x, noise.sigma2_y) * max(self.scans / self.sensor.rate_hz - anchored_s, 0.0))
+        )
 
     def known_m3(self, region) -> float:
         """Known volume inside `region` ((2,3), None: everywhere) of the map that follows the
