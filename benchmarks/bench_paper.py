@@ -43,11 +43,8 @@ class Recorder(Mapper):
         self.steps, self.samples = [], []
         self.sample_every, self.rays = sample_every, rays
 
-    def finish_submap(self):
-        if not self._pending:
-            return
-        super().finish_submap()
-        k = len(self.submaps) - 1
+    def _take_slam(self, k, *result):
+        super()._take_slam(k, *result)  # submap k is in the graph and the maps now
         self.steps.append({"poses": self.vog.poses(), "marginals": self.graph.marginals(list(range(k + 1)))})
         if (k + 1) % self.sample_every == 0:
             self.samples.append(self._sample())

@@ -48,6 +48,11 @@ def main():
     parser.add_argument("--scans-per-submap", type=int, default=100)
     parser.add_argument("--rays", type=int, default=100_000)
     parser.add_argument("--run", type=Path, default=None, help="map this propeller run instead of simulating one")
+    parser.add_argument(
+        "--slam-thread",
+        action="store_true",
+        help="also map with SLAM on a second thread (slam_thread on against off, alternating), checking the same bits",
+    )
     args = parser.parse_args()
     scans = args.submaps * args.scans_per_submap
     # no timing probes: their full merges and queries would count in the pipeline's wall time
@@ -75,6 +80,7 @@ def main():
         start = time.perf_counter()
         result = pipeline.run(run_path, config)
         seconds = time.perf_counter() - start
+        threads = slam_thread_comparison(run_path, config, result) if args.slam_thread else None
     origins, directions = planner_rays(result.global_map, args.rays)
     result.global_map.raycast(origins[:16], directions[:16], 4.0)
     start = time.perf_counter()
@@ -96,6 +102,8 @@ def main():
         "real_time_factor": survey_s / seconds,
         "steps_s": steps,
         "steps_fraction": {k: v / seconds for k, v in steps.items()},
+        "slam_ms_per_submap": slam_per_submap_ms(result),
+        "slam_thread": threads,
         "reapplied_submaps": int(np.sum(result.timings["reapplied"])),
         "loop_closures": {"accepted": len(result.loop_closures), "rejected": len(result.rejected)},
         "trajectory_rmse_m": ate,
@@ -110,6 +118,8 @@ def main():
         f"{num_scans} scans, {result.vog.num_submaps} submaps on {device}: {seconds:.1f} s, "
         f"{num_scans / seconds:,.0f} scans/s = {survey_s / seconds:.0f}x real time (5 Hz sonar)"
     )
+    slam = report["slam_ms_per_submap"]
+    print(f"  SLAM steps per submap: median {slam['median']:.1f} ms, mean {slam['mean']:.1f} ms")
     for key, value in sorted(steps.items(), key=lambda kv: -kv[1]):
         print(f"  {key:22s} {value:7.2f} s  {value / seconds:5.1%}")
     print(f"  {args.rays:,} planner rays on the final global map: {query_s * 1e3:.1f} ms")
@@ -125,6 +135,36 @@ def main():
     for name_, gain in planning["view_gain"].items():
         print(f"  view_gain on the {name_:7s} map: {gain['rays_per_s']:,.0f} rays/s ({gain['rays']:,} rays)")
     print(f"wrote {args.out / name}")
+
+
+def slam_per_submap_ms(result) -> dict:
+    """Median and mean (ms) of each submap's SLAM steps: the pose graph's updates and marginals
+    (isam2) and the loop-closure detector."""
+    steps = np.asarray(result.timings["isam2"]) + np.asarray(result.timings["loop_closure"])
+    return {"median": float(np.median(steps)) * 1e3, "mean": float(np.mean(steps)) * 1e3}
+
+
+def slam_thread_comparison(run_path: Path, config, reference, repeats: int = 2) -> dict:
+    """The same run with slam_thread "on" and "off", alternating: wall times and whether every
+    pose and the global map are the same bits as `reference` (the default run)."""
+    walls = {"off": [], "on": []}
+    same = True
+    for _ in range(repeats):
+        for flag in ("off", "on"):
+            start = time.perf_counter()
+            result = pipeline.run(run_path, config.replace(slam_thread=flag), progress=False)
+            walls[flag].append(time.perf_counter() - start)
+            same &= np.array_equal(result.optimized, reference.optimized) and all(
+                np.array_equal(a, b) for a, b in zip(result.global_map.sums(), reference.global_map.sums())
+            )
+    out = {flag: {"seconds": w, "median_s": float(np.median(w))} for flag, w in walls.items()}
+    out["off_over_on"] = out["off"]["median_s"] / out["on"]["median_s"]
+    out["same_bits"] = bool(same)
+    print(
+        f"  SLAM on a second thread: {out['on']['median_s']:.1f} s against {out['off']['median_s']:.1f} s in order "
+        f"({out['off_over_on']:.2f}x), same bits: {same}"
+    )
+    return out
 
 
 def planner_workload(result, poses_nav: np.ndarray, iterations: int = 10) -> dict:

@@ -1,7 +1,8 @@
 """SLAM timings: iSAM2 update plus marginals of the moved submaps per loop closure on graphs of
-100 to 1000 submaps, ICP of two 5k-point clouds, and the loop-closure front end (correlative
-searches, then ICP, for a submap's candidates at once) on the host and on a Warp device side by
-side. Writes slam_cpu.json (slam_cuda.json with a CUDA --device).
+100 to 1000 submaps, the closure screen and robust loss against the Gaussian graph, ICP of two
+5k-point clouds, and the loop-closure front end (correlative searches, then ICP, for a
+submap's candidates at once) on the host and on a Warp device side by side. Writes
+slam_cpu.json (slam_cuda.json with a CUDA --device).
 
     python benchmarks/bench_slam.py --out benchmarks/results [--device cuda:0]
 """
@@ -67,6 +68,36 @@ def loop_closure_timings(num_submaps: int, closures: int, rng) -> dict:
         "max_s": float(seconds.max()),
         "mean_moved": float(np.mean([m for _, m in times])),
     }
+
+
+def screen_timings(num_submaps: int, closures: int, seed: int = 0) -> dict:
+    """What the pose graph's screen and robust loss cost per loop closure: the same lawnmower
+    graph and closures with `PoseGraphConfig` as set (screen, Cauchy) against the Gaussian graph
+    (screen and loss off), add_loop_closure + update timed for each, side by side."""
+    out = {"submaps": num_submaps, "loop_closures": closures}
+    for name, config in (
+        ("gaussian", slam.PoseGraphConfig(screen="none", robust_loss="none")),
+        ("screened_robust", slam.PoseGraphConfig()),
+    ):
+        rng = np.random.default_rng(seed)
+        truth, nav = lawnmower(num_submaps, rng)
+        pg = slam.PoseGraph(vj.NavNoise(), prior_pose=truth[0], config=config)
+        for T in nav:
+            pg.add_submap(T, 40.0)
+        pg.update()
+        cov = np.diag([1e-4] * 3 + [1e-3] * 3)
+        add_s, update_s = [], []
+        for _ in range(closures):
+            k = int(rng.integers(num_submaps // 2, num_submaps))
+            i = int(rng.integers(0, k - 2))
+            start = time.perf_counter()
+            pg.add_loop_closure(i, k, inverse(truth[i]) @ truth[k], cov)
+            add_s.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            pg.update()
+            update_s.append(time.perf_counter() - start)
+        out[name] = {"add_median_s": float(np.median(add_s)), "update_median_s": float(np.median(update_s))}
+    return out
 
 
 def icp_timings(rng, points=5000, repeats=5) -> dict:
@@ -188,6 +219,7 @@ def main():
     result = {
         "machine": {"cpu": platform.machine(), "python": platform.python_version(), "device": device},
         "loop_closure_update": graphs,
+        "screen": [screen_timings(n, args.closures) for n in (100, 300)],
         "icp": icp_timings(rng),
         "front_end": front_end_timings(device),
     }
@@ -196,6 +228,13 @@ def main():
         print(
             f"{g['submaps']:5d} submaps: update + marginals of {g['mean_moved']:.0f} moved submaps "
             f"per loop closure: median {g['median_s'] * 1e3:.1f} ms, max {g['max_s'] * 1e3:.1f} ms"
+        )
+    for part in result["screen"]:
+        g, r = part["gaussian"], part["screened_robust"]
+        print(
+            f"{part['submaps']:5d} submaps: add_loop_closure {g['add_median_s'] * 1e3:.2f} ms Gaussian, "
+            f"{r['add_median_s'] * 1e3:.2f} ms screened; update {g['update_median_s'] * 1e3:.1f} / "
+            f"{r['update_median_s'] * 1e3:.1f} ms (Cauchy)"
         )
     for method in ("point_to_plane", "point_to_point_xyh"):
         print(f"ICP {method}, two 5k-point clouds: {result['icp'][method]['median_s'] * 1e3:.1f} ms")

@@ -1,8 +1,10 @@
-"""Warp kernels of vogjax, one module per family (16 modules; 12 define kernels, the other four
+"""Warp kernels of vogjax, one module per family (18 modules; 14 define kernels, the other four
 only Warp functions, structs and constants):
 
 - hashing, traversal: the block hash table and exact voxel walks, shared by every family;
 - integration, queries: the log-odds map's updates and look-ups and ray casts;
+- levels: the coarse levels of a map (OctoMap's inner nodes: the maximum of the children);
+- octree: decoding OctoMap's serialised trees (.bt, .ot, octomap_msgs);
 - fixed_point and submap_view: shared by the two maps over submaps; accumulation (global map),
   virtual (virtual map);
 - confidence, confidence_queries: the confidence-rich map's updates and queries;
@@ -23,6 +25,8 @@ from . import (
     ground_truth,
     hashing,
     integration,
+    levels,
+    octree,
     queries,
     ranging,
     registration,
@@ -50,6 +54,8 @@ __all__ = [
     "ground_truth",
     "hashing",
     "integration",
+    "levels",
+    "octree",
     "planner_collision",
     "planner_maps",
     "queries",

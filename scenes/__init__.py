@@ -1,5 +1,15 @@
-"""Built-in scenes: trimesh scenes from the papers' experiments (`load`), and `analytic`, a pier
-of closed-form primitives with a sonar orbit over it."""
+"""Built-in scenes with ground truth: trimesh scenes from the papers' experiments (`load`), and
+`analytic`, a pier of closed-form primitives with a sonar orbit over it.
+
+Ground-truth labels: FREE (1, water), OCCUPIED (2, the surface passes through the voxel) and
+INSIDE (3, within a solid: never observable, left out of evaluations).
+
+Examples
+--------
+>>> scene = load("boxes")
+>>> scene.name, scene.bounds.shape, scene.survey(laps=2).shape[1]
+('boxes', (2, 3), 4)
+"""
 
 from __future__ import annotations
 
@@ -13,8 +23,24 @@ NAMES = tuple(BUILDERS)
 
 
 def load(name: str) -> Scene:
-    """One of NAMES: "propeller", "pilings", "tank", "boxes". Every caller gets the same Scene,
-    so its arrays are read-only (copy one to change it)."""
+    """A built-in scene by name, built once.
+
+    Parameters
+    ----------
+    name : str
+        One of NAMES: "propeller", "pilings", "tank", "boxes".
+
+    Returns
+    -------
+    Scene
+        The scene. Every caller gets the same Scene, so its arrays are read-only (copy one to
+        change it).
+
+    Raises
+    ------
+    ValueError
+        If `name` is not one of NAMES.
+    """
     if not isinstance(name, str) or name not in BUILDERS:
         raise ValueError(f"scene name must be one of {', '.join(NAMES)}, got {name!r}")
     return _load(name)

@@ -29,9 +29,18 @@ def _survey_depths(bounds: np.ndarray) -> np.ndarray:
 
 
 def propeller() -> Scene:
-    """Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin. About
-    7 x 4 x 6 m as the thesis gives for SS Curtiss's (4.4.2): 7 m from rudder to shaft, blades
-    3.2 m long, their disc 6 m tall and pressed to 4 m across (y) like the thesis's model."""
+    """A ship's propeller seen from the starboard side (Ho, thesis 4.4.2).
+
+    Hub and shaft along x, five twisted blades, a rudder aft; the hub at the origin. About
+    7 x 4 x 6 m as the thesis gives for SS Curtiss's: 7 m from rudder to shaft, blades 3.2 m
+    long, their disc 6 m tall and pressed to 4 m across (y) like the thesis's model.
+
+    Returns
+    -------
+    Scene
+        The scene; its exploration box is 12 x 7 x 3.5 m, starboard of the propeller, flown as a
+        lawnmower looking at it.
+    """
     parts = [
         cylinder_between([-0.7, 0, 0], [0.7, 0, 0], 0.55),  # hub
         cylinder_between([0.7, 0, 0], [3.8, 0, 0], 0.25),  # shaft into the hull
@@ -55,7 +64,13 @@ def propeller() -> Scene:
 
 
 def pilings() -> Scene:
-    """Two rows of slanted piles at uneven spacing between a seabed and a deck."""
+    """A pier's pilings: two rows of slanted piles at uneven spacing between a seabed and a deck.
+
+    Returns
+    -------
+    Scene
+        The scene; its survey goes around the pier, corner to corner.
+    """
     rng = np.random.default_rng(7)
     parts = [box([-11, -8, -0.4], [11, 8, 0.0]), box([-11, -3.5, 6.0], [11, 3.5, 6.4])]
     xs = np.array([-7.5, -4.2, -0.9, 1.8, 5.6])
@@ -79,7 +94,13 @@ def pilings() -> Scene:
 
 
 def tank() -> Scene:
-    """A cylindrical tank 7 m across and 3 m deep, an aluminium box on its floor, a ladder."""
+    """The test tank (Ho, thesis 4.6.1): 7 m across and 3 m deep, an aluminium box on its floor, a ladder.
+
+    Returns
+    -------
+    Scene
+        The scene; its exploration box is 12 x 12 x 2.5 m, its survey circles the middle.
+    """
     parts = [
         trimesh.creation.annulus(
             r_min=3.5, r_max=3.7, height=3.2, transform=trimesh.transformations.translation_matrix([0, 0, 1.5])
@@ -104,7 +125,13 @@ def tank() -> Scene:
 
 
 def boxes() -> Scene:
-    """Three boxes on a floor: a small scene for fast tests."""
+    """Three boxes on a floor: a small scene for fast tests.
+
+    Returns
+    -------
+    Scene
+        The scene; its survey orbits the boxes.
+    """
     parts = [
         box([-4, -4, -0.2], [4, 4, 0.0]),
         box([-1.5, -1.0, 0.0], [-0.3, 0.4, 1.2]),

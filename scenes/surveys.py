@@ -2,11 +2,33 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 
-def orbit(centre, radius_m: float, depths_m, points_per_lap: int = 16) -> np.ndarray:
-    """(W,4) waypoints circling `centre` (x, y) at each depth, facing the centre."""
+def orbit(
+    centre: Sequence[float], radius_m: float, depths_m: Sequence[float], points_per_lap: int = 16
+) -> npt.NDArray[np.float64]:
+    """Waypoints circling a point at each depth, facing it.
+
+    Parameters
+    ----------
+    centre : sequence of float
+        (x, y) of the point circled, metres.
+    radius_m : float
+        Radius of the circle, metres.
+    depths_m : sequence of float
+        Height of each lap, metres, in the order flown.
+    points_per_lap : int, optional
+        Waypoints per lap; each lap ends where it began.
+
+    Returns
+    -------
+    (W, 4) ndarray of float64
+        Waypoints (x, y, z, yaw), W = len(depths_m) * (points_per_lap + 1).
+    """
     angles = np.linspace(0, 2 * np.pi, points_per_lap, endpoint=False)
     rows = []
     for z in depths_m:
@@ -17,8 +39,27 @@ def orbit(centre, radius_m: float, depths_m, points_per_lap: int = 16) -> np.nda
     return np.asarray(rows)
 
 
-def lawnmower(bounds: np.ndarray, heading: float, depths_m, lanes: int = 3) -> np.ndarray:
-    """(W,4) passes along x across the box at each depth, `lanes` lines in y, fixed heading."""
+def lawnmower(
+    bounds: npt.NDArray[np.floating], heading: float, depths_m: Sequence[float], lanes: int = 3
+) -> npt.NDArray[np.float64]:
+    """Waypoints of passes along x across a box at each depth, at a fixed heading.
+
+    Parameters
+    ----------
+    bounds : (2, 3) ndarray of float
+        The box: min and max corner, metres; passes keep 0.5 m inside it.
+    heading : float
+        Yaw held throughout, radians (the sensor looks that way, not along the pass).
+    depths_m : sequence of float
+        Height of each set of passes, metres.
+    lanes : int, optional
+        Passes per depth, evenly spaced in y, alternating in direction.
+
+    Returns
+    -------
+    (W, 4) ndarray of float64
+        Waypoints (x, y, z, yaw), two per pass.
+    """
     rows = []
     ys = np.linspace(bounds[0, 1] + 0.5, bounds[1, 1] - 0.5, lanes)
     for z in depths_m:

@@ -60,7 +60,7 @@ def test_import_keeps_an_existing_run_unless_overwrite(tmp_path, capsys):
     out.write_bytes(b"an earlier run")
     argv = ["import", bag, "--points", "/points", "--odometry", "/odom", "--frame", "lidar", "--out", out, "--quiet"]
     line = refused(capsys, argv)
-    assert line.startswith("vogjax import: error: out ") and str(out) in line and "--overwrite" in line
+    assert line.startswith("vogjax import: error: --out ") and str(out) in line and "--overwrite" in line
     assert out.read_bytes() == b"an earlier run"  # refused before any work
     assert cli.main([str(a) for a in argv] + ["--overwrite"]) == 0
     assert str(out) in capsys.readouterr().out

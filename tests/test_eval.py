@@ -60,3 +60,16 @@ def test_rmse_of_a_map_with_too_few_occupied_voxels_to_register_is_not_measurabl
     for count in (0, 1, 2):
         assert vj_eval.reconstruction_rmse(surface[:count] + 0.01, surface) is None
     assert 0.0 <= vj_eval.reconstruction_rmse(surface[:50] + 0.01, surface) < 0.02  # 0.017 before registration
+
+
+def test_registration_errors_name_the_arguments():
+    from vogjax.report.metrics import reconstruction_rmse, register_to_surface
+
+    surface = np.random.default_rng(0).normal(size=(50, 3))
+    with pytest.raises(ValueError, match="^points must hold at least"):
+        register_to_surface(surface[:2], surface)
+    with pytest.raises(ValueError, match="^surface must hold at least"):
+        register_to_surface(surface, surface[:2])
+    with pytest.raises(ValueError, match="^surface"):
+        reconstruction_rmse(surface, np.full((5, 3), np.nan))
+    assert reconstruction_rmse(surface[:2], surface) is None  # too little to register: not measurable

@@ -226,7 +226,9 @@ def test_killed_map_jobs_leave_the_earlier_results_and_nothing_stale(tmp_path, e
     (tmp_path / "settings.toml").write_text(SETTINGS)
     maps = tmp_path / "maps"
     maps.mkdir()
-    argv = vogjax("map", tmp_path / "run.h5", "--out", maps, "--config", tmp_path / "settings.toml", "--quiet")
+    argv = vogjax(
+        "map", tmp_path / "run.h5", "--out", maps, "--config", tmp_path / "settings.toml", "--quiet", "--overwrite"
+    )
     earlier = complete_run(argv, env, maps, "run")
     results = maps / "run"
     earlier_files = folder_bytes(results)

@@ -120,7 +120,7 @@ def test_a_failure_while_writing_leaves_the_earlier_results(mapped, boxes_run, m
     monkeypatch.setattr(job.plots, "timing", broken)
     config = JobConfig.from_document({"timing": {"rays": 100, "every_submaps": 5}, "report": {"surface_points": 1000}})
     with pytest.raises(RuntimeError, match="disk full"):
-        job.map_runs([boxes_run], mapped.parent, config, progress=False)
+        job.map_runs([boxes_run], mapped.parent, config, progress=False, overwrite=True)
     assert (mapped / "report.json").read_text() == before
     assert sorted(p.name for p in mapped.parent.iterdir()) == [mapped.name]
 
@@ -219,3 +219,48 @@ def test_paper_preset_is_sodhi_with_the_bounded_rule(tmp_path):
     settings.write_text("[pipeline]\neps_move_m = 0\n")
     literal = JobConfig.from_toml(settings, JobConfig.preset("paper")).pipeline
     assert literal == PipelineConfig.paper(eps_move_m=0.0) != paper
+
+
+def test_every_report_field_is_described(mapped):
+    from vogjax.report.fields import FIELDS, undescribed
+
+    report = json.loads((mapped / "report.json").read_text())
+    assert undescribed(report) == []
+    # and every described field occurs (the confidence map's only with --crm)
+    for path in FIELDS:
+        if "*" in path or path.startswith("confidence_map."):
+            continue
+        node = report
+        for key in path.split("."):
+            assert isinstance(node, dict) and key in node, f"{path} is described but not in the report"
+            node = node[key]
+    assert undescribed({"auc": {"online": 0.5}, "no_such_field": 1}) == ["no_such_field"]
+
+
+def test_loop_closures_csv_and_report_give_every_verdict_and_its_figure(mapped):
+    """One row per judged pair: accepted closures first (their error in the report), then each
+    rejection with the reason, the figure that failed and its bound, which do fail (the figure
+    past the bound on the side the test refuses)."""
+    import csv
+
+    report = json.loads((mapped / "report.json").read_text())
+    with open(mapped / "loop_closures.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    lc = report["loop_closures"]
+    assert len(rows) == lc["accepted"] + lc["rejected"]
+    accepted, rejected = rows[: lc["accepted"]], rows[lc["accepted"] :]
+    assert all(r["verdict"] == "accepted" for r in accepted)
+    for row, error in zip(accepted, lc["errors"]):
+        assert (int(row["i"]), int(row["k"])) == (error["i"], error["k"])
+        assert float(row["error_m_rigid"]) == pytest.approx(error["translation_m_rigid"], abs=1e-6)
+    lower_bounds = {"overlap", "inliers"}  # refused below the bound; the others above it
+    assert [r["verdict"] for r in rejected] == [r["reason"] for r in lc["rejections"]]
+    for row in rejected:
+        if row["verdict"] == "not converged":
+            continue
+        value, limit = float(row["value"]), float(row["limit"])
+        assert value < limit if row["verdict"] in lower_bounds else value > limit
+    counts = {}
+    for row in rejected:
+        counts[row["verdict"]] = counts.get(row["verdict"], 0) + 1
+    assert counts == lc["rejected_by_reason"]

@@ -267,3 +267,43 @@ def test_aligned_auc_takes_out_where_the_anchor_put_the_map(boxes_run):
     metrics, curves = vj_eval.evaluate_run(moved, scene, surface_points=5_000)
     assert curves["online, registered to the truth"].auc == after["auc_aligned"]["online"]
     assert set(metrics["auc"]) == set(curves) - {"online, registered to the truth"}
+
+
+def test_slam_on_a_second_thread_gives_the_same_bits(boxes_run):
+    """SLAM beside the map work (slam_thread) against every step in order: the same closures and
+    rejections, optimised poses, global map sums and timing probes' submap counts."""
+    import dataclasses
+
+    config = pipeline.PipelineConfig(
+        scans_per_submap=50, batch_scans=120, timing=pipeline.PipelineConfig().timing.replace(every_submaps=3)
+    )
+    one, two = (pipeline.run(boxes_run, config.replace(slam_thread=flag), progress=False) for flag in ("off", "on"))
+    assert one.loop_closures and one.rejected  # the graph moves, and some pairs are refused
+    np.testing.assert_array_equal(one.optimized, two.optimized)
+    assert [(c.i, c.k) for c in one.loop_closures] == [(c.i, c.k) for c in two.loop_closures]
+    for a, b in zip(one.loop_closures, two.loop_closures):
+        assert np.array_equal(a.T_i_k, b.T_i_k) and np.array_equal(a.covariance, b.covariance)
+    assert [dataclasses.astuple(r)[:3] for r in one.rejected] == [dataclasses.astuple(r)[:3] for r in two.rejected]
+    assert all(np.array_equal(x, y) for x, y in zip(one.global_map.sums(), two.global_map.sums()))
+    assert one.global_map.applied_ids == two.global_map.applied_ids
+    assert [p["submaps"] for p in one.probes] == [p["submaps"] for p in two.probes]
+    assert one.timings["reapplied"] == two.timings["reapplied"]
+
+
+def test_a_live_mapper_with_a_slam_thread_syncs_before_answering(boxes_run):
+    """Between batches the last submap's SLAM may be in flight; sync() brings the graph and the
+    global map up to date, as a mapper without the thread has them after each batch."""
+    from vogjax.io.dataset import Dataset
+
+    config = pipeline.PipelineConfig(scans_per_submap=50, batch_scans=120)
+    with Dataset(boxes_run) as ds:
+        plain, threaded = pipeline.Mapper(config, ds.metadata), pipeline.Mapper(config, ds.metadata, overlap=True)
+        try:
+            for batch in ds.batches(120):
+                plain.add(batch)
+                threaded.add(batch)
+                threaded.sync()
+                assert threaded.global_map.applied_ids == plain.global_map.applied_ids
+                np.testing.assert_array_equal(threaded.vog.poses(), plain.vog.poses())
+        finally:
+            threaded.close()

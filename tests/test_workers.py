@@ -87,7 +87,7 @@ def test_two_workers_give_the_reports_of_one_by_one_and_a_failure_stays_alone(ru
     errors = captured.err.strip().splitlines()
     assert len(errors) == 1 and errors[0].startswith(f"vogjax map: error: {broken}: ")
     assert not captured.out.startswith("20")  # no Ray banner before the table
-    assert captured.out.splitlines()[0].split()[0] == "run"
+    assert captured.out.splitlines()[0].split() == [p.stem for p in paths]  # the table's header: the runs
     for path in paths:
         serial = json.loads((root / "serial" / path.stem / "report.json").read_text())
         parallel = json.loads((root / "parallel" / path.stem / "report.json").read_text())
@@ -111,7 +111,7 @@ def test_bad_worker_arguments_are_clear_errors(runs, capsys, monkeypatch):
         assert exit_info.value.code == 2
         return capsys.readouterr().err
 
-    assert "--workers must be a positive integer" in fails("--workers", "0")
+    assert "argument --workers: must be a positive integer" in fails("--workers", "0")
     monkeypatch.setitem(sys.modules, "ray", None)  # as if the extra were not installed
     assert "pip install 'vogjax[workers]'" in fails("--workers", "2")
     assert not (root / "bad").exists()

@@ -14,7 +14,18 @@ from vogjax.maps import (
     VoxelMap,
 )
 
-__version__ = "0.1.0"
+
+def _installed_version() -> str:
+    # the version lives in pyproject.toml only: read from the installed package's metadata
+    from importlib import metadata
+
+    try:
+        return metadata.version("vogjax")
+    except metadata.PackageNotFoundError:  # run from a source folder without being installed
+        return "0+unknown"
+
+
+__version__ = _installed_version()
 
 _SUBPACKAGES = (
     "config",

@@ -28,7 +28,7 @@ def run(out: Path, scene: str = "propeller", laps: int = 2, progress: bool = Tru
     )
     print(f"simulated {summary.scans} scans ({summary.duration_s:.0f} s of survey) of the {scene} scene")
     # 2. map it: submaps, loop closures, iSAM2, the online global map; evaluate and draw
-    report = reporting.map_runs([run_path], out, progress=progress)[0]
+    report = reporting.map_runs([run_path], out, progress=progress, overwrite=True)[0]  # the demo's own
     # 3. summarise
     print()
     print(reporting.summary_table([report]))

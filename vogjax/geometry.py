@@ -1,12 +1,21 @@
-"""All rotation and pose arithmetic of vogjax: SE(3) on 4x4 homogeneous matrices, SO(3),
-z-y-x Euler angles (R = Rz(yaw) Ry(pitch) Rx(roll)) and quaternions (w, x, y, z). NumPy,
-float64, batched over leading axes; SciPy's Rotation where it is the plain conversion.
+"""All rotation and pose arithmetic of vogjax.
 
-Pose names follow the frames: T_world_submap maps submap coordinates to world coordinates."""
+SE(3) on 4x4 homogeneous matrices, SO(3), z-y-x Euler angles (R = Rz(yaw) Ry(pitch) Rx(roll))
+and quaternions (w, x, y, z). NumPy, float64, batched over leading axes; SciPy's Rotation where
+it is the plain conversion. Twists are (rotation vector, translation part), GTSAM's tangent
+order.
+
+Pose names follow the frames: ``T_world_submap`` maps submap coordinates to world coordinates.
+Angles are radians, lengths metres.
+"""
 
 from __future__ import annotations
 
+from types import ModuleType
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation, Slerp
 
 from vogjax.validation import real_array
@@ -14,10 +23,31 @@ from vogjax.validation import real_array
 RIGID_TOLERANCE = 1e-6
 
 
-def rigid_poses(name: str, value, count: int | None = None) -> np.ndarray:
-    """(n,4,4) float64 rigid transforms (a single (4,4) is accepted when count is None).
+def rigid_poses(name: str, value: npt.ArrayLike, count: int | None = None) -> npt.NDArray[np.float64]:
+    """Check and convert a batch of rigid transforms.
 
-    Rotation blocks must be orthonormal with determinant +1 (to 1e-6) and the last row 0 0 0 1.
+    Rotation blocks must be orthonormal with determinant +1 (to RIGID_TOLERANCE, 1e-6) and the
+    last row exactly 0 0 0 1.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : (n, 4, 4) array_like of float
+        The transforms; a single (4, 4) is accepted when `count` is None.
+    count : int or None, optional
+        The number of transforms required (None: any).
+
+    Returns
+    -------
+    (n, 4, 4) ndarray of float64
+        The transforms (n = 1 for a single one).
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not real numbers, the wrong shape (or count), NaN or infinite entries, a
+        rotation part that is not a proper rotation, or a last row other than 0 0 0 1.
     """
     poses = real_array(name, value)
     single = poses.ndim == 2
@@ -50,16 +80,45 @@ def _rigid_batch(name: str, value) -> np.ndarray:
     return poses
 
 
-def rigid_pose(name: str, value) -> np.ndarray:
-    """One (4,4) float64 rigid transform, checked as `rigid_poses` checks."""
+def rigid_pose(name: str, value: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Check and convert one rigid transform, as `rigid_poses` checks.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : (4, 4) array_like of float
+        The transform.
+
+    Returns
+    -------
+    (4, 4) ndarray of float64
+        The transform.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not a (4, 4) array of real numbers, or not rigid (see `rigid_poses`).
+    """
     array = real_array(name, value)
     if array.shape != (4, 4):
         raise ValueError(f"{name} must have shape (4, 4), got {array.shape}")
     return rigid_poses(name, array)[0]
 
 
-def inverse(poses: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms (..., 4, 4)."""
+def inverse(poses: npt.NDArray[np.floating]) -> npt.NDArray[np.floating]:
+    """Inverse of rigid transforms, from the transpose of their rotations (not checked).
+
+    Parameters
+    ----------
+    poses : (..., 4, 4) ndarray of float
+        Rigid transforms ``T_a_b``.
+
+    Returns
+    -------
+    (..., 4, 4) ndarray
+        ``T_b_a``, of the dtype of `poses`.
+    """
     out = np.zeros_like(poses)
     rotation_t = np.swapaxes(poses[..., :3, :3], -1, -2)
     out[..., :3, :3] = rotation_t
@@ -68,8 +127,21 @@ def inverse(poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def log_so3(rotations: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3)."""
+def log_so3(rotations: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+    """SO(3) logarithm: the rotation vectors of rotation matrices.
+
+    Stable near the identity and near a half turn (where the axis comes from (R + I) / 2).
+
+    Parameters
+    ----------
+    rotations : (..., 3, 3) ndarray of float
+        Proper rotation matrices (not checked).
+
+    Returns
+    -------
+    (..., 3) ndarray of float64
+        Rotation vectors: axis times angle, the angle in [0, pi] radians.
+    """
     cos = np.clip((np.trace(rotations, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     angle = np.arccos(cos)
     skew = np.stack(
@@ -94,8 +166,19 @@ def log_so3(rotations: np.ndarray) -> np.ndarray:
     return vector
 
 
-def skew(vectors: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices of vectors (..., 3)."""
+def skew(vectors: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Cross-product matrices: ``skew(v) @ u == cross(v, u)``.
+
+    Parameters
+    ----------
+    vectors : (..., 3) array_like of float
+        The vectors.
+
+    Returns
+    -------
+    (..., 3, 3) ndarray of float64
+        Their skew-symmetric matrices.
+    """
     v = np.asarray(vectors, dtype=np.float64)
     z = np.zeros(v.shape[:-1])
     return np.stack(
@@ -108,8 +191,19 @@ def skew(vectors: np.ndarray) -> np.ndarray:
     )
 
 
-def exp_se3(twists: np.ndarray) -> np.ndarray:
-    """SE(3) exponential of twists (..., 6) = (rotation vector omega, v) -> (..., 4, 4)."""
+def exp_se3(twists: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """SE(3) exponential of twists.
+
+    Parameters
+    ----------
+    twists : (..., 6) array_like of float
+        (rotation vector omega in radians, translation part v in metres).
+
+    Returns
+    -------
+    (..., 4, 4) ndarray of float64
+        The rigid transforms ``exp(twist)``.
+    """
     xi = np.asarray(twists, dtype=np.float64)
     omega, v = xi[..., :3], xi[..., 3:]
     theta = np.linalg.norm(omega, axis=-1)[..., None, None]
@@ -128,8 +222,20 @@ def exp_se3(twists: np.ndarray) -> np.ndarray:
     return T
 
 
-def log_se3(poses: np.ndarray) -> np.ndarray:
-    """Twists (..., 6) = (rotation vector, translation part rho) with exp(twist) = pose."""
+def log_se3(poses: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+    """SE(3) logarithm, the inverse of `exp_se3`.
+
+    Parameters
+    ----------
+    poses : (..., 4, 4) ndarray of float
+        Rigid transforms (not checked).
+
+    Returns
+    -------
+    (..., 6) ndarray of float64
+        Twists (rotation vector, translation part rho) with ``exp_se3(twist) == pose``; a series
+        below 1e-4 rad keeps small rotations accurate.
+    """
     omega = log_so3(poses[..., :3, :3])
     theta = np.linalg.norm(omega, axis=-1)
     t = poses[..., :3, 3]
@@ -146,17 +252,49 @@ def log_se3(poses: np.ndarray) -> np.ndarray:
     return np.concatenate([omega, rho], axis=-1)
 
 
-def pose_deltas(T_old: np.ndarray, T_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation angle (rad) and translation norm (m) of log(T_old^-1 T_new), per pose, for rigid
-    poses (..., 4, 4) (checked as `rigid_poses` checks: the SE(3) log of anything else is
-    meaningless, and a scaled pose would read as no motion)."""
+def pose_deltas(T_old: npt.ArrayLike, T_new: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """How far each pose moved: the rotation angle and translation norm of ``log(T_old^-1 T_new)``.
+
+    These are the quantities Algorithm 1 compares with eps_rot and eps_trans.
+
+    Parameters
+    ----------
+    T_old : (..., 4, 4) array_like of float
+        The poses before, rigid (checked as `rigid_poses` checks: the SE(3) log of anything else
+        is meaningless, and a scaled pose would read as no motion).
+    T_new : (..., 4, 4) array_like of float
+        The poses after, of the same shape, rigid.
+
+    Returns
+    -------
+    angle : (...) ndarray of float64
+        Rotation angle of each relative pose, radians.
+    translation : (...) ndarray of float64
+        Norm of the translation part of its twist, metres.
+
+    Raises
+    ------
+    ValueError
+        Naming `T_old` or `T_new` if it is not a batch of rigid transforms.
+    """
     T_old, T_new = _rigid_batch("T_old", T_old), _rigid_batch("T_new", T_new)
     twist = log_se3(inverse(T_old) @ T_new)
     return np.linalg.norm(twist[..., :3], axis=-1), np.linalg.norm(twist[..., 3:], axis=-1)
 
 
-def xyh_covariance(marginals: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) covariance of x, y, yaw from GTSAM Pose3 marginals (rotation, translation)."""
+def xyh_covariance(marginals: npt.NDArray[np.floating]) -> npt.NDArray[np.floating]:
+    """The x, y, yaw block of GTSAM Pose3 marginal covariances.
+
+    Parameters
+    ----------
+    marginals : (..., 6, 6) ndarray of float
+        Covariances in GTSAM's tangent order (rotation x, y, z, then translation x, y, z).
+
+    Returns
+    -------
+    (..., 3, 3) ndarray
+        Covariance of (x, y, yaw): m^2, m rad, rad^2.
+    """
     index = [3, 4, 2]
     return marginals[..., index, :][..., :, index]
 
@@ -171,9 +309,29 @@ CHI2_3DOF_95 = 7.814727903251178
 _PSD_TOLERANCE = 1e-8
 
 
-def confidence_volume(marginals: np.ndarray) -> np.ndarray:
-    """Volume of the 95% confidence ellipsoid of x, y, yaw for each (6,6) marginal covariance
-    (..., 6, 6): finite, and positive semi-definite in x, y, yaw up to round-off."""
+def confidence_volume(marginals: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Volume of the 95% confidence ellipsoid of x, y, yaw of each marginal covariance.
+
+    Algorithm 1's measure of a submap's uncertainty (compared with eps_cov):
+    ``4/3 pi chi2_3(0.95)^1.5 sqrt(det Sigma_xyh)``.
+
+    Parameters
+    ----------
+    marginals : (..., 6, 6) array_like of float
+        GTSAM Pose3 marginal covariances (rotation, then translation): finite, and symmetric and
+        positive semi-definite in x, y, yaw up to round-off (1e-8 of the largest entry).
+
+    Returns
+    -------
+    (...) ndarray of float64
+        The volumes, m^2 rad; 0 for a singular covariance.
+
+    Raises
+    ------
+    ValueError
+        If `marginals` has the wrong shape, holds NaN or infinite values, or is not symmetric or
+        not positive semi-definite in x, y, yaw.
+    """
     marginals = real_array("marginals", marginals)
     if marginals.ndim < 2 or marginals.shape[-2:] != (6, 6):
         raise ValueError(f"marginals must have shape (..., 6, 6), got {marginals.shape}")
@@ -189,13 +347,35 @@ def confidence_volume(marginals: np.ndarray) -> np.ndarray:
     return 4.0 / 3.0 * np.pi * CHI2_3DOF_95**1.5 * np.sqrt(det)
 
 
-def wrap_angle(angle):
-    """Angles wrapped to [-pi, pi) (NumPy or JAX arrays, or floats)."""
+def wrap_angle(angle: Any) -> Any:
+    """Angles wrapped to [-pi, pi).
+
+    Parameters
+    ----------
+    angle : float or array_like
+        Angles, radians: a float, a NumPy or a JAX array.
+
+    Returns
+    -------
+    float or array
+        The wrapped angles, of the type of `angle` (a JAX array stays one, for jitted code).
+    """
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def yaw_pitch_roll(rotations: np.ndarray) -> np.ndarray:
-    """(..., 3) z-y-x Euler angles of rotation matrices (..., 3, 3)."""
+def yaw_pitch_roll(rotations: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """z-y-x Euler angles of rotation matrices (R = Rz(yaw) Ry(pitch) Rx(roll)).
+
+    Parameters
+    ----------
+    rotations : (..., 3, 3) array_like of float
+        Rotation matrices.
+
+    Returns
+    -------
+    (..., 3) ndarray of float64
+        (yaw, pitch, roll), radians; pitch in [-pi/2, pi/2].
+    """
     r = np.asarray(rotations, dtype=np.float64)
     yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
     pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
@@ -203,27 +383,67 @@ def yaw_pitch_roll(rotations: np.ndarray) -> np.ndarray:
     return np.stack([yaw, pitch, roll], axis=-1)
 
 
-def rotation_from_ypr(yaw, pitch=0.0, roll=0.0) -> np.ndarray:
-    """(..., 3, 3) rotation matrices Rz(yaw) Ry(pitch) Rx(roll)."""
+def rotation_from_ypr(
+    yaw: npt.ArrayLike, pitch: npt.ArrayLike = 0.0, roll: npt.ArrayLike = 0.0
+) -> npt.NDArray[np.float64]:
+    """Rotation matrices Rz(yaw) Ry(pitch) Rx(roll).
+
+    Parameters
+    ----------
+    yaw : float or (...) array_like of float
+        Rotation about z, radians.
+    pitch : float or (...) array_like of float, optional
+        Rotation about the new y, radians; broadcast against `yaw`.
+    roll : float or (...) array_like of float, optional
+        Rotation about the new x, radians; broadcast against `yaw`.
+
+    Returns
+    -------
+    (..., 3, 3) ndarray of float64
+        One rotation per broadcast element; (3, 3) for scalars.
+    """
     angles = np.stack(np.broadcast_arrays(yaw, pitch, roll), axis=-1).astype(np.float64)
     return Rotation.from_euler("ZYX", angles.reshape(-1, 3)).as_matrix().reshape(*angles.shape[:-1], 3, 3)
 
 
-def euler_rates(rotation: np.ndarray) -> np.ndarray:
-    """(3,3) d(yaw, pitch, roll) / d(omega) for a body-frame rotation perturbation R Exp(omega)."""
+def euler_rates(rotation: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Jacobian of the z-y-x Euler angles under a body-frame rotation perturbation ``R Exp(omega)``.
+
+    Parameters
+    ----------
+    rotation : (3, 3) array_like of float
+        The rotation R (singular at pitch = +-pi/2).
+
+    Returns
+    -------
+    (3, 3) ndarray of float64
+        ``d(yaw, pitch, roll) / d(omega)``.
+    """
     _, pitch, roll = yaw_pitch_roll(rotation)
     sr, cr = np.sin(roll), np.cos(roll)
     cp, tp = np.cos(pitch), np.tan(pitch)
     return np.array([[0.0, sr / cp, cr / cp], [0.0, cr, -sr], [1.0, sr * tp, cr * tp]])
 
 
-def align_xy_yaw(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(4,4) rotation about z and x-y translation taking `positions` (N,3) closest to
-    `reference` (N,3) in least squares; z is left as it is.
+def align_xy_yaw(positions: npt.ArrayLike, reference: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """The rotation about z and x-y translation taking `positions` closest to `reference`.
 
     These are the directions a pose graph with absolute depth, pitch and roll cannot observe:
     its whole solution inherits them from where the first pose was anchored. The yaw has a
-    closed form (the angle of the summed cross and dot products of the centred x-y points)."""
+    closed form (the angle of the summed cross and dot products of the centred x-y points).
+
+    Parameters
+    ----------
+    positions : (N, 3) array_like of float
+        Points to move, metres.
+    reference : (N, 3) array_like of float
+        Where they should be, point by point, metres.
+
+    Returns
+    -------
+    (4, 4) ndarray of float64
+        The transform minimising the x-y least-squares error; it leaves z as it is.
+    """
     a = np.asarray(positions, dtype=np.float64)[:, :2]
     b = np.asarray(reference, dtype=np.float64)[:, :2]
     a_mean, b_mean = a.mean(axis=0), b.mean(axis=0)
@@ -234,17 +454,42 @@ def align_xy_yaw(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return T
 
 
-def pose_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> np.ndarray:
-    """(4,4) T_world_body of a level body at (x, y, z) heading `yaw`."""
+def pose_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> npt.NDArray[np.float64]:
+    """The pose of a level body at a position and heading.
+
+    Parameters
+    ----------
+    x, y, z : float
+        Position, metres.
+    yaw : float
+        Heading, radians (rotation about z; pitch and roll 0).
+
+    Returns
+    -------
+    (4, 4) ndarray of float64
+        ``T_world_body``.
+    """
     T = np.eye(4)
     T[:3, :3] = rotation_from_ypr(yaw)
     T[:3, 3] = [x, y, z]
     return T
 
 
-def rotation_from_quaternion(q, xp=np):
-    """(3,3) rotation of a unit quaternion (w, x, y, z); `xp`: the array module (NumPy or
-    jax.numpy, so the simulator's jitted controller shares it)."""
+def rotation_from_quaternion(q: Any, xp: ModuleType = np) -> Any:
+    """Rotation matrix of a unit quaternion, in NumPy or jax.numpy.
+
+    Parameters
+    ----------
+    q : (4,) array_like of float
+        Unit quaternion (w, x, y, z) (not normalised here).
+    xp : module, optional
+        The array module: NumPy, or jax.numpy so the simulator's jitted controller shares it.
+
+    Returns
+    -------
+    (3, 3) array
+        The rotation, an array of `xp`.
+    """
     w, x, y, z = q[0], q[1], q[2], q[3]
     return xp.array(
         [
@@ -255,15 +500,45 @@ def rotation_from_quaternion(q, xp=np):
     )
 
 
-def yaw_of_quaternion(q, xp=np):
-    """Yaw (z-y-x Euler) of a unit quaternion (w, x, y, z); `xp` as in rotation_from_quaternion."""
+def yaw_of_quaternion(q: Any, xp: ModuleType = np) -> Any:
+    """Yaw (z-y-x Euler) of a unit quaternion, in NumPy or jax.numpy.
+
+    Parameters
+    ----------
+    q : (4,) array_like of float
+        Unit quaternion (w, x, y, z).
+    xp : module, optional
+        The array module, as in `rotation_from_quaternion`.
+
+    Returns
+    -------
+    scalar array
+        The yaw in [-pi, pi] radians, an array of `xp`.
+    """
     w, x, y, z = q[0], q[1], q[2], q[3]
     return xp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-def quaternions_from_rotations(rotations: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3), which must be
-    proper rotations to RIGID_TOLERANCE (SciPy would quietly take the nearest one)."""
+def quaternions_from_rotations(rotations: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Unit quaternions of rotation matrices.
+
+    Parameters
+    ----------
+    rotations : (..., 3, 3) array_like of float
+        Proper rotations, orthonormal to RIGID_TOLERANCE (1e-6) with determinant +1: checked,
+        since SciPy would quietly take the nearest rotation.
+
+    Returns
+    -------
+    (..., 4) ndarray of float64
+        Unit quaternions (w, x, y, z).
+
+    Raises
+    ------
+    ValueError
+        If `rotations` has the wrong shape, holds NaN or infinite values or is not a proper
+        rotation.
+    """
     r = real_array("rotations", rotations)
     if r.ndim < 2 or r.shape[-2:] != (3, 3):
         raise ValueError(f"rotations must have shape (..., 3, 3), got {r.shape}")
@@ -275,9 +550,24 @@ def quaternions_from_rotations(rotations: np.ndarray) -> np.ndarray:
     return q.reshape(*r.shape[:-2], 4)
 
 
-def rotations_from_quaternions(quaternions: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices of quaternions (..., 4) (w, x, y, z), normalised first
-    (finite, of non-zero norm)."""
+def rotations_from_quaternions(quaternions: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Rotation matrices of quaternions, normalised first.
+
+    Parameters
+    ----------
+    quaternions : (..., 4) array_like of float
+        Quaternions (w, x, y, z): finite, of non-zero norm.
+
+    Returns
+    -------
+    (..., 3, 3) ndarray of float64
+        The rotations.
+
+    Raises
+    ------
+    ValueError
+        If `quaternions` has the wrong shape, holds NaN or infinite values or one of zero norm.
+    """
     q = real_array("quaternions", quaternions)
     if q.ndim < 1 or q.shape[-1] != 4:
         raise ValueError(f"quaternions must have shape (..., 4), got {q.shape}")
@@ -288,9 +578,25 @@ def rotations_from_quaternions(quaternions: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*q.shape[:-1], 3, 3)
 
 
-def interpolate_poses(times: np.ndarray, poses: np.ndarray, query_times: np.ndarray) -> np.ndarray:
-    """Poses (N,4,4) at increasing times (N,), interpolated at query times (M,) within their
-    span: positions linearly, rotations by slerp."""
+def interpolate_poses(
+    times: npt.ArrayLike, poses: npt.NDArray[np.floating], query_times: npt.ArrayLike
+) -> npt.NDArray[np.float64]:
+    """Poses interpolated at query times: positions linearly, rotations by slerp.
+
+    Parameters
+    ----------
+    times : (N,) array_like of float
+        Strictly increasing times of the poses, seconds (not checked).
+    poses : (N, 4, 4) ndarray of float
+        Rigid poses at `times`.
+    query_times : (M,) array_like of float
+        Times within ``[times[0], times[-1]]`` (a single pose answers every query with itself).
+
+    Returns
+    -------
+    (M, 4, 4) ndarray of float64
+        The interpolated poses.
+    """
     t = np.asarray(times, dtype=np.float64)
     q = np.asarray(query_times, dtype=np.float64)
     if len(t) == 1:

@@ -3,13 +3,36 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config.schema import finite_real
 
 
-def real_array(name: str, value, dtype=np.float64) -> np.ndarray:
-    """`value` as an array of real numbers (integers or floats; not booleans, complex numbers,
-    text or ragged lists, which NumPy would quietly convert or refuse naming nothing)."""
+def real_array(name: str, value: npt.ArrayLike, dtype: npt.DTypeLike = np.float64) -> npt.NDArray:
+    """An array of real numbers (integers or floats), converted to `dtype`.
+
+    Booleans, complex numbers, text and ragged lists are refused: NumPy would quietly convert
+    them or refuse them naming nothing.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : array_like
+        The values, of any shape.
+    dtype : dtype_like, optional
+        The dtype of the result (default float64).
+
+    Returns
+    -------
+    ndarray
+        `value` as an array of `dtype` (no copy when it is one already).
+
+    Raises
+    ------
+    ValueError
+        Naming `name`, if `value` cannot be read as an array or does not hold real numbers.
+    """
     try:
         array = np.asarray(value)
     except Exception as error:  # ragged lists, jax/torch conversion errors
@@ -19,8 +42,33 @@ def real_array(name: str, value, dtype=np.float64) -> np.ndarray:
     return array.astype(dtype, copy=False)
 
 
-def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """A finite floating array of the given shape (-1: any length), converted to `dtype`."""
+def float_array(
+    name: str, value: npt.ArrayLike, shape: tuple[int, ...], dtype: npt.DTypeLike = np.float32
+) -> npt.NDArray[np.floating]:
+    """A finite floating array of the given shape, converted to `dtype`.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : array_like
+        Real numbers.
+    shape : tuple of int
+        The shape required; -1 in an axis: any length.
+    dtype : dtype_like, optional
+        The floating dtype of the result (default float32; values beyond its range become
+        infinite, which key-range checks refuse).
+
+    Returns
+    -------
+    ndarray
+        A C-contiguous array of `dtype`.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not real numbers, the wrong shape, or NaN or infinite values.
+    """
     array = np.asarray(real_array(name, value, np.float64) if not isinstance(value, np.ndarray) else value)
     if array.dtype.kind not in "fiu" or array.dtype == np.bool_:
         raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
@@ -33,8 +81,26 @@ def float_array(name: str, value, shape: tuple, dtype=np.float32) -> np.ndarray:
         return np.ascontiguousarray(array, dtype=dtype)
 
 
-def positive_number(name: str, value) -> float:
-    """A positive finite real number (a bool is not one), as a float."""
+def positive_number(name: str, value: float) -> float:
+    """A positive finite real number (a bool is not one), as a float.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : float
+        The number.
+
+    Returns
+    -------
+    float
+        `value`.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`, if `value` is not a positive finite real number.
+    """
     if (
         isinstance(value, bool)
         or not isinstance(value, (int, float, np.integer, np.floating))
@@ -44,8 +110,28 @@ def positive_number(name: str, value) -> float:
     return float(value)
 
 
-def positive_range(name: str, value, count: int) -> np.ndarray:
-    """A positive finite range, scalar or one per ray, as a float64 array of length `count`."""
+def positive_range(name: str, value: float | npt.ArrayLike, count: int) -> npt.NDArray[np.float64]:
+    """A positive finite range, one for every ray or one per ray.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : float or (count,) array_like of float
+        The range, metres.
+    count : int
+        The number of rays.
+
+    Returns
+    -------
+    (count,) ndarray of float64
+        The range of each ray.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not positive and finite real numbers, or not one per ray.
+    """
     if np.isscalar(value):
         return np.full(count, positive_number(name, value), dtype=np.float64)
     array = float_array(name, value, (count,), np.float64)
@@ -54,8 +140,30 @@ def positive_range(name: str, value, count: int) -> np.ndarray:
     return array
 
 
-def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
-    """Integers in [0, upper), one per element, as int32."""
+def index_array(name: str, value: npt.ArrayLike, count: int, upper: int) -> npt.NDArray[np.int32]:
+    """Integers in [0, upper), one per element, as int32.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    value : (count,) array_like of int
+        The indices (an empty list counts as integers).
+    count : int
+        The number of elements required.
+    upper : int
+        One past the largest index allowed.
+
+    Returns
+    -------
+    (count,) ndarray of int32
+        The indices, C-contiguous.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not integers, not `count` of them, or outside [0, upper).
+    """
     try:
         array = np.asarray(value)
     except Exception as error:  # ragged lists
@@ -69,8 +177,27 @@ def index_array(name: str, value, count: int, upper: int) -> np.ndarray:
     return np.ascontiguousarray(array, dtype=np.int32)
 
 
-def within_key_range(name: str, array: np.ndarray, voxel_size: float, limit: int) -> None:
-    """Coordinates must map to voxel keys the block table can pack."""
+def within_key_range(name: str, array: npt.NDArray, voxel_size: float, limit: int) -> None:
+    """Check that coordinates map to voxel keys the block table can pack.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for error messages.
+    array : ndarray
+        Coordinates, metres, of any shape.
+    voxel_size : float
+        The voxel edge, metres.
+    limit : int
+        The largest voxel key magnitude the table packs (`hashing.VOXEL_KEY_LIMIT`); keys must
+        stay 2 below it.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`, if a coordinate lies (limit - 2) voxels or farther from the origin on
+        an axis (NaN is not checked here).
+    """
     if not array.size:
         return
     if array.dtype.kind == "f":  # |array|.max() without a temporary (NaN propagates alike)

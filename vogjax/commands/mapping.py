@@ -2,28 +2,84 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
+from vogjax.commands.common import add_output_flags, config_help, refuse_existing, ruled
+
+DESCRIPTION = """\
+Reprocess recorded runs into loop-closure-consistent occupancy maps. Each run's scans are cut
+into submaps anchored to the nodes of an iSAM2 pose graph, loop closures are found by
+registering submaps against earlier ones, and the online global map is kept consistent by
+undoing and redoing only the submaps whose poses moved and are uncertain (Sodhi et al.,
+Algorithm 1). Per run, DIR/<run name>/ receives the map (global_map.vog), the trajectories
+(CSV and TUM), the loop closures, report.json and four figures (top_view.png,
+trajectory.png, roc.png, timing.png); a run of a built-in scene is scored against its ground
+truth. A table of each run's headline figures is printed. An existing run folder is kept
+unless --overwrite is given; a folder appears only once everything in it is written."""
+
+EPILOG = """\
+examples:
+  vogjax map boxes.h5 --out maps
+  vogjax map a.h5 b.h5 --out maps --preset paper --config settings.toml --overwrite
+  vogjax map runs/*.h5 --out maps --workers 4        # several runs at once (Ray)"""
+
 
 def add_parser(commands) -> None:
-    mapping = commands.add_parser("map", help="reprocess runs into loop-closure-consistent maps, with reports")
-    mapping.add_argument("runs", nargs="+", type=Path, help="run files (HDF5, from `vogjax simulate` or a logger)")
-    mapping.add_argument("--out", type=Path, required=True, help="output folder: one sub-folder per run")
-    mapping.add_argument("--config", type=Path, default=None, help="TOML settings (see README)")
+    """Declare `vogjax map` and its arguments.
+
+    Parameters
+    ----------
+    commands : argparse._SubParsersAction
+        The subcommands of `vogjax`.
+    """
+    from vogjax.config.pipeline import PRESETS
+
+    mapping = commands.add_parser(
+        "map",
+        help="reprocess runs into loop-closure-consistent maps, with reports",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+    )
     mapping.add_argument(
-        "--preset", default=None, help="settings to start from: default or paper (--config overrides them)"
+        "runs",
+        nargs="+",
+        type=Path,
+        metavar="RUN",
+        help="run files (HDF5, from `vogjax simulate`, `import` or a logger)",
+    )
+    mapping.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder: one sub-folder per run")
+    mapping.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help=config_help(
+            "[map], [nav_noise], [loop_closure] (with [loop_closure.icp], "
+            "[loop_closure.correlative]), [pose_graph], [timing], [pipeline] and [report]"
+        ),
+    )
+    mapping.add_argument(
+        "--preset",
+        choices=PRESETS,
+        default="default",
+        help="settings to start from: default, or paper (Sodhi et al. IV-C: 200 scans per submap, no "
+        "clamping); --config overrides them",
     )
     mapping.add_argument(
         "--workers",
-        type=int,
+        type=ruled("integer", 1),
         default=None,
+        metavar="N",
         help="map this many runs at once with Ray, each in its own process; a run that fails "
-        "fails alone (pip install 'vogjax[workers]')",
+        "fails alone (pip install 'vogjax[workers]'; default: one after another in this process, "
+        "or with --address one worker per run)",
     )
     mapping.add_argument(
         "--address",
         default=None,
+        metavar="ADDR",
         help="with --workers: an existing Ray cluster (e.g. ray://head:10001, or auto); default: a local one",
     )
     mapping.add_argument(
@@ -31,26 +87,39 @@ def add_parser(commands) -> None:
         action="store_true",
         help="also build a confidence-rich map of each run ([pipeline] confidence_map = true)",
     )
-    mapping.add_argument("--quiet", action="store_true", help="no progress bars")
+    mapping.add_argument("--overwrite", action="store_true", help="replace a run's folder in --out if it exists")
+    add_output_flags(mapping)
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
+    """Map the runs, print the summary table and the folders written.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of `vogjax map`.
+    """
     from vogjax import report
     from vogjax.config import JobConfig
 
+    for path in args.runs:
+        refuse_existing(args.out / path.stem, args.overwrite, flag="--out", folder=True)
     base = JobConfig.preset(args.preset)
     config = JobConfig.from_toml(args.config, base) if args.config else base
     if args.crm:
         config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))
+    progress = not args.quiet
     if args.workers is None and args.address is None:
-        reports = report.map_runs(args.runs, args.out, config, progress=not args.quiet)
+        reports = report.map_runs(args.runs, args.out, config, progress=progress, overwrite=args.overwrite)
         print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
         return
     from vogjax.report.workers import map_runs_parallel
 
     workers = len(args.runs) if args.workers is None else args.workers
-    outcomes = map_runs_parallel(args.runs, args.out, config, workers, args.address, progress=not args.quiet)
+    outcomes = map_runs_parallel(
+        args.runs, args.out, config, workers, args.address, progress=progress, overwrite=args.overwrite
+    )
     reports = [o.report for o in outcomes if o.report is not None]
     if reports:
         print(report.summary_table(reports))

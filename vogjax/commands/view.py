@@ -5,21 +5,54 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from vogjax.commands.common import add_output_flags
+
+DESCRIPTION = """\
+Show a map or a `vogjax map` report folder in the rerun 3D viewer (pip install
+'vogjax[view]'): the occupied voxels as boxes coloured by height, and for a report folder the
+trajectories (truth, navigation, optimised), the submap base poses and the loop closures. With
+--save the recording is written to an .rrd file instead (replaced if it exists), to open later
+with `rerun FILE.rrd` or on another machine."""
+
+EPILOG = """\
+examples:
+  vogjax view maps/boxes
+  vogjax view maps/boxes/global_map.vog --save boxes.rrd"""
+
 
 def add_parser(commands) -> None:
+    """Declare `vogjax view` and its arguments.
+
+    Parameters
+    ----------
+    commands : argparse._SubParsersAction
+        The subcommands of `vogjax`.
+    """
     view = commands.add_parser(
-        "view", help="show a map or report folder in the rerun viewer (pip install 'vogjax[view]')"
+        "view",
+        help="show a map or report folder in the rerun viewer (pip install 'vogjax[view]')",
+        description=DESCRIPTION,
+        epilog=EPILOG,
     )
     view.add_argument("path", type=Path, help="a report folder of `vogjax map` (DIR/<run> or DIR) or a map file (.vog)")
     view.add_argument(
         "--save",
         type=Path,
         default=None,
-        help="write the recording to this .rrd file instead of opening a viewer (`rerun FILE.rrd` shows it)",
+        metavar="FILE.rrd",
+        help="write the recording to this .rrd file (`rerun FILE.rrd` shows it; default: open a viewer)",
     )
+    add_output_flags(view)
 
 
 def run(args) -> None:
+    """Send the map to the viewer (or the .rrd file) and print what was logged.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of `vogjax view`.
+    """
     from vogjax.report.viewer import view
 
     try:

@@ -11,7 +11,7 @@ from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.config.schema import Config, Rule
 from vogjax.config.sensing import NavNoise, SonarConfig
 from vogjax.config.sim import ControllerConfig
-from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig
+from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
 
 __all__ = [
     "Config",
@@ -25,6 +25,7 @@ __all__ = [
     "NavNoise",
     "PRESETS",
     "PipelineConfig",
+    "PoseGraphConfig",
     "PointCloudConfig",
     "ReportConfig",
     "Rule",

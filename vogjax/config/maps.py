@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 
@@ -15,8 +16,24 @@ MAX_RANGE_VOXELS = 4096
 
 
 def logodds(probability: float) -> np.float32:
-    """Log-odds of a probability, rounded to float32 the way OctoMap stores it (+-inf at 1 and 0:
-    clamping at those probabilities clamps nothing)."""
+    """Log-odds of a probability, rounded to float32 the way OctoMap stores it.
+
+    Parameters
+    ----------
+    probability : float
+        A probability in [0, 1].
+
+    Returns
+    -------
+    numpy.float32
+        ``log(p / (1 - p))``; -inf at 0 and +inf at 1 (or beyond), so clamping at those
+        probabilities clamps nothing.
+
+    Examples
+    --------
+    >>> float(logodds(0.5))
+    0.0
+    """
     if probability <= 0.0:
         return np.float32(-np.inf)
     if probability >= 1.0:
@@ -26,30 +43,68 @@ def logodds(probability: float) -> np.float32:
 
 @dataclasses.dataclass(frozen=True)
 class MapConfig(Config):
-    """Occupancy map parameters. Defaults are those of Sodhi et al. (IV-C) with OctoMap's clamping.
+    """Settings of the log-odds occupancy maps (`vj.VoxelMap`, `vj.VogMap`, `vj.GlobalMap`).
 
-    voxel_size:          edge of a voxel, metres; voxel k covers [k*s, (k+1)*s) on each axis
-    prob_hit, prob_miss: inverse sensor model for the endpoint and the cells a beam crosses
-    occupied_threshold:  probability at or above which a voxel is OCCUPIED
-    free_threshold:      probability at or below which a voxel is FREE (between: UNKNOWN)
-    clamp_min, clamp_max: probabilities the log-odds are clamped to after every update; 0 and 1
-                         clamp nothing (Sodhi et al.'s p_min = 0, p_max = 1: `MapConfig.paper()`)
-    max_range:           beams longer than this give free space up to it and no hit, metres
+    Defaults are those of Sodhi et al. (IV-C) with OctoMap's clamping; `MapConfig.paper()` drops
+    the clamping, as the paper does.
+
+    Attributes
+    ----------
+    voxel_size : float
+        Edge of a voxel, metres; voxel k covers ``[k*s, (k+1)*s)`` on each axis.
+    prob_hit : float
+        Inverse sensor model: occupancy probability a beam's endpoint gives its voxel.
+    prob_miss : float
+        Inverse sensor model: occupancy probability a beam gives each voxel it crosses before
+        its endpoint.
+    occupied_threshold : float
+        Probability at or above which a voxel is OCCUPIED.
+    free_threshold : float
+        Probability at or below which a voxel is FREE (between the thresholds: UNKNOWN).
+    clamp_min : float
+        Probability the log-odds are clamped up to after every update; 0 clamps nothing (Sodhi et
+        al.'s p_min = 0: `MapConfig.paper()`). The default is OctoMap's.
+    clamp_max : float
+        Probability the log-odds are clamped down to after every update; 1 clamps nothing (Sodhi
+        et al.'s p_max = 1). The default is OctoMap's.
+    max_range : float
+        Beams longer than this give free space up to it and no hit, metres; at most 4096 voxels
+        (integration allocates per beam for every block a beam may cross).
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range, `prob_hit` is not above 0.5 or `prob_miss` not below
+        it, `free_threshold` exceeds `occupied_threshold`, `clamp_min` is not below `clamp_max`,
+        or `max_range` exceeds 4096 voxels.
     """
 
-    voxel_size: float = number(0.1, low=1e-4, high=1e3)
+    voxel_size: float = number(0.1, low=1e-4, high=1e3, doc="in m")
     prob_hit: float = probability(0.75)
     prob_miss: float = probability(0.2)
     occupied_threshold: float = probability(0.7)
     free_threshold: float = probability(0.3)
     clamp_min: float = number(0.1192, low=0, high=1, high_open=True)
     clamp_max: float = number(0.971, low=0, high=1, low_open=True)
-    max_range: float = positive(11.0)
+    max_range: float = positive(11.0, doc="in m")
 
     @classmethod
-    def paper(cls, **changes) -> MapConfig:
-        """Sodhi et al. IV-C: 10 cm voxels, hit/miss 0.75/0.2, thresholds 0.7/0.3, and no clamping
-        (p_min = 0, p_max = 1), which keeps every update invertible."""
+    def paper(cls, **changes: Any) -> MapConfig:
+        """The settings of Sodhi et al. IV-C.
+
+        10 cm voxels, hit/miss 0.75/0.2, thresholds 0.7/0.3, and no clamping (p_min = 0,
+        p_max = 1), which keeps every update invertible.
+
+        Parameters
+        ----------
+        **changes
+            Settings that replace the paper's.
+
+        Returns
+        -------
+        MapConfig
+            The paper's settings with `changes` applied.
+        """
         return cls(
             **{
                 "voxel_size": 0.1,
@@ -77,27 +132,32 @@ class MapConfig(Config):
                 f"integration allocates per beam for every block a beam may cross, got {self.max_range!r}"
             )
 
-    # Log-odds forms, float32 like the stored values.
     @property
     def log_hit(self) -> np.float32:
+        """Log-odds of `prob_hit`, float32 like the stored values."""
         return logodds(self.prob_hit)
 
     @property
     def log_miss(self) -> np.float32:
+        """Log-odds of `prob_miss`, float32 like the stored values."""
         return logodds(self.prob_miss)
 
     @property
     def log_occupied(self) -> np.float32:
+        """Log-odds of `occupied_threshold`, float32 like the stored values."""
         return logodds(self.occupied_threshold)
 
     @property
     def log_free(self) -> np.float32:
+        """Log-odds of `free_threshold`, float32 like the stored values."""
         return logodds(self.free_threshold)
 
     @property
     def log_clamp_min(self) -> np.float32:
+        """Log-odds of `clamp_min` (-inf at 0: no clamping), float32 like the stored values."""
         return logodds(self.clamp_min)
 
     @property
     def log_clamp_max(self) -> np.float32:
+        """Log-odds of `clamp_max` (+inf at 1: no clamping), float32 like the stored values."""
         return logodds(self.clamp_max)

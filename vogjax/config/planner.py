@@ -128,6 +128,12 @@ class PlannerConfig(Config):
     gain_region: where gain counts (`vogjax explore`): "bounds", the scene's exploration box
         (the volume to explore); "scene", the box holding the scene's mesh and that box (the
         papers' runs counted everything the rays reach).
+    collision_level, gain_level: the map level the collision checks and the gain rays read: 0
+        the map's voxels; k >= 1 voxels of voxel_size * 2^k holding the most occupied of their
+        observed voxels (`docs/concepts/multi-resolution.md`). A coarse level never lets an edge
+        through an OCCUPIED voxel, but reads a coarse voxel as FREE when its observed voxels
+        are, unknown ones among them; a coarse gain counts coarse voxels (their volume), so
+        partly seen ones count as seen. Needs a VoxelMap, GlobalMap or VogMap (not an Overlay).
     """
 
     edge_length_m: float = positive(2.0)
@@ -169,6 +175,8 @@ class PlannerConfig(Config):
     global_below: float = non_negative(0.1)
     min_round_samples: int = integer(8, low=1, high=MAX_TREE_NODES)
     min_edge_length_m: float = non_negative(0.3)
+    collision_level: int = integer(0, low=0, high=15)
+    gain_level: int = integer(0, low=0, high=15)
 
     def check(self) -> None:
         if self.tolerance_nodes < self.max_nodes:

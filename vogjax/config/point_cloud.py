@@ -1,5 +1,5 @@
 """Settings of a recorded range sensor whose beams change from scan to scan (a lidar's point
-cloud or a laser scanner's fan, imported from a ROS bag)."""
+cloud, a laser scanner's fan or a depth camera's pixels, imported from a ROS bag)."""
 
 from __future__ import annotations
 
@@ -10,17 +10,31 @@ from vogjax.config.schema import Config, integer, non_negative, positive, text
 
 @dataclasses.dataclass(frozen=True)
 class PointCloudConfig(Config):
-    """message:     the ROS message the scans came from (PointCloud2 or LaserScan)
-    beams:       beams per stored scan (scans with fewer real beams are padded with copies of
-                 one of their own beams, which changes no map)
-    rate_hz:     mean scans per second of the recording (10 when it holds a single scan)
-    min_range_m: returns below it were dropped as invalid (LaserScan's range_min)
-    max_range_m: the sensor's reach: LaserScan's range_max, or for a point cloud the farthest
-                 return (or what the importer was told); beams without a return clear free space
-                 up to it
+    """Settings of a recorded point-cloud, laser-scan or depth-camera sensor, as a bag import derives them.
+
+    Attributes
+    ----------
+    message : str
+        The ROS message the scans came from: "PointCloud2", "LaserScan" or "Image" (a depth
+        camera's).
+    beams : int
+        Beams per stored scan (scans with fewer real beams are padded with copies of one of their
+        own beams, which changes no map).
+    rate_hz : float
+        Mean scans per second of the recording (10 when it holds a single scan).
+    min_range_m : float
+        Returns below it were dropped as invalid (LaserScan's range_min), metres.
+    max_range_m : float
+        The sensor's reach, metres: LaserScan's range_max, or for a point cloud the farthest
+        return (or what the importer was told); beams without a return clear free space up to it.
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range or `min_range_m` is not below `max_range_m`.
     """
 
-    message: str = text("PointCloud2", ("PointCloud2", "LaserScan"))
+    message: str = text("PointCloud2", ("PointCloud2", "LaserScan", "Image"))
     beams: int = integer(1, low=1)
     rate_hz: float = positive(10.0)
     min_range_m: float = non_negative(0.0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config.schema import Config, integer, non_negative, number, positive
 
@@ -14,23 +15,62 @@ MAX_BEAMS = 1 << 20
 
 @dataclasses.dataclass(frozen=True)
 class NavNoise(Config):
-    """Navigation drift per second of travel (Sodhi et al., Eq. 10; variances in m^2/s, rad^2/s).
+    """Navigation drift per second of travel (Sodhi et al., Eq. 10).
 
-    x, y and yaw drift (relative xyh factors); z, pitch and roll are measured absolutely
-    (depth sensor, inclinometers: unary zpr factors).
+    x, y and yaw drift (relative xyh factors); z, pitch and roll are measured absolutely (depth
+    sensor, inclinometers: unary zpr factors). The defaults are the paper's.
+
+    Attributes
+    ----------
+    sigma2_x : float
+        Variance of the x drift per second of travel, m^2/s.
+    sigma2_y : float
+        Variance of the y drift per second of travel, m^2/s.
+    sigma2_yaw : float
+        Variance of the yaw drift per second of travel, rad^2/s.
+    sigma2_z : float
+        Variance of the absolute z (depth) measurement per second since the previous pose, m^2/s.
+    sigma2_pitch : float
+        Variance of the absolute pitch measurement per second since the previous pose, rad^2/s.
+    sigma2_roll : float
+        Variance of the absolute roll measurement per second since the previous pose, rad^2/s.
     """
 
-    sigma2_x: float = positive(0.00138)
-    sigma2_y: float = positive(0.00138)
-    sigma2_yaw: float = positive(1e-7)
-    sigma2_z: float = positive(1e-4)
-    sigma2_pitch: float = positive(1e-7)
-    sigma2_roll: float = positive(1e-7)
+    sigma2_x: float = positive(0.00138, doc="in m^2/s")
+    sigma2_y: float = positive(0.00138, doc="in m^2/s")
+    sigma2_yaw: float = positive(1e-7, doc="in rad^2/s")
+    sigma2_z: float = positive(1e-4, doc="in m^2/s")
+    sigma2_pitch: float = positive(1e-7, doc="in rad^2/s")
+    sigma2_roll: float = positive(1e-7, doc="in rad^2/s")
 
-    def xyh_variances(self, duration_s: float) -> np.ndarray:
+    def xyh_variances(self, duration_s: float) -> npt.NDArray[np.float64]:
+        """Variances of the x, y and yaw drift accumulated over a duration.
+
+        Parameters
+        ----------
+        duration_s : float
+            Time travelled, seconds.
+
+        Returns
+        -------
+        (3,) ndarray of float64
+            ``[sigma2_x, sigma2_y, sigma2_yaw] * duration_s``: m^2, m^2, rad^2.
+        """
         return np.array([self.sigma2_x, self.sigma2_y, self.sigma2_yaw]) * duration_s
 
-    def zpr_variances(self, duration_s: float) -> np.ndarray:
+    def zpr_variances(self, duration_s: float) -> npt.NDArray[np.float64]:
+        """Variances of the z, pitch and roll measurements over a duration.
+
+        Parameters
+        ----------
+        duration_s : float
+            Time between the two poses, seconds.
+
+        Returns
+        -------
+        (3,) ndarray of float64
+            ``[sigma2_z, sigma2_pitch, sigma2_roll] * duration_s``: m^2, rad^2, rad^2.
+        """
         return np.array([self.sigma2_z, self.sigma2_pitch, self.sigma2_roll]) * duration_s
 
 
@@ -38,10 +78,33 @@ class NavNoise(Config):
 class SonarConfig(Config):
     """A profiling sonar rolled 90 degrees so its fan is vertical, looking ahead (Ho, thesis 4.1).
 
-    beams over fov_deg in the vehicle's x-z plane, centred tilt_deg above the horizontal;
-    rate_hz scans per second; returns between min_range_m and max_range_m; range_noise_m
-    Gaussian range noise; aperture_deg across the fan sampled by `subrays` rays (nearest return
-    kept; 1 sub-ray: a line sensor, as the papers simulate).
+    Attributes
+    ----------
+    beams : int
+        Beams per scan, spread over `fov_deg` in the vehicle's x-z plane.
+    fov_deg : float
+        Angle the fan of beams spans, degrees.
+    tilt_deg : float
+        Angle of the fan's centre above the horizontal, degrees (negative: looking down).
+    rate_hz : float
+        Scans per second.
+    min_range_m : float
+        Shortest return, metres; nearer surfaces give no return.
+    max_range_m : float
+        Longest return, metres: the sonar's reach.
+    range_noise_m : float
+        Standard deviation of the Gaussian range noise, metres (0: exact ranges).
+    aperture_deg : float
+        Width of each beam across the fan, degrees, sampled by `subrays` rays.
+    subrays : int
+        Rays cast per beam across its aperture; the nearest return is kept (1: a line sensor, as
+        the papers simulate).
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range, `min_range_m` is not below `max_range_m`, or
+        ``beams * subrays`` exceeds MAX_BEAMS (2^20).
     """
 
     beams: int = integer(96, low=1, high=MAX_BEAMS)

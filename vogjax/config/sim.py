@@ -9,16 +9,33 @@ from vogjax.config.schema import Config, flag, positive
 
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig(Config):
-    """Speed limits of the papers (0.25 m/s, 0.15 rad/s); position_gain: desired speed per
-    metre of error, 1/s; yaw_gain: desired yaw rate per radian of error, 1/s; velocity_gain:
-    extra thrust per m/s of velocity error, N s/m; yaw_rate_gain: extra torque per rad/s of
-    yaw-rate error, N m s; a waypoint is reached within tolerance_m and tolerance_rad.
+    """Settings of the simulated vehicle's waypoint controller; the speed limits are the papers'.
 
-    yaw_along_path: fly a waypoint as one motion: position and heading are slowed so that both
-    arrive together, the vehicle turning at a steady rate while it translates along the
-    straight line (the motion the planner's gain assumes, `vogjax.planner.edge_views`). Off
-    (the default, and the papers' surveys): each axis runs at its own limit, so a turn that
-    takes longer than the translation ends as a turn in place."""
+    Attributes
+    ----------
+    max_speed_mps : float
+        Speed limit, m/s (the papers' 0.25 m/s).
+    max_yaw_rate_rps : float
+        Yaw-rate limit, rad/s (the papers' 0.15 rad/s).
+    position_gain : float
+        Desired speed per metre of position error, 1/s.
+    yaw_gain : float
+        Desired yaw rate per radian of heading error, 1/s.
+    velocity_gain : float
+        Extra thrust per m/s of velocity error, N s/m.
+    yaw_rate_gain : float
+        Extra torque per rad/s of yaw-rate error, N m s.
+    tolerance_m : float
+        A waypoint is reached within this distance, metres (and `tolerance_rad`).
+    tolerance_rad : float
+        A waypoint is reached within this heading error, radians (and `tolerance_m`).
+    yaw_along_path : bool
+        Fly a waypoint as one motion: position and heading are slowed so that both arrive
+        together, the vehicle turning at a steady rate while it translates along the straight
+        line (the motion the planner's gain assumes, `vogjax.planner.edge_views`). Off (the
+        default, and the papers' surveys): each axis runs at its own limit, so a turn that
+        takes longer than the translation ends as a turn in place.
+    """
 
     max_speed_mps: float = positive(0.25)
     max_yaw_rate_rps: float = positive(0.15)

@@ -1,4 +1,4 @@
-"""Settings of the SLAM front end: ICP, the correlative search, loop-closure detection."""
+"""Settings of SLAM: ICP, the correlative search, loop-closure detection, the pose graph."""
 
 from __future__ import annotations
 
@@ -8,19 +8,48 @@ from vogjax.config.schema import Config, integer, non_negative, number, positive
 
 ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
 ALIGNERS = ("correlative_icp",)  # vogjax.slam.loop_closure.ALIGNERS
+ROBUST_LOSSES = ("none", "huber", "cauchy", "geman_mcclure", "dcs")  # GTSAM's noiseModel.mEstimator
+CLOSURE_SCREENS = ("none", "graph")
 
 
 @dataclasses.dataclass(frozen=True)
 class IcpConfig(Config):
-    """max_iterations; max_correspondence_m: pairs farther apart are outliers; tolerance: stop
-    when an update moves less than this (rad and m); normal_neighbours: target points used to
-    fit each normal; lambda_min: directions whose eigenvalue of J^T J is below lambda_min times
-    the number of inliers are degenerate (per inlier, so the threshold does not depend on the
-    cloud's size; a unit normal contributes at most 1 to a translation direction; above zero:
-    a direction with no information at all must never count as constrained); min_inliers;
-    free: the directions point-to-plane ICP solves for, "all" six or only the "translation"
-    (the rotation held where it starts: when navigation knows it better than the clouds do).
-    A translation-only pair that can only cycle stops before max_iterations, unconverged."""
+    """Settings of ICP (`vogjax.slam.icp`): when it stops, which pairs count, which directions it
+    solves for and which count as constrained.
+
+    These defaults are for ICP on its own; loop closure gives its ICP settings of its own
+    (`LoopClosureConfig.icp`: max_correspondence_m 0.3 m, tolerance 1e-3, free "translation").
+
+    `lambda_min` is per inlier, so the threshold does not depend on the cloud's size (a unit
+    normal contributes at most 1 to a translation direction), and above zero: a direction with
+    no information at all must never count as constrained. With `free` "translation", a pair
+    that can only cycle stops before max_iterations, unconverged.
+
+    Attributes
+    ----------
+    max_iterations : int
+        Most iterations of one alignment.
+    max_correspondence_m : float
+        Pairs of points farther apart than this are outliers, metres.
+    tolerance : float
+        Stop when an update moves less than this: its rotation angle in rad plus its
+        translation in m.
+    normal_neighbours : int
+        Target points used to fit each normal (the smallest principal axis of their scatter).
+    lambda_min : float
+        Directions whose eigenvalue of J^T J is below lambda_min times the number of inliers
+        are degenerate: not solved for, and not in `IcpResult.basis`.
+    min_inliers : int
+        An alignment with fewer inliers stops, unconverged.
+    free : str
+        The directions point-to-plane ICP solves for: "all" six, or only the "translation" (the
+        rotation held where it starts: when navigation knows it better than the clouds do).
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range.
+    """
 
     max_iterations: int = integer(50, low=1, high=10_000)
     max_correspondence_m: float = positive(1.0)
@@ -33,9 +62,26 @@ class IcpConfig(Config):
 
 @dataclasses.dataclass(frozen=True)
 class CorrelativeConfig(Config):
-    """resolution_m of the search grid; yaw_step_rad; blur_voxels: Gaussian blur of the target,
-    tolerance to small distortions; exclusion_m: the runner-up peak is the best one at least
-    this far away."""
+    """Settings of the correlative x-y-yaw search that seeds loop-closure ICP
+    (`vogjax.slam.correlative_xyh`).
+
+    Attributes
+    ----------
+    resolution_m : float
+        Cell edge of the search grid, metres: x-y offsets are searched in whole cells.
+    yaw_step_rad : float
+        Step of the yaw grid, radians.
+    blur_voxels : float
+        Sigma of the Gaussian blur of the target's occupancy grid, in cells: tolerance to small
+        distortions (0: no blur).
+    exclusion_m : float
+        The runner-up peak is the best one at least this far from the peak in x-y, metres.
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range.
+    """
 
     resolution_m: float = positive(0.1)
     yaw_step_rad: float = positive(0.005)
@@ -45,23 +91,79 @@ class CorrelativeConfig(Config):
 
 @dataclasses.dataclass(frozen=True)
 class LoopClosureConfig(Config):
-    """aligner: how a candidate pair is aligned (`correlative_icp`: a correlative x-y-yaw search
-    seeds ICP); method: ICP variant; icp: ICP settings (it starts at the correlative peak; by
-    default it solves for translation only and stops at 1 mm steps: on sonar swaths ICP's yaw
-    is worse than the navigation's, 1.3 against 0.6 degrees median on a propeller survey, and
-    point-to-plane steps keep flipping correspondences below a millimetre);
-    correlative; max_search_m: the correlative search radius, the drift bound capped here;
-    min_overlap_score: the correlative peak's mean blurred occupancy; max_ambiguity: the best
-    score at least `correlative.exclusion_m` away from the peak, over the peak's, at most this
-    (repetitive structure matches in several places); min_inlier_fraction: ICP must match this
-    share of the source cloud; max_refinement_m: ICP may
-    move the peak's result this far in x-y; min_points: both clouds need this many occupied
-    voxels; min_separation: |i - k| at least this (neighbours are tied by odometry already);
-    max_candidates: the earlier submaps nearest to k are aligned, at most this many;
-    max_fitness_m2: mean squared inlier distance; drift_sigmas: accept results within this many
-    drift sigmas of odometry; min_sigma_*: floors on the factor's sigmas. ICP's own covariance
-    is overconfident: each submap is bent by the drift within it (0.17 m sigma over 20 s at the
-    default rates), which ICP cannot see."""
+    """Settings of loop-closure detection (`vogjax.slam.LoopClosureDetector`): which pairs are
+    aligned, how, which results are accepted, and the closure's covariance.
+
+    A pair is accepted when the correlative peak overlaps enough and is unambiguous, ICP
+    converges near it with a low fitness and enough of the source matched, and the result lies
+    within the navigation's possible drift of odometry.
+
+    The closure's covariance: ICP's own (fitness times the inverse of J^T J) is overconfident,
+    each submap being bent by the drift within it (0.17 m sigma over 20 s at the default rates),
+    which moves all its points together. `registration_sigma_m` models that: along each
+    eigen-direction of J^T J with information lambda per inlier the closure's sigma is
+    registration_sigma_m / sqrt(lambda) (0.025 m: the errors measured against the rigid truths
+    on propeller surveys, 0.02-0.03 m times 1 / sqrt(lambda) across lambda = 0.005 to 1).
+    Directions with less information than `min_information` per inlier are left to odometry
+    with registration_sigma_m > 0; at 0 the factor keeps ICP's directions (`icp.lambda_min`).
+
+    Attributes
+    ----------
+    aligner : str
+        How a candidate pair is aligned: "correlative_icp", a correlative x-y-yaw search seeds
+        ICP.
+    method : str
+        ICP variant: "point_to_plane" or "point_to_point_xyh" (`vogjax.slam.icp`).
+    icp : IcpConfig
+        ICP's settings; it starts at the correlative peak. By default it solves for the
+        translation only and stops at 1 mm steps: on sonar swaths ICP's yaw is worse than the
+        navigation's (1.3 against 0.6 degrees median on a propeller survey), and point-to-plane
+        steps keep flipping correspondences below a millimetre.
+    correlative : CorrelativeConfig
+        The correlative search's settings.
+    max_search_m : float
+        Cap on the correlative search radius in x-y, metres (the radius is the navigation's
+        drift bound, `drift_sigmas` sigmas, capped here).
+    min_overlap_score : float
+        Least correlative peak score (the mean blurred occupancy under the source points).
+    max_ambiguity : float
+        Most runner-up score (the best at least `correlative.exclusion_m` from the peak) over
+        the peak's: repetitive structure matches in several places (1 lets every pair through).
+    min_inlier_fraction : float
+        ICP must match at least this share of the source cloud (0: no test).
+    max_refinement_m : float
+        ICP may move the peak's result at most this far in x-y, metres.
+    min_points : int
+        Both clouds need at least this many occupied voxels (and 3, ICP's least).
+    min_separation : int
+        Pairs are at least this many submaps apart: neighbours are tied by odometry already.
+    max_candidates : int
+        At most this many candidates are aligned, the earlier submaps nearest to k (aligning
+        costs most of a submap's time).
+    max_fitness_m2 : float
+        Most ICP fitness (mean squared inlier distance) accepted, m^2.
+    drift_sigmas : float
+        Accept results within this many drift sigmas of odometry in x-y (also the search's
+        radius in x-y, and in yaw when ICP solves for the rotation).
+    registration_sigma_m : float
+        The closure's sigma along a direction of information lambda per inlier is
+        registration_sigma_m / sqrt(lambda), metres (0.025 m: measured on propeller surveys;
+        0: ICP's own covariance).
+    min_information : float
+        Directions with less information per inlier are left out of the factor, to odometry
+        (at 0.05 their sigma would exceed 0.11 m; such closures were the wrong ones).
+    min_sigma_rotation_rad : float
+        Floor added to the factor's rotation sigmas, radians (it matters only for full
+        six-direction factors).
+    min_sigma_translation_m : float
+        Floor added to the factor's translation sigmas, metres (0.2 m was the flat model before
+        registration_sigma_m).
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range.
+    """
 
     aligner: str = text("correlative_icp", ALIGNERS)
     method: str = text("point_to_plane", ICP_METHODS)
@@ -77,6 +179,54 @@ class LoopClosureConfig(Config):
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)
+    registration_sigma_m: float = number(0.025, low=0, high=1e3)
+    min_information: float = number(0.05, low=0, high=1)
     # at most 1e5 (m or rad): a sigma floor squared must stay a variance the pose graph takes (<= 1e12)
     min_sigma_rotation_rad: float = number(0.005, low=0, high=1e5)
-    min_sigma_translation_m: float = number(0.2, low=0, high=1e5)
+    min_sigma_translation_m: float = number(0.0, low=0, high=1e5)
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseGraphConfig(Config):
+    """How loop closures enter the pose graph (`vogjax.slam.PoseGraph`): a screen, then a robust
+    loss.
+
+    The screen whitens a closure's error by its covariance plus the graph's own uncertainty of
+    the relative pose (iSAM2's joint marginal of the two submaps). It refuses a wrong closure
+    while the graph still knows better; one that came first, while nothing contradicted it, is
+    left to the robust loss. iSAM2 weighs a robust factor where it linearises it and again only
+    when it relinearises it, so a closure's loss starts as wide as the uncertainty it was
+    screened with (`ClosureCheck.scale`): a right closure far from the estimate after a long
+    loop keeps its weight. Calibrated closures (`LoopClosureConfig.registration_sigma_m`) lay
+    within 3 sigmas of their rigid truths on the surveys measured, so a `robust_width` of 3
+    leaves right ones near Gaussian. Measured (docs/benchmarks/slam.md): with 10% of the
+    closures made wrong by 1-3 m and 5-20 degrees, the Gaussian graph's trajectory error grows
+    several times over, this one's far less.
+
+    Attributes
+    ----------
+    screen : str
+        "graph": a closure enters only if its error at the current estimate, whitened by its
+        covariance plus the graph's uncertainty of the relative pose, lies within
+        `screen_sigmas`; "none": every closure enters.
+    screen_sigmas : float
+        The screen's bound: a chi-square bound over the directions the closure constrains, at
+        the probability of this many sigmas of one normal variable (3: 0.9973).
+    robust_loss : str
+        The loss of every closure factor, GTSAM's `noiseModel.Robust` with the m-estimator
+        named; "none": Gaussian, a wrong closure pulls with all its weight.
+    robust_width : float
+        The loss's parameter, in sigmas of the closure's whitened error (Huber's k, Cauchy's k,
+        Geman-McClure's c; DCS gets its square as phi, its bound on the squared error); 3
+        leaves calibrated closures near Gaussian.
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range.
+    """
+
+    screen: str = text("graph", CLOSURE_SCREENS)
+    screen_sigmas: float = number(3.0, low=0.5, high=100.0)
+    robust_loss: str = text("cauchy", ROBUST_LOSSES)
+    robust_width: float = number(3.0, low=0.1, high=1000.0)

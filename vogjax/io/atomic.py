@@ -22,22 +22,76 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
+from types import TracebackType
+from typing import Any
 
 
-def as_path(value, name: str = "path") -> Path:
-    """`value` (str or path-like) as a Path; ValueError naming `name` for anything else."""
+def as_path(value: Any, name: str = "path") -> Path:
+    """A path argument as a Path, refusing anything that is not one.
+
+    Parameters
+    ----------
+    value : Any
+        The argument: a non-empty str or an os.PathLike.
+    name : str, optional
+        The argument's name, for the error message.
+
+    Returns
+    -------
+    Path
+        `value` as a Path.
+
+    Raises
+    ------
+    ValueError
+        Naming `name` if `value` is not a str or os.PathLike, or is empty.
+    """
     if not isinstance(value, (str, os.PathLike)) or str(value) == "":
         raise ValueError(f"{name} must be a file path (str or os.PathLike), got {value!r}")
     return Path(value)
 
 
 class AtomicPath:
-    """A temporary file or folder (`folder=True`) that becomes `target` on `commit()`.
+    """A temporary file or folder that becomes `target` on `commit()`.
 
-    As a context manager it commits when the block succeeds and aborts when it raises.
+    The temporary is ``.NAME.PID.tmp`` beside the target. As a context manager it yields the
+    temporary's path, commits when the block succeeds and aborts when it raises. Construction
+    checks that the target can be published (`check_writable`) and removes stale temporaries
+    of it, so a refusal comes before any work.
+
+    Parameters
+    ----------
+    target : str or os.PathLike
+        The file or folder to publish; its folder must exist.
+    folder : bool, optional
+        Publish a folder (the temporary is created empty) rather than a file.
+
+    Attributes
+    ----------
+    target : Path
+        The path published.
+    folder : bool
+        Whether it is a folder.
+    temporary : Path
+        Where to write until `commit`.
+
+    Raises
+    ------
+    ValueError
+        If `target` is not a path, cannot be published (see `check_writable`), or its folder
+        does not exist.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> target = pathlib.Path(tempfile.mkdtemp()) / "out.txt"
+    >>> with AtomicPath(target) as temporary:
+    ...     _ = temporary.write_text("whole or nothing")
+    >>> target.read_text()
+    'whole or nothing'
     """
 
-    def __init__(self, target, folder: bool = False):
+    def __init__(self, target: str | os.PathLike, folder: bool = False):
         self.target = as_path(target)
         self.folder = folder
         check_writable(self.target, folder)
@@ -49,7 +103,15 @@ class AtomicPath:
             self.temporary.mkdir(mode=0o777)  # the umask applies, as to any new folder
 
     def commit(self) -> Path:
-        """Publish the temporary as the target; on failure the temporary is removed."""
+        """Publish the temporary as the target: fsync, rename over it, fsync the folder.
+
+        On failure the temporary is removed and the error raised.
+
+        Returns
+        -------
+        Path
+            The target.
+        """
         try:
             return self._publish()
         except BaseException:
@@ -84,17 +146,34 @@ class AtomicPath:
     def __enter__(self) -> Path:
         return self.temporary
 
-    def __exit__(self, kind, error, trace) -> None:
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
         if kind is None:
             self.commit()
         else:
             self.abort()
 
 
-def check_writable(target, folder: bool = False) -> None:
-    """ValueError unless `target` can be published: it is not the wrong kind of thing (a
-    file where a folder goes, or the other way round) and its nearest existing ancestor is a
-    writable folder (missing folders on the way would be created)."""
+def check_writable(target: str | os.PathLike, folder: bool = False) -> None:
+    """Refuse a target that cannot be published, before any long work.
+
+    The target must not be the wrong kind of thing (a file where a folder goes, or the other
+    way round, or a device, pipe or socket), and its nearest existing ancestor must be a folder
+    where files can be created (missing folders on the way would be created).
+
+    Parameters
+    ----------
+    target : str or os.PathLike
+        The file or folder to publish.
+    folder : bool, optional
+        Whether a folder is to be published.
+
+    Raises
+    ------
+    ValueError
+        Naming the target and what is wrong with it.
+    """
     target = Path(target)
     if target.exists() and target.is_dir() != folder:
         kind = "a folder" if target.is_dir() else "a file"
@@ -107,28 +186,54 @@ def check_writable(target, folder: bool = False) -> None:
     if not ancestor.is_dir():
         raise ValueError(f"{str(target)!r}: {str(ancestor)!r} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable")
+        raise ValueError(f"{str(target)!r}: folder {str(ancestor)!r} is not writable (permission denied)")
     try:  # os.access trusts the permission bits: root passes them on /proc or a read-only mount
         with tempfile.TemporaryFile(dir=ancestor):
             pass
     except OSError as error:
-        raise ValueError(
-            f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} ({error.strerror or error})"
-        ) from None
+        raise ValueError(f"{str(target)!r}: cannot create files in folder {str(ancestor)!r} ({_why(error)})") from None
+
+
+_WHY = {
+    errno.EACCES: "permission denied",
+    errno.EPERM: "permission denied",
+    errno.EROFS: "a read-only file system",
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+}
+
+
+def _why(error: OSError) -> str:
+    """Why a file could not be created in an existing folder, in words."""
+    if error.errno in _WHY:
+        return _WHY[error.errno]
+    # /proc, /sys and the like exist but take no new files (they answer "No such file")
+    return f"its file system takes no new files: {error.strerror or error}"
 
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)(?P<old>\.old)?\.tmp$")
 
 
-def remove_stale(target) -> list[Path]:
-    """Remove temporaries of `target` left by processes that no longer run; returns them.
+def remove_stale(target: str | os.PathLike) -> list[Path]:
+    """Remove temporaries of `target` left by processes that no longer run.
 
     A folder is published over an earlier one in two renames (earlier -> `.NAME.PID.old.tmp`,
     new -> NAME); a process killed between them leaves no NAME. The new folder was complete
     (it is moved only once written and synced), so its publication is finished here; without
     it the earlier folder is put back. Leftovers named with this process's own id count as
     stale too: a process publishes one target at a time, so they are from an earlier process
-    that had the same id (common in containers)."""
+    that had the same id (common in containers).
+
+    Parameters
+    ----------
+    target : str or os.PathLike
+        The published file or folder whose leftovers to remove.
+
+    Returns
+    -------
+    list of Path
+        The temporaries removed.
+    """
     target = Path(target)
     removed = []
     try:

@@ -19,8 +19,10 @@ import json
 import math
 import struct
 import zipfile
+from os import PathLike
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.io.atomic import AtomicPath, as_path
 
@@ -33,7 +35,28 @@ MAX_HEADER_BYTES = 1 << 26
 _NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
-def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
+def write_map_file(path: str | PathLike, kind: str, metadata: dict, arrays: dict[str, npt.ArrayLike]) -> None:
+    """Write a map file: header, arrays and checksum, published atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced if it exists; a reader sees the old file or the whole new
+        one).
+    kind : str
+        The map class the file holds ("VoxelMap", "GlobalMap", "ConfidenceMap", ...);
+        `read_map_file` refuses a file of another kind.
+    metadata : dict
+        JSON-serialisable metadata (the map's config and the like), stored in the header.
+    arrays : dict of str to array_like
+        The arrays, stored as an uncompressed .npz payload (no pickles).
+
+    Raises
+    ------
+    ValueError
+        If `path` is not a path, its folder does not exist or is not writable, or it names a
+        folder, device or pipe.
+    """
     path = as_path(path)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
@@ -52,9 +75,26 @@ def write_map_file(path, kind: str, metadata: dict, arrays: dict) -> None:
         f.write(hashlib.sha256(contents).digest())
 
 
-def map_kind(path) -> str:
-    """The kind a map file's header names ("VoxelMap", "GlobalMap", ...), reading only the
-    header; ValueError if it is no vogjax map file (the whole file is checked when loaded)."""
+def map_kind(path: str | PathLike) -> str:
+    """The kind a map file's header names, reading only the header.
+
+    The whole file is checked when it is loaded (`read_map_file`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A map file.
+
+    Returns
+    -------
+    str
+        The kind: "VoxelMap", "GlobalMap", "ConfidenceMap", ...
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read, is no vogjax map file or has a damaged header.
+    """
     path = as_path(path)
     try:
         with open(path, "rb") as f:
@@ -74,8 +114,33 @@ def map_kind(path) -> str:
     return str(kind)
 
 
-def read_map_file(path, kind: str) -> tuple[dict, dict]:
-    """(metadata, arrays) of a map file of the given kind; ValueError if it is not one, or damaged."""
+def read_map_file(path: str | PathLike, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """Read a map file of the given kind, checking all of it first.
+
+    The checksum, header and payload are verified, and each array's declared size against the
+    bytes it holds before anything is allocated; format versions 1 and 2 are read.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A map file written by `write_map_file`.
+    kind : str
+        The kind the file must hold ("VoxelMap", ...).
+
+    Returns
+    -------
+    metadata : dict
+        The header's metadata.
+    arrays : dict of str to ndarray
+        The arrays by name.
+
+    Raises
+    ------
+    ValueError
+        Naming the file if it cannot be read, is no vogjax map file, has a format version this
+        vogjax does not read, is truncated, corrupt (checksum mismatch) or has trailing data, has
+        a damaged header or an unreadable payload, or holds another kind of map.
+    """
     path = as_path(path)
     try:
         data = path.read_bytes()

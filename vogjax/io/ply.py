@@ -12,9 +12,12 @@ record the voxel size and the height range of the colours.
 
 from __future__ import annotations
 
+from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.io.atomic import AtomicPath
 from vogjax.io.voxels import VoxelSet
@@ -25,6 +28,18 @@ COORDINATE_TOLERANCE = 1e-3
 
 
 def vertex_dtype(coordinate: str) -> np.dtype:
+    """The structured dtype of one PLY vertex.
+
+    Parameters
+    ----------
+    coordinate : str
+        NumPy dtype of x, y, z: "<f4" or "<f8".
+
+    Returns
+    -------
+    numpy.dtype
+        Fields x, y, z, red, green, blue (uint8) and probability (float32).
+    """
     return np.dtype(
         [
             ("x", coordinate),
@@ -38,8 +53,22 @@ def vertex_dtype(coordinate: str) -> np.dtype:
     )
 
 
-def height_colours(z: np.ndarray, low: float | None = None, high: float | None = None) -> np.ndarray:
-    """(K,3) uint8 viridis colours of heights z (K,), spread over [low, high] (default: their range)."""
+def height_colours(z: npt.ArrayLike, low: float | None = None, high: float | None = None) -> npt.NDArray[np.uint8]:
+    """Viridis colours of heights (low: purple, high: yellow).
+
+    Parameters
+    ----------
+    z : (K,) array_like of float
+        Heights, metres.
+    low, high : float or None, optional
+        The heights the colour map spans (default: the range of `z`); heights outside it take
+        the end colours, and a span of zero the middle colour.
+
+    Returns
+    -------
+    (K, 3) ndarray of uint8
+        RGB colours.
+    """
     from matplotlib import colormaps
 
     z = np.asarray(z, dtype=np.float64)
@@ -51,9 +80,26 @@ def height_colours(z: np.ndarray, low: float | None = None, high: float | None =
     return np.round(colormaps["viridis"](np.clip(scaled, 0.0, 1.0))[:, :3] * 255).astype(np.uint8)
 
 
-def save(source, path) -> int:
-    """Write the occupied voxels of `source` (a VoxelMap, GlobalMap, ConfidenceMap or VoxelSet) to `path`;
-    returns how many."""
+def save(source: Any, path: str | PathLike) -> int:
+    """Write the occupied voxels of a map as a binary PLY point cloud, published atomically.
+
+    Parameters
+    ----------
+    source : VoxelMap, GlobalMap, ConfidenceMap or VoxelSet
+        The map (a confidence-rich map by its mean occupancy).
+    path : str or os.PathLike
+        The file to write (replaced if it exists).
+
+    Returns
+    -------
+    int
+        How many vertices (occupied voxels) were written.
+
+    Raises
+    ------
+    ValueError
+        If `source` is no map `VoxelSet.from_map` reads, or `path` cannot be written.
+    """
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
     occupied = voxels.state() == 2
     centres = voxels.centres[occupied]

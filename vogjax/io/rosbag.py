@@ -3,22 +3,37 @@ vogjax run files, read with `rosbags` (pure Python; no ROS installation needed).
 
     summary = import_bag("drive.bag", "drive.h5", points_topic="/velodyne_points",
                          odometry_topic="/odom", frame="velodyne")
+    summary = import_bag("rgbd.bag", "rgbd.h5", depth_topic="/camera/depth/image_rect_raw",
+                         odometry_topic="/odom", frame="camera_depth_optical_frame", stride=4)
 
-Scans: sensor_msgs/PointCloud2 (fields x, y, z as float32 or float64, in the sensor frame) or
-sensor_msgs/LaserScan. Poses: nav_msgs/Odometry, T_world_vehicle with world = its
+Scans: sensor_msgs/PointCloud2 (fields x, y, z as float32 or float64, in the sensor frame;
+per-point time, intensity and ring read where present: `vogjax.io.pointcloud2`),
+sensor_msgs/LaserScan, or a depth camera's sensor_msgs/Image with its sensor_msgs/CameraInfo
+(`vogjax.io.depth_image`). Poses: nav_msgs/Odometry, T_world_vehicle with world = its
 header.frame_id and vehicle = its child_frame_id, interpolated to each scan's header stamp
 (linear in position, slerp in rotation). Without `frame` the points must be in the vehicle frame
 (a scan header naming another frame is an error); with `frame` (the sensor frame) its fixed
 pose in the vehicle frame is chained from /tf_static (or /tf, where it must not move).
 
+Motion compensation: a cloud with a per-point time field (`time`, `t` or `timestamp`, in the
+layouts `vogjax.io.deskew` reads) is deskewed: each point is carried from the sensor's pose at
+its firing time to the sensor's pose at the cloud's stamp, with the odometry interpolated at
+both. The run stores the deskewed points in the scan's frame at its stamp, so the run format
+and the mapper are those of any scan, and every end point lands where the point was when it
+fired. A scan whose points fired outside the odometry's span is dropped (`sweep_outside_odometry`).
+`deskew=False` imports the points at the stamp (as if fired all at once).
+
 Each scan becomes one row of the run: origin and unit beam directions in the vehicle frame,
-ranges, no_return. Beams: a PointCloud2 point is a return (non-finite or zero-length points are
-invalid); a LaserScan range is a return in [range_min, range_max], no return above range_max or
-+inf (free space is cleared along it up to the map's max range, as OctoMap does), invalid when
-NaN or below range_min (-inf included). Invalid beams are dropped and counted. A run holds B
-beams per scan (B: the most valid beams of any scan); a scan with fewer is padded with copies of
-one of its own beams (a return where it has one), which change no voxel (within one scan a voxel
-is updated once), so padding never alters a map.
+ranges, no_return, and where the source has them intensity and ring (optional per-beam fields
+of the run). Beams: a PointCloud2 point is a return (non-finite or zero-length points, or ones
+with a non-finite intensity, are invalid; below `min_intensity` they are dropped and counted
+apart); a depth pixel holding a depth is a return (one without is invalid); a LaserScan range
+is a return in [range_min, range_max], no return above range_max or +inf (free space is
+cleared along it up to the map's max range, as OctoMap does), invalid when NaN or below
+range_min (-inf included). Invalid beams are dropped and counted. A run holds B beams per scan
+(B: the most valid beams of any scan); a scan with fewer is padded with copies of one of its own
+beams (a return where it has one), which change no voxel (within one scan a voxel is updated
+once), so padding never alters a map.
 
 Scans are dropped, and counted by reason in the run's metadata (`import.dropped`), when they lie
 outside the odometry's time span (no extrapolation), have no valid beam, or are not later than
@@ -26,30 +41,43 @@ the scan before them. A bag in which no scan survives is an error.
 
 Metadata of the run (documented keys): `sensor` = "point_cloud", `sensor_config` (a
 PointCloudConfig: message, beams, rate_hz, min_range_m, max_range_m), `T_vehicle_sensor`,
-`source` (bag, storage, topics, message types, frames, where the mount came from) and `import`
-(counts). `sensor_config.max_range_m` is the sensor's reach for the mapper: LaserScan's largest
-range_max, or for a point cloud the farthest return unless `max_range_m` is given.
+`source` (bag, storage, topics, message types, frames, where the mount came from; for a depth
+camera its CameraInfo, stride and encoding) and `import` (counts; `fields`: every field of the
+scans and what was done with it; `point_time`: the time field, its layout and whether the
+scans were deskewed; `optional_fields`: the per-beam fields stored). `sensor_config.max_range_m`
+is the sensor's reach for the mapper: LaserScan's largest range_max, or for a point cloud or a
+depth image the farthest (deskewed) return unless `max_range_m` is given.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from collections import defaultdict
+from collections.abc import Iterator
+from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import interpolate_poses, inverse, rigid_pose
 from vogjax.io.atomic import check_writable
-from vogjax.io.dataset import MAX_RANGE_M, DatasetWriter
+from vogjax.io.dataset import MAX_RANGE_M, MAX_RING, DatasetWriter
+from vogjax.io.depth_image import Camera, camera_from_info, check_pixels, depth_points
+from vogjax.io.deskew import LAYOUTS, deskew_points, point_offsets
+from vogjax.io.pointcloud2 import read_cloud
 from vogjax.sensors.point_cloud import PointCloudSensor
 
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 TF_TOPICS = {"/tf_static": True, "tf_static": True, "/tf": False, "tf": False}  # topic -> static
@@ -59,15 +87,32 @@ BATCH_SCANS = 256
 ODOMETRY_GAP_FACTOR = 10.0
 MIN_ODOMETRY_GAP_S = 1.0
 BATCH_BEAMS = 1 << 22  # scans x beams per batch written: about 70 MB with padding
+MAX_STRIDE = 1 << 16
 _MIN_RANGE = 1e-6  # a point closer than this has no direction
 _MOUNT_TOLERANCE = 1e-6  # a /tf mount that moves more than this (m, rad) is not fixed
-_FLOAT_TYPES = {7: "f4", 8: "f8"}  # sensor_msgs/PointField FLOAT32, FLOAT64
 
 
 @dataclasses.dataclass(frozen=True)
 class ImportSummary:
-    """What `import_bag` wrote: the run's path, scans written and read, beams per scan, scans
-    dropped by reason, beams dropped as invalid and copies added as padding, and the metadata."""
+    """What `import_bag` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    scans, scans_read : int
+        Scans written, and read from the topic.
+    beams : int
+        Beams per scan of the run.
+    dropped : dict of str to int
+        Scans dropped, by reason.
+    invalid_beams : int
+        Invalid beams dropped (of the scans written).
+    padded_beams : int
+        Copies added as padding.
+    metadata : dict
+        The run's metadata (`import.fields`, `import.point_time`: what was used and ignored).
+    """
 
     path: Path
     scans: int
@@ -81,8 +126,36 @@ class ImportSummary:
 
 @dataclasses.dataclass(frozen=True)
 class Scan:
-    """One scan's valid beams in the sensor frame: directions (n,3) unit, ranges (n,) (NaN
-    where no return), no_return (n,); stamp_ns its header stamp; frame its header frame."""
+    """One scan's valid beams in the sensor frame.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Its header stamp.
+    frame : str
+        Its header frame.
+    directions : (n, 3) ndarray of float64
+        Unit beam directions.
+    ranges : (n,) ndarray of float64
+        Ranges, metres (NaN where no return).
+    no_return : (n,) ndarray of bool
+        Beams without a return.
+    invalid : int
+        Beams dropped as invalid.
+    range_min, range_max : float or None
+        LaserScan's.
+    offsets_s : (n,) ndarray of float64 or None
+        Each beam's firing time minus the stamp, seconds (a cloud with a per-point time field,
+        when deskewing); None: every beam at the stamp.
+    intensity : (n,) ndarray of float64 or None
+        Each beam's intensity, where the source has one.
+    ring : (n,) ndarray of int64 or None
+        Each beam's ring, where the source has one.
+    below_min_intensity : int
+        Beams dropped below the minimum intensity.
+    layout : str or None
+        The per-point time layout found (a key of `vogjax.io.deskew.LAYOUTS`).
+    """
 
     stamp_ns: int
     frame: str
@@ -92,26 +165,103 @@ class Scan:
     invalid: int
     range_min: float | None = None  # LaserScan's
     range_max: float | None = None
+    offsets_s: np.ndarray | None = None
+    intensity: np.ndarray | None = None
+    ring: np.ndarray | None = None
+    below_min_intensity: int = 0
+    layout: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class _Options:
+    """What the caller asked for, checked."""
+
+    scans_topic: str
+    flag: str  # --points or --depth, as errors name it
+    odometry_topic: str
+    frame: str | None
+    max_range_m: float | None
+    progress: bool
+    deskew: bool
+    min_intensity: float | None
+    camera_info_topic: str | None
+    stride: int
 
 
 def import_bag(
-    bag,
-    out,
-    points_topic: str,
-    odometry_topic: str,
+    bag: str | PathLike,
+    out: str | PathLike,
+    points_topic: str | None = None,
+    odometry_topic: str | None = None,
     frame: str | None = None,
     max_range_m: float | None = None,
     progress: bool = True,
+    *,
+    depth_topic: str | None = None,
+    camera_info_topic: str | None = None,
+    stride: int = 1,
+    deskew: bool = True,
+    min_intensity: float | None = None,
 ) -> ImportSummary:
-    """Convert a bag into a run file at `out` (published whole, or not at all)."""
+    """Convert a bag's scans and odometry into a run file at `out` (published whole, or not at all).
+
+    Parameters
+    ----------
+    bag : str or os.PathLike
+        A ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file.
+    out : str or os.PathLike
+        The run file to write (its folder must exist).
+    points_topic : str or None
+        Topic of sensor_msgs/PointCloud2 or sensor_msgs/LaserScan (or give `depth_topic`).
+    odometry_topic : str
+        Topic of nav_msgs/Odometry: the vehicle's poses.
+    frame : str or None, optional
+        The sensor frame the scans are in; its mount on the odometry's child frame comes from
+        /tf_static or /tf (None: the scans are in the child frame).
+    max_range_m : float or None, optional
+        The sensor's reach, metres (None: LaserScan's range_max, or the farthest return).
+    progress : bool, optional
+        Whether to show a progress bar.
+    depth_topic : str or None, optional
+        Topic of a depth camera's sensor_msgs/Image (16UC1 mm or 32FC1 m), instead of
+        `points_topic`.
+    camera_info_topic : str or None, optional
+        Its sensor_msgs/CameraInfo topic (None: ``camera_info`` beside the depth topic).
+    stride : int, optional
+        Of a depth image, every `stride`-th pixel of every `stride`-th row.
+    deskew : bool, optional
+        Whether to deskew clouds that carry per-point times (False: points taken at the stamp).
+    min_intensity : float or None, optional
+        Points (or laser beams) of lower intensity are dropped and counted (None: all kept).
+
+    Returns
+    -------
+    ImportSummary
+
+    Raises
+    ------
+    ValueError
+        Naming the argument (as its flag: --points, --depth, --camera-info, --stride,
+        --min-intensity, --frame, --odometry) or the bag: a missing topic, a topic of the wrong
+        type, a malformed message, frames TF does not connect, an unreadable or damaged bag, or
+        no scan that can be imported. Nothing is written then.
+    """
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
     bag, out = Path(bag), Path(out)
-    if max_range_m is not None and (
-        isinstance(max_range_m, bool) or not isinstance(max_range_m, (int, float)) or not 0 < max_range_m <= MAX_RANGE_M
-    ):
-        raise ValueError(f"max_range_m must be a number in (0, {MAX_RANGE_M:g}], got {max_range_m!r}")
+    options = _options(
+        points_topic,
+        odometry_topic,
+        frame,
+        max_range_m,
+        progress,
+        depth_topic,
+        camera_info_topic,
+        stride,
+        deskew,
+        min_intensity,
+    )
     if not bag.exists():
         raise ValueError(f"bag {str(bag)!r} does not exist")
     check_writable(out)  # before reading the whole bag
@@ -119,7 +269,7 @@ def import_bag(
         raise ValueError(f"--out {str(out)!r}: folder {str(out.parent)!r} does not exist")
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            return _import(reader, bag, out, points_topic, odometry_topic, frame, max_range_m, progress)
+            return _import(reader, bag, out, options)
     except (
         AnyReaderError,
         FileNotFoundError,
@@ -133,6 +283,45 @@ def import_bag(
         raise ValueError(f"bag {str(bag)!r} cannot be read as a ROS 1, ROS 2 or MCAP bag: {error}") from None
     except _Damaged as damage:
         raise ValueError(f"bag {str(bag)!r} is damaged: {damage}") from None
+
+
+def _options(
+    points_topic, odometry_topic, frame, max_range_m, progress, depth_topic, camera_info_topic, stride, deskew, minimum
+) -> _Options:
+    if (points_topic is None) == (depth_topic is None):
+        raise ValueError("give one of points_topic (--points) and depth_topic (--depth)")
+    if odometry_topic is None:
+        raise ValueError("odometry_topic (--odometry) is required")
+    if max_range_m is not None and (
+        isinstance(max_range_m, bool) or not isinstance(max_range_m, (int, float)) or not 0 < max_range_m <= MAX_RANGE_M
+    ):
+        raise ValueError(f"max_range_m must be a number in (0, {MAX_RANGE_M:g}], got {max_range_m!r}")
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or not 1 <= stride <= MAX_STRIDE:
+        raise ValueError(f"--stride must be an integer in [1, {MAX_STRIDE}], got {stride!r}")
+    if depth_topic is None and (stride != 1 or camera_info_topic is not None):
+        raise ValueError(f"--{'stride' if stride != 1 else 'camera-info'} applies to a depth image (--depth) only")
+    if minimum is not None and (
+        isinstance(minimum, bool) or not isinstance(minimum, (int, float)) or not math.isfinite(minimum)
+    ):
+        raise ValueError(f"--min-intensity must be a finite number, got {minimum!r}")
+    if depth_topic is not None and minimum is not None:
+        raise ValueError("--min-intensity applies to point clouds and laser scans: a depth image has no intensity")
+    if not isinstance(deskew, bool):
+        raise ValueError(f"deskew must be True or False, got {deskew!r}")
+    if depth_topic is not None and camera_info_topic is None:
+        camera_info_topic = depth_topic.rsplit("/", 1)[0] + "/camera_info"  # image_transport's convention
+    return _Options(
+        scans_topic=points_topic if depth_topic is None else depth_topic,
+        flag="--points" if depth_topic is None else "--depth",
+        odometry_topic=odometry_topic,
+        frame=frame,
+        max_range_m=None if max_range_m is None else float(max_range_m),
+        progress=progress,
+        deskew=deskew,
+        min_intensity=None if minimum is None else float(minimum),
+        camera_info_topic=camera_info_topic,
+        stride=int(stride),
+    )
 
 
 class _Damaged(Exception):
@@ -155,31 +344,46 @@ def _messages(reader, connections):
         yield connection, message
 
 
-def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, max_range_m, progress):
+def _import(reader, bag: Path, out: Path, options: _Options) -> ImportSummary:
     from tqdm import tqdm
 
-    scan_connections, message = _topic(reader, points_topic, "--points", {POINT_CLOUD, LASER_SCAN})
-    odometry = read_odometry(reader, _topic(reader, odometry_topic, "--odometry", {ODOMETRY})[0], odometry_topic)
+    topic, flag = options.scans_topic, options.flag
+    types = {IMAGE} if flag == "--depth" else {POINT_CLOUD, LASER_SCAN}
+    scan_connections, message = _topic(reader, topic, flag, types)
+    odometry_connections = _topic(reader, options.odometry_topic, "--odometry", {ODOMETRY})[0]
+    camera = None
+    if message == "Image":
+        camera = read_camera(reader, options.camera_info_topic)
+        check_pixels(camera.width, camera.height, options.stride, f"--depth topic {topic!r}")
+    odometry = read_odometry(reader, odometry_connections, options.odometry_topic)
     world_frame, vehicle_frame = odometry.frames
+    stream = _ScanStream(reader, scan_connections, message, options, camera)
     # pass 1: which scans survive, and how many beams the largest holds
     dropped = defaultdict(int)
-    kept, stamps, frames, counts, invalid = [], [], set(), [], 0  # kept: ordinals in the topic
+    kept, stamps, frames, counts, invalid, below = [], [], set(), [], 0, 0  # kept: ordinals in the topic
     range_min, range_max, longest = np.inf, 0.0, 0.0
+    span_s = [np.inf, -np.inf]  # firing time minus stamp, over the scans written
     scans_read = 0
-    for ordinal, scan in enumerate(_scans(reader, scan_connections, message, points_topic)):
+    for ordinal, scan in enumerate(stream.scans()):
         scans_read += 1
         frames.add(scan.frame)
+        fired = (0, 0) if scan.offsets_s is None or not len(scan.offsets_s) else _fired_ns(scan)
         if not odometry.covers(scan.stamp_ns):
             dropped["outside_odometry"] += 1
         elif not odometry.bridges(scan.stamp_ns):
             dropped["in_odometry_gap"] += 1
         elif len(scan.ranges) == 0:
             dropped["no_valid_beams"] += 1
+        elif not (odometry.covers(scan.stamp_ns + fired[0]) and odometry.covers(scan.stamp_ns + fired[1])):
+            dropped["sweep_outside_odometry"] += 1
+        elif not odometry.bridges_span(scan.stamp_ns + fired[0], scan.stamp_ns + fired[1]):
+            dropped["in_odometry_gap"] += 1
         elif stamps and scan.stamp_ns * 1e-9 <= stamps[-1] * 1e-9:  # as the run stores times
             dropped["stamp_not_increasing"] += 1
         else:
             kept.append(ordinal)
             invalid += scan.invalid  # of the scans written: a dropped scan's beams are not counted twice
+            below += scan.below_min_intensity
             stamps.append(scan.stamp_ns)
             counts.append(len(scan.ranges))
             if scan.range_max is not None:
@@ -187,77 +391,108 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
             returned = scan.ranges[~scan.no_return]
             if len(returned):
                 longest = max(longest, float(returned.max()))
+            if scan.offsets_s is not None and len(scan.offsets_s):
+                span_s = [min(span_s[0], float(scan.offsets_s.min())), max(span_s[1], float(scan.offsets_s.max()))]
     if scans_read == 0:
-        raise ValueError(f"--points topic {points_topic!r} holds no messages")
+        raise ValueError(f"{flag} topic {topic!r} holds no messages")
     declared = sum(int(getattr(c, "msgcount", 0) or 0) for c in scan_connections)
     if scans_read < declared:  # the reader skipped records it could not read
-        raise _Damaged(f"topic {points_topic!r} declares {declared} messages, {scans_read} could be read")
+        raise _Damaged(f"topic {topic!r} declares {declared} messages, {scans_read} could be read")
     if not kept:
-        raise ValueError(f"no scan on {points_topic!r} can be imported: {_reasons(dropped)}")
-    sensor_frame = _check_frames(frames - {""}, None if frame is None else _frame(frame), vehicle_frame, points_topic)
+        raise ValueError(f"no scan on {topic!r} can be imported: {_reasons(dropped)}")
+    if camera is not None and frames - {"", camera.frame}:
+        raise ValueError(
+            f"--camera-info topic {options.camera_info_topic!r} is in frame {camera.frame!r}, the images on "
+            f"{topic!r} in {sorted(frames - {''})[0]!r}"
+        )
+    frame = None if options.frame is None else _frame(options.frame)
+    sensor_frame = _check_frames(frames - {""}, frame, vehicle_frame, topic, flag)
     T_vehicle_sensor, mount = (
         (np.eye(4), "identity: points in the vehicle frame")
         if sensor_frame == vehicle_frame
         else read_mount(reader, vehicle_frame, sensor_frame)
     )
-    # the sensor's reach: what the caller says, LaserScan's range_max, or the farthest return (cm up)
-    reach = float(
-        max_range_m or min(range_max if message == "LaserScan" else np.ceil(longest * 100 + 1) / 100, MAX_RANGE_M)
-    )
     beams = int(max(counts))
     if beams > MAX_BEAMS:
         raise ValueError(
-            f"--points topic {points_topic!r}: a scan holds {beams} valid beams, more than the "
-            f"{MAX_BEAMS} a run file takes"
+            f"{flag} topic {topic!r}: a scan holds {beams} valid beams, more than the {MAX_BEAMS} a run file takes"
         )
     duration_s = (stamps[-1] - stamps[0]) * 1e-9
-    config = PointCloudConfig(
-        message=message,
-        beams=beams,
-        rate_hz=float((len(kept) - 1) / duration_s) if duration_s > 0 else 10.0,
-        min_range_m=float(range_min) if message == "LaserScan" and range_min < reach else 0.0,
-        max_range_m=reach,
-    )
-    sensor = PointCloudSensor(config, T_vehicle_sensor)
-    metadata = {
-        **sensor.metadata(),
-        "source": {
-            "bag": str(bag),
-            "storage": "ros2" if reader.is2 else "ros1",
-            "points_topic": points_topic,
-            "points_type": f"sensor_msgs/{message}",
-            "odometry_topic": odometry_topic,
-            "frames": {"world": world_frame, "vehicle": vehicle_frame, "sensor": sensor_frame},
-            "mount": mount,
-        },
-        "import": {
-            "scans_read": scans_read,
-            "scans_written": len(kept),
-            "dropped": dict(dropped),
-            "invalid_beams": invalid,
-            "padded_beams": int(beams * len(kept) - sum(counts)),
-            "odometry_messages": len(odometry.stamps_ns),
-            "odometry_span_s": [odometry.stamps_ns[0] * 1e-9, odometry.stamps_ns[-1] * 1e-9],
-        },
+    deskewed = stream.layout is not None and span_s[0] <= span_s[1]
+
+    def describe(longest_m: float) -> dict:
+        # the sensor's reach: what the caller says, LaserScan's range_max, or the farthest return (cm up)
+        reach = float(
+            options.max_range_m
+            or min(range_max if message == "LaserScan" else np.ceil(longest_m * 100 + 1) / 100, MAX_RANGE_M)
+        )
+        config = PointCloudConfig(
+            message=message,
+            beams=beams,
+            rate_hz=float((len(kept) - 1) / duration_s) if duration_s > 0 else 10.0,
+            min_range_m=float(range_min) if message == "LaserScan" and range_min < reach else 0.0,
+            max_range_m=reach,
+        )
+        return PointCloudSensor(config, T_vehicle_sensor).metadata()
+
+    source = {
+        "bag": str(bag),
+        "storage": "ros2" if reader.is2 else "ros1",
+        "points_topic": topic,
+        "points_type": f"sensor_msgs/{message}",
+        "odometry_topic": options.odometry_topic,
+        "frames": {"world": world_frame, "vehicle": vehicle_frame, "sensor": sensor_frame},
+        "mount": mount,
     }
-    # pass 2: the kept scans, padded, at their interpolated poses
+    if camera is not None:
+        source["camera"] = {
+            **camera.describe(),
+            "camera_info_topic": options.camera_info_topic,
+            "stride": options.stride,
+            "encoding": sorted(stream.encodings),
+        }
+    optional = tuple(name for name in ("intensity", "ring") if name in stream.kept_fields)
+    report = {
+        "scans_read": scans_read,
+        "scans_written": len(kept),
+        "dropped": dict(dropped),
+        "invalid_beams": invalid,
+        "padded_beams": int(beams * len(kept) - sum(counts)),
+        "odometry_messages": len(odometry.stamps_ns),
+        "odometry_span_s": [odometry.stamps_ns[0] * 1e-9, odometry.stamps_ns[-1] * 1e-9],
+        "fields": stream.fields,
+        "point_time": stream.point_time(deskewed, span_s),
+        "optional_fields": list(optional),
+    }
+    if options.min_intensity is not None:
+        report["min_intensity"] = options.min_intensity
+        report["below_min_intensity"] = below
+    metadata = {**describe(longest), "source": source, "import": report}
+    # pass 2: the kept scans (deskewed), padded, at their interpolated poses
     wanted = set(kept)
     rotation, origin = T_vehicle_sensor[:3, :3], T_vehicle_sensor[:3, 3]
     # every scan is padded to the largest: batches of at most BATCH_BEAMS beams bound the memory
     batch_scans = max(1, min(BATCH_SCANS, BATCH_BEAMS // beams))
-    written = 0
+    written, longest_written, lost = 0, 0.0, 0
     with (
-        DatasetWriter(out, beams, metadata, truth=False) as writer,
-        tqdm(total=len(kept), unit="scan", desc="importing", disable=not progress) as bar,
+        DatasetWriter(out, beams, metadata, truth=False, optional=optional) as writer,
+        tqdm(total=len(kept), unit="scan", desc="importing", disable=not options.progress) as bar,
     ):
         rows = []
-        for ordinal, scan in enumerate(_scans(reader, scan_connections, message, points_topic)):
+        for ordinal, scan in enumerate(stream.scans()):
             if ordinal not in wanted:
                 continue
             written += 1
+            if scan.offsets_s is not None:
+                scan, dropped_here = _deskewed(scan, odometry, T_vehicle_sensor, topic, flag)
+                lost += dropped_here
+            returned = scan.ranges[~scan.no_return]
+            if len(returned):
+                longest_written = max(longest_written, float(returned.max()))
             rows.append(_padded(scan, beams, rotation))
             if len(rows) == batch_scans or written == len(kept):
                 batch_ns = np.array([r[0] for r in rows], dtype=np.int64)
+                extra = {name: np.stack([r[4][name] for r in rows]) for name in optional}
                 writer.append(
                     time_s=batch_ns * 1e-9,
                     pose_nav=odometry.at(batch_ns),
@@ -267,23 +502,73 @@ def _import(reader, bag: Path, out: Path, points_topic, odometry_topic, frame, m
                     no_return=np.stack([r[3] for r in rows]),
                     # the bag's own rule: beams below range_min were dropped above, none is stored invalid
                     invalid=np.zeros((len(rows), beams), np.bool_),
+                    **extra,
                 )
                 bar.update(len(rows))
                 rows = []
+        if deskewed:  # deskewing moves the returns: the reach and the counts are those written
+            report["invalid_beams"] += lost
+            report["invalid_after_deskew"] = lost
+            report["padded_beams"] += lost
+            metadata = {**describe(longest_written), "source": source, "import": report}
+            writer.set_metadata(metadata)
     return ImportSummary(
-        out, len(kept), scans_read, beams, dict(dropped), invalid, metadata["import"]["padded_beams"], metadata
+        out,
+        len(kept),
+        scans_read,
+        beams,
+        dict(dropped),
+        report["invalid_beams"],
+        report["padded_beams"],
+        metadata,
     )
 
 
+def _fired_ns(scan: Scan) -> tuple[int, int]:
+    """The earliest and latest firing time of a scan's beams, nanoseconds from its stamp (rounded out)."""
+    return math.floor(float(scan.offsets_s.min()) * 1e9), math.ceil(float(scan.offsets_s.max()) * 1e9)
+
+
+def _deskewed(scan: Scan, odometry: Odometry, T_vehicle_sensor: np.ndarray, topic: str, flag: str) -> tuple[Scan, int]:
+    """The scan with its beams moved to the sensor's pose at the stamp, and how many beams were
+    lost (a point deskewed onto the sensor, or past any sensor's reach)."""
+    points = scan.directions * scan.ranges[:, None]
+    start = odometry.stamps_ns[0]
+    moved = deskew_points(
+        points, scan.offsets_s, (scan.stamp_ns - start) * 1e-9, odometry.times_s, odometry.poses, T_vehicle_sensor
+    )
+    ranges = np.linalg.norm(moved, axis=1)
+    valid = (ranges >= _MIN_RANGE) & (ranges <= MAX_RANGE_M)
+    if not valid.any():
+        raise ValueError(f"{flag} topic {topic!r}: the scan stamped {scan.stamp_ns} ns keeps no beam once deskewed")
+    keep = lambda a: None if a is None else a[valid]  # noqa: E731
+    moved, ranges = moved[valid], ranges[valid]
+    out = dataclasses.replace(
+        scan,
+        directions=moved / ranges[:, None],
+        ranges=ranges,
+        no_return=scan.no_return[valid],
+        offsets_s=None,
+        intensity=keep(scan.intensity),
+        ring=keep(scan.ring),
+    )
+    return out, int(np.count_nonzero(~valid))
+
+
 def _padded(scan: Scan, beams: int, rotation: np.ndarray):
-    """(stamp, directions (B,3) in the vehicle frame, ranges (B,), no_return (B,)): the scan's
-    beams, then copies of its first return (or first beam) up to B."""
+    """(stamp, directions (B,3) in the vehicle frame, ranges (B,), no_return (B,), optional
+    fields {name: (B,)}): the scan's beams, then copies of its first return (or first beam) up to B."""
     count = len(scan.ranges)
     returns = np.flatnonzero(~scan.no_return)
     copy = returns[0] if len(returns) else 0
     index = np.r_[np.arange(count), np.full(beams - count, copy)]
     directions = (scan.directions[index] @ rotation.T).astype(np.float32)
-    return scan.stamp_ns, directions, scan.ranges[index].astype(np.float32), scan.no_return[index]
+    optional = {}
+    if scan.intensity is not None:
+        optional["intensity"] = scan.intensity[index].astype(np.float32)
+    if scan.ring is not None:
+        optional["ring"] = scan.ring[index].astype(np.uint16)
+    return scan.stamp_ns, directions, scan.ranges[index].astype(np.float32), scan.no_return[index], optional
 
 
 def _reasons(dropped: dict) -> str:
@@ -316,72 +601,282 @@ def _stamp_ns(header) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def _scans(reader, connections, message: str, topic: str):
-    parse = cloud_beams if message == "PointCloud2" else laser_beams
-    for _, msg in _messages(reader, connections):
-        yield parse(msg, topic)
+class _ScanStream:
+    """The scans of a topic, parsed alike on every pass, and what its messages must agree on:
+    the fields a cloud's points carry and the layout of their times (fixed by the first cloud
+    that has a valid point), a depth camera's encodings."""
+
+    def __init__(self, reader, connections: list, message: str, options: _Options, camera: Camera | None):
+        self.reader, self.connections, self.message, self.options = reader, connections, message, options
+        self.camera = camera
+        self.rays = None if camera is None else camera.rays(options.stride)
+        self.layout: str | None = None
+        self.fields: dict[str, dict[str, str]] = {}
+        self.kept_fields: set[str] = set()
+        self.encodings: set[str] = set()
+        self._signature = None
+        self._time: tuple[str, str] | None = None  # (field, type) of the per-point time read
+
+    def scans(self) -> Iterator[Scan]:
+        for _, msg in _messages(self.reader, self.connections):
+            yield self._parse(msg)
+
+    def _parse(self, msg) -> Scan:
+        topic, flag, options = self.options.scans_topic, self.options.flag, self.options
+        if self.message == "LaserScan":
+            scan = laser_beams(msg, topic, min_intensity=options.min_intensity)
+            signature = scan.intensity is not None
+            if not self.fields:
+                self.fields = {
+                    "ranges": {"type": "float32[]", "use": "range"},
+                    "intensities": {"type": "float32[]", "use": "intensity" if signature else "ignored (empty)"},
+                }
+        elif self.message == "Image":
+            self.encodings.add(str(msg.encoding))
+            where = f"--depth topic {topic!r}"
+            points = depth_points(msg, self.camera, self.rays, options.stride, where)
+            scan, signature = _point_beams(points, _stamp_ns(msg.header), _frame(msg.header.frame_id)), None
+            self.fields = {"data": {"type": ", ".join(sorted(self.encodings)), "use": "depth"}}
+        else:
+            where = f"{flag} topic {topic!r}"
+            cloud = read_cloud(msg, where, use_time=options.deskew)
+            scan = _point_beams(
+                cloud.points,
+                _stamp_ns(msg.header),
+                _frame(msg.header.frame_id),
+                intensity=cloud.intensity,
+                ring=cloud.ring,
+                time=cloud.time,
+                time_datatype=cloud.time_datatype,
+                layout=self.layout,
+                min_intensity=options.min_intensity,
+                where=f"{where}: PointCloud2 field",
+                time_field=cloud.time_field,
+            )
+            signature = {name: (f["type"], f["use"]) for name, f in cloud.fields.items() if f["use"] != "ignored"}
+            for name, field in cloud.fields.items():
+                self.fields.setdefault(name, field)
+            if cloud.time_field is not None:
+                self._time = (cloud.time_field, cloud.fields[cloud.time_field]["type"])
+            if self.layout is None and scan.layout is not None:
+                self.layout = scan.layout
+        if options.min_intensity is not None and scan.intensity is None:
+            what = "field intensity" if self.message == "PointCloud2" else "intensities"
+            raise ValueError(f"--min-intensity: the {self.message} messages on {topic!r} have no {what}")
+        if self._signature is None:
+            self._signature = signature
+            present = (("intensity", scan.intensity), ("ring", scan.ring))
+            self.kept_fields = {name for name, values in present if values is not None}
+        elif signature != self._signature:
+            raise ValueError(
+                f"{flag} topic {topic!r}: the message stamped {scan.stamp_ns} ns carries other fields "
+                f"({_used(signature)}) than the topic's first ({_used(self._signature)})"
+            )
+        return scan
+
+    def point_time(self, deskewed: bool, span_s: list[float]) -> dict[str, Any]:
+        """What `import.point_time` records: the time field, its layout, whether scans were deskewed."""
+        if self.message != "PointCloud2":
+            return {"deskewed": False, "reason": f"a {self.message} has no per-point times"}
+        if self._time is None:
+            named = [n for n, f in self.fields.items() if f["use"].startswith("ignored (deskewing off")]
+            if named:
+                return {"field": named[0], "deskewed": False, "reason": "deskewing turned off (--no-deskew)"}
+            return {"deskewed": False, "reason": "the clouds have no per-point time field (time, t or timestamp)"}
+        field, kind = self._time
+        out = {"field": field, "type": kind, "deskewed": deskewed}
+        if self.layout is not None:
+            out |= {"layout": self.layout, "meaning": LAYOUTS[self.layout]}
+        if deskewed:
+            out["offsets_s"] = span_s
+        return out
 
 
-def cloud_beams(msg, topic: str = "") -> Scan:
-    """The valid beams of a sensor_msgs/PointCloud2 (ranges from the sensor origin)."""
-    points = cloud_points(msg, topic)
+def _used(signature) -> str:
+    if not isinstance(signature, dict):
+        return "intensities" if signature else "no intensities"
+    return ", ".join(f"{name} ({kind}: {use})" for name, (kind, use) in signature.items())
+
+
+def _point_beams(
+    points: np.ndarray,
+    stamp_ns: int,
+    frame: str,
+    intensity: np.ndarray | None = None,
+    ring: np.ndarray | None = None,
+    time: np.ndarray | None = None,
+    time_datatype: int | None = None,
+    layout: str | None = None,
+    min_intensity: float | None = None,
+    where: str = "",
+    time_field: str | None = None,
+) -> Scan:
+    """The valid beams of points (N,3) measured from the sensor origin, with their per-point
+    fields: non-finite, zero-length or farther than any sensor reaches (or of non-finite
+    intensity) is invalid; below `min_intensity`, dropped apart."""
     ranges = np.linalg.norm(points, axis=1)
     valid = np.isfinite(ranges) & (ranges >= _MIN_RANGE) & (ranges <= MAX_RANGE_M)
+    if intensity is not None:
+        valid &= np.isfinite(intensity)
+    invalid = int(np.count_nonzero(~valid))
+    below = 0
+    if min_intensity is not None and intensity is not None:
+        dim = valid & (intensity < min_intensity)
+        below = int(np.count_nonzero(dim))
+        valid &= ~dim
     points, ranges = points[valid], ranges[valid]
+    offsets, found = None, None
+    if time is not None:
+        offsets, found = point_offsets(time[valid], time_datatype, stamp_ns, f"{where} {time_field}", layout)
+        found = found if len(offsets) else None
+    if ring is not None:
+        ring = ring[valid]
+        if len(ring) and (ring.min() < 0 or ring.max() > MAX_RING):
+            raise ValueError(f"{where} ring holds {int(ring.min())} to {int(ring.max())}, not rings in [0, {MAX_RING}]")
     return Scan(
-        _stamp_ns(msg.header),
-        _frame(msg.header.frame_id),
+        stamp_ns,
+        frame,
         points / ranges[:, None],
         ranges,
         np.zeros(len(ranges), dtype=bool),
-        int(np.count_nonzero(~valid)),
+        invalid,
+        offsets_s=offsets,
+        intensity=None if intensity is None else intensity[valid],
+        ring=ring,
+        below_min_intensity=below,
+        layout=found,
     )
 
 
-def cloud_points(msg, topic: str = "") -> np.ndarray:
-    """(N,3) float64 x, y, z of every point of a PointCloud2 (NaN ones included)."""
-    where = f"--points topic {topic!r}: PointCloud2"
-    names = [f.name for f in msg.fields]
-    repeated = sorted(n for n in "xyz" if names.count(n) > 1)
-    if repeated:
-        raise ValueError(f"{where} has field {repeated[0]} twice")
-    fields = {f.name: f for f in msg.fields}
-    missing = [n for n in "xyz" if n not in fields]
-    if missing:
-        raise ValueError(f"{where} has no field {', '.join(missing)} (fields: {', '.join(fields) or 'none'})")
-    formats, offsets = [], []
-    order = ">" if msg.is_bigendian else "<"
-    for name in "xyz":
-        field = fields[name]
-        if field.datatype not in _FLOAT_TYPES or field.count not in (0, 1):
+def cloud_beams(msg: Any, topic: str = "", deskew: bool = True, layout: str | None = None) -> Scan:
+    """The valid beams of a sensor_msgs/PointCloud2 (ranges from the sensor origin).
+
+    Parameters
+    ----------
+    msg : sensor_msgs/msg/PointCloud2
+        The cloud.
+    topic : str, optional
+        Its topic, for error messages.
+    deskew : bool, optional
+        Whether to read its per-point times (`Scan.offsets_s`).
+    layout : str or None, optional
+        The time layout the topic's earlier clouds had (None: found from this cloud).
+
+    Returns
+    -------
+    Scan
+        Its valid points as beams, with their offsets, intensity and ring where present.
+
+    Raises
+    ------
+    ValueError
+        Naming the topic when the cloud is malformed (see `vogjax.io.pointcloud2.read_cloud`)
+        or its times fit no known layout (`vogjax.io.deskew.point_offsets`).
+    """
+    where = f"--points topic {topic!r}"
+    cloud = read_cloud(msg, where, use_time=deskew)
+    return _point_beams(
+        cloud.points,
+        _stamp_ns(msg.header),
+        _frame(msg.header.frame_id),
+        intensity=cloud.intensity,
+        ring=cloud.ring,
+        time=cloud.time,
+        time_datatype=cloud.time_datatype,
+        layout=layout,
+        where=f"{where}: PointCloud2 field",
+        time_field=cloud.time_field,
+    )
+
+
+def cloud_points(msg: Any, topic: str = "") -> npt.NDArray[np.float64]:
+    """x, y, z of every point of a PointCloud2.
+
+    Parameters
+    ----------
+    msg : sensor_msgs/msg/PointCloud2
+        The cloud.
+    topic : str, optional
+        Its topic, for error messages.
+
+    Returns
+    -------
+    (N, 3) ndarray of float64
+        Every point, NaN ones included.
+
+    Raises
+    ------
+    ValueError
+        Naming the topic when the cloud is malformed (`vogjax.io.pointcloud2.read_cloud`).
+    """
+    return read_cloud(msg, f"--points topic {topic!r}", use_time=False).points
+
+
+def read_camera(reader, topic: str) -> Camera:
+    """The camera of a depth topic: the CameraInfo messages of `topic`, which must agree.
+
+    Parameters
+    ----------
+    reader : rosbags.highlevel.AnyReader
+        The open bag.
+    topic : str
+        The sensor_msgs/CameraInfo topic.
+
+    Returns
+    -------
+    Camera
+
+    Raises
+    ------
+    ValueError
+        Naming --camera-info when the topic is missing, of another type, empty, or its messages
+        disagree or describe a camera vogjax does not model (`camera_from_info`).
+    """
+    connections = _topic(reader, topic, "--camera-info", {CAMERA_INFO})[0]
+    where = f"--camera-info topic {topic!r}"
+    camera = None
+    for _, msg in _messages(reader, connections):
+        this = camera_from_info(msg, where)
+        if camera is None:
+            camera = this
+        elif this.describe() != camera.describe():
             raise ValueError(
-                f"{where} field {name} must be one float32 or float64, got datatype {field.datatype} x {field.count}"
+                f"{where}: the camera changes during the bag ({this.describe()}, first {camera.describe()})"
             )
-        formats.append(order + _FLOAT_TYPES[field.datatype])
-        offsets.append(int(field.offset))
-    step, width, height, row_step = int(msg.point_step), int(msg.width), int(msg.height), int(msg.row_step)
-    if width * height > MAX_BEAMS:  # a run holds no more beams per scan; refused before converting
-        raise ValueError(f"{where} holds {height} x {width} points, more than the {MAX_BEAMS} beams a scan may have")
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if (
-        step <= 0
-        or any(o < 0 or o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats))
-        or row_step < width * step
-        or len(data) < height * row_step
-    ):
-        raise ValueError(
-            f"{where} is malformed: {height} x {width} points of {step} bytes, rows of {row_step} "
-            f"bytes, fields x, y, z at bytes {offsets}, {len(data)} bytes of data"
-        )
-    dtype = np.dtype({"names": list("xyz"), "formats": formats, "offsets": offsets, "itemsize": step})
-    rows = data[: height * row_step].reshape(height, row_step)[:, : width * step]
-    points = np.ascontiguousarray(rows).view(dtype).reshape(-1)
-    return np.stack([points[n].astype(np.float64) for n in "xyz"], axis=1)
+    if camera is None:
+        raise ValueError(f"{where} holds no messages")
+    return camera
 
 
-def laser_beams(msg, topic: str = "") -> Scan:
-    """The valid beams of a sensor_msgs/LaserScan (directions in its x-y plane)."""
+def laser_beams(msg: Any, topic: str = "", min_intensity: float | None = None) -> Scan:
+    """The valid beams of a sensor_msgs/LaserScan (directions in its x-y plane).
+
+    Parameters
+    ----------
+    msg : sensor_msgs/msg/LaserScan
+        The scan.
+    topic : str, optional
+        Its topic, for error messages.
+    min_intensity : float or None, optional
+        Returns of lower intensity are dropped (`Scan.below_min_intensity`); None: all kept.
+
+    Returns
+    -------
+    Scan
+        Its valid beams, with their intensities where the scan carries one per range.
+
+    Raises
+    ------
+    ValueError
+        Naming the topic when the scan's limits or angles are not finite and ordered, or it
+        carries intensities but not one per range.
+    """
     ranges = np.asarray(msg.ranges, dtype=np.float64)
+    intensities = np.asarray(msg.intensities, dtype=np.float64)
+    if len(intensities) not in (0, len(ranges)):
+        raise ValueError(
+            f"--points topic {topic!r}: LaserScan has {len(ranges)} ranges but {len(intensities)} intensities"
+        )
     angles = float(msg.angle_min) + np.arange(len(ranges)) * float(msg.angle_increment)
     directions = np.stack([np.cos(angles), np.sin(angles), np.zeros(len(ranges))], axis=1)
     low, high = float(msg.range_min), float(msg.range_max)
@@ -400,7 +895,13 @@ def laser_beams(msg, topic: str = "") -> Scan:
         no_return = ranges > high
         # a return farther than any range sensor reaches is damage, as in a cloud
         invalid = np.isnan(ranges) | (ranges < low) | (~no_return & (ranges > MAX_RANGE_M))
-    keep = ~invalid
+    dim = np.zeros(len(ranges), dtype=bool)
+    if len(intensities):
+        invalid |= ~no_return & ~np.isfinite(intensities)
+        intensities = np.where(np.isfinite(intensities), intensities, 0.0)  # a no-return beam's means nothing
+        if min_intensity is not None:  # a return too faint to trust; a "no return" clears free space still
+            dim = ~invalid & ~no_return & (intensities < min_intensity)
+    keep = ~invalid & ~dim
     return Scan(
         _stamp_ns(msg.header),
         _frame(msg.header.frame_id),
@@ -410,6 +911,8 @@ def laser_beams(msg, topic: str = "") -> Scan:
         int(np.count_nonzero(invalid)),
         low,
         high,
+        intensity=intensities[keep] if len(intensities) else None,
+        below_min_intensity=int(np.count_nonzero(dim)),
     )
 
 
@@ -424,7 +927,13 @@ class Odometry:
     frames: tuple
 
     def covers(self, stamp_ns: int) -> bool:
+        """Whether a stamp (ns) lies within the odometry's span."""
         return bool(self.stamps_ns[0] <= stamp_ns <= self.stamps_ns[-1])
+
+    @functools.cached_property
+    def times_s(self) -> np.ndarray:
+        """(N,) seconds since the first pose: the clock `at` interpolates on."""
+        return (self.stamps_ns - self.stamps_ns[0]) * 1e-9
 
     @functools.cached_property
     def max_gap_ns(self) -> float:
@@ -441,6 +950,12 @@ class Odometry:
         if i < len(self.stamps_ns) and self.stamps_ns[i] == stamp_ns:
             return True
         return bool(self.stamps_ns[i] - self.stamps_ns[i - 1] <= self.max_gap_ns)
+
+    def bridges_span(self, first_ns: int, last_ns: int) -> bool:
+        """Whether every gap between the poses around a covered span is bridged (see `bridges`)."""
+        lo = max(int(np.searchsorted(self.stamps_ns, first_ns, side="right")) - 1, 0)
+        hi = int(np.searchsorted(self.stamps_ns, last_ns, side="left"))
+        return bool(np.all(np.diff(self.stamps_ns[lo : hi + 1]) <= self.max_gap_ns))
 
     def at(self, stamps_ns: np.ndarray) -> np.ndarray:
         """(M,4,4) poses at stamps within the span: positions linear, rotations slerped."""
@@ -481,13 +996,13 @@ def read_odometry(reader, connections, topic: str) -> Odometry:
     return Odometry(stamps, T, frames.pop())
 
 
-def _check_frames(frames: set, frame: str | None, vehicle: str, topic: str) -> str:
+def _check_frames(frames: set, frame: str | None, vehicle: str, topic: str, flag: str = "--points") -> str:
     """The sensor frame the points are in."""
     if frame is None:
         others = sorted(frames - {vehicle})
         if others:
             raise ValueError(
-                f"--points topic {topic!r} is in frame {others[0]!r}, the odometry's child frame is "
+                f"{flag} topic {topic!r} is in frame {others[0]!r}, the odometry's child frame is "
                 f"{vehicle!r}: pass --frame {others[0]} to place the sensor with TF"
             )
         return vehicle

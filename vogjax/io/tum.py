@@ -7,17 +7,40 @@ quaternion with its scalar last), space-separated, `#` comments.
 
 from __future__ import annotations
 
+from os import PathLike
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.geometry import quaternions_from_rotations, rigid_poses, rotations_from_quaternions
 from vogjax.io.atomic import AtomicPath
 from vogjax.validation import real_array
 
 
-def save_tum(path, times_s, poses, comment: str = "") -> None:
-    """Write poses (N,4,4) T_world_body at times_s (N,) (finite, increasing) to `path`."""
+def save_tum(path: str | PathLike, times_s: npt.ArrayLike, poses: npt.ArrayLike, comment: str = "") -> None:
+    """Write a trajectory as a TUM file, published atomically.
+
+    Quaternions are written with w >= 0 (one sign per rotation); times with 9 decimals, the
+    other columns with 9 significant digits.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced if it exists).
+    times_s : (N,) array_like of float
+        Time of each pose, seconds: finite and strictly increasing.
+    poses : (N, 4, 4) array_like of float
+        Rigid poses ``T_world_body``.
+    comment : str, optional
+        A line added to the `#` header after the column names.
+
+    Raises
+    ------
+    ValueError
+        If `times_s` is not finite and strictly increasing, `poses` are not N rigid transforms,
+        or `path` cannot be written.
+    """
     times = real_array("times_s", times_s)
     if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
         raise ValueError("times_s must be a finite, strictly increasing 1-D array")
@@ -30,8 +53,27 @@ def save_tum(path, times_s, poses, comment: str = "") -> None:
         np.savetxt(temporary, table, fmt=["%.9f"] + ["%.9g"] * 7, header=header, comments="# ")
 
 
-def load_tum(path) -> tuple[np.ndarray, np.ndarray]:
-    """(times_s (N,), poses (N,4,4)) of a TUM trajectory file; ValueError if it is not one."""
+def load_tum(path: str | PathLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Read a TUM trajectory file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A TUM file: lines of ``timestamp tx ty tz qx qy qz qw``, `#` comments.
+
+    Returns
+    -------
+    times_s : (N,) ndarray of float64
+        Time of each pose, seconds.
+    poses : (N, 4, 4) ndarray of float64
+        The poses ``T_world_body``.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read, a line is not 8 finite numbers, timestamps do not strictly
+        increase, or a quaternion's norm is off 1 by 1e-3 or more (naming the pose).
+    """
     try:
         table = np.loadtxt(path, comments="#", ndmin=2)
     except (OSError, ValueError) as error:

@@ -9,12 +9,21 @@ voxel centres with log-odds or occupancy probabilities (`VoxelSet.from_log_odds`
 from __future__ import annotations
 
 import dataclasses
+from os import PathLike
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config import MapConfig, logodds
 from vogjax.io import mapfile
 from vogjax.validation import positive_number
+
+if TYPE_CHECKING:
+    import warp as wp
+
+    from vogjax.maps import GlobalMap, VoxelMap
+    from vogjax.maps.confidence import ConfidenceMap
 
 # how far a centre may sit off its voxel's centre, in voxels (float rounding, not a wrong size)
 _CENTRE_TOLERANCE = 0.01
@@ -22,23 +31,42 @@ _CENTRE_TOLERANCE = 0.01
 
 @dataclasses.dataclass(frozen=True)
 class VoxelSet:
-    """Observed voxels of one map.
+    """The observed voxels of one map, as the exporters read them.
 
-    centres:      (K,3) float64, voxel centres in metres (voxel k covers [k*s, (k+1)*s))
-    log_odds:     (K,) float32, finite
-    voxel_size:   s, metres
-    log_occupied: float32 log-odds at or above which a voxel is occupied
-    log_free:     float32 log-odds at or below which a voxel is free (between: unknown)
-    states:       (K,) int8 UNKNOWN (0), FREE (1), OCCUPIED (2) as the source map classifies its
-                  voxels; None: from log_odds and the thresholds, as a VoxelMap classifies
+    Construction converts and checks every field; build one with `from_map`, `from_log_odds`
+    or `from_probabilities`.
+
+    Attributes
+    ----------
+    centres : (K, 3) ndarray of float64
+        Voxel centres, metres (voxel k covers ``[k*s, (k+1)*s)``); each voxel once.
+    log_odds : (K,) ndarray of float32
+        Their occupancy log-odds, finite (unobserved voxels do not belong in a VoxelSet).
+    voxel_size : float
+        The voxel edge s, metres.
+    log_occupied : numpy.float32
+        Log-odds at or above which a voxel is occupied.
+    log_free : numpy.float32
+        Log-odds at or below which a voxel is free (between the two: unknown).
+    states : (K,) ndarray of int8 or None
+        vj.UNKNOWN (0), vj.FREE (1) or vj.OCCUPIED (2), as the source map classifies its
+        voxels. Given as None, they are computed from `log_odds` and the thresholds, as a
+        VoxelMap classifies.
+
+    Raises
+    ------
+    ValueError
+        If `centres` is not (K, 3) real numbers, `log_odds` not (K,), either is not finite,
+        `voxel_size` is not positive, `log_free` exceeds `log_occupied`, `states` holds other
+        values, or a centre is not a voxel centre or names a voxel twice.
     """
 
-    centres: np.ndarray
-    log_odds: np.ndarray
+    centres: npt.NDArray[np.float64]
+    log_odds: npt.NDArray[np.float32]
     voxel_size: float
     log_occupied: np.float32
     log_free: np.float32
-    states: np.ndarray | None = None
+    states: npt.NDArray[np.int8] | None = None
 
     def __post_init__(self):
         centres = np.asarray(self.centres)
@@ -73,9 +101,25 @@ class VoxelSet:
             raise ValueError("centres must name each voxel once")
 
     @classmethod
-    def from_map(cls, voxel_map) -> VoxelSet:
-        """The observed voxels of a VoxelMap or GlobalMap (log-odds) or a ConfidenceMap (its
-        mean occupancy, states as it classifies them)."""
+    def from_map(cls, voxel_map: VoxelMap | GlobalMap | ConfidenceMap) -> VoxelSet:
+        """The observed voxels of a map.
+
+        Parameters
+        ----------
+        voxel_map : VoxelMap, GlobalMap or ConfidenceMap
+            A log-odds map, or a confidence-rich map (read by its mean occupancy, with the
+            states as it classifies them).
+
+        Returns
+        -------
+        VoxelSet
+            Its observed voxels.
+
+        Raises
+        ------
+        ValueError
+            If `voxel_map` is none of these maps.
+        """
         config = getattr(voxel_map, "config", None)
         if isinstance(config, MapConfig) and callable(getattr(voxel_map, "voxels", None)):
             centres, values = voxel_map.voxels()
@@ -91,17 +135,78 @@ class VoxelSet:
 
     @classmethod
     def from_log_odds(
-        cls, centres, log_odds, voxel_size: float, occupied_threshold: float = 0.7, free_threshold: float = 0.3
+        cls,
+        centres: npt.ArrayLike,
+        log_odds: npt.ArrayLike,
+        voxel_size: float,
+        occupied_threshold: float = 0.7,
+        free_threshold: float = 0.3,
     ) -> VoxelSet:
-        """Voxels with log-odds; thresholds are probabilities, as in MapConfig."""
+        """Voxels with occupancy log-odds, classified as a VoxelMap classifies.
+
+        Parameters
+        ----------
+        centres : (K, 3) array_like of float
+            Voxel centres, metres.
+        log_odds : (K,) array_like of float
+            Their log-odds, finite.
+        voxel_size : float
+            The voxel edge, metres.
+        occupied_threshold : float, optional
+            Probability at or above which a voxel is occupied, as in `MapConfig`.
+        free_threshold : float, optional
+            Probability at or below which a voxel is free, as in `MapConfig`.
+
+        Returns
+        -------
+        VoxelSet
+            The voxels.
+
+        Raises
+        ------
+        ValueError
+            If a threshold is not strictly between 0 and 1, or the voxels are refused as the
+            class refuses them.
+        """
         return cls(centres, log_odds, voxel_size, *_thresholds(occupied_threshold, free_threshold))
 
     @classmethod
     def from_probabilities(
-        cls, centres, probabilities, voxel_size: float, occupied_threshold: float = 0.7, free_threshold: float = 0.3
+        cls,
+        centres: npt.ArrayLike,
+        probabilities: npt.ArrayLike,
+        voxel_size: float,
+        occupied_threshold: float = 0.7,
+        free_threshold: float = 0.3,
     ) -> VoxelSet:
-        """Voxels with occupancy probabilities in (0, 1) (e.g. a confidence-rich map's mean),
-        classified by comparing the probabilities themselves with the thresholds."""
+        """Voxels with occupancy probabilities, such as a confidence-rich map's means.
+
+        The states compare the probabilities themselves with the thresholds.
+
+        Parameters
+        ----------
+        centres : (K, 3) array_like of float
+            Voxel centres, metres.
+        probabilities : (K,) array_like of float
+            Occupancy probabilities, strictly between 0 and 1.
+        voxel_size : float
+            The voxel edge, metres.
+        occupied_threshold : float, optional
+            Probability at or above which a voxel is occupied.
+        free_threshold : float, optional
+            Probability at or below which a voxel is free.
+
+        Returns
+        -------
+        VoxelSet
+            The voxels, with their log-odds.
+
+        Raises
+        ------
+        ValueError
+            If a probability or threshold is not strictly between 0 and 1, or the voxels are
+            refused as the class refuses them.
+        """
         given = np.asarray(probabilities)
         p = given.astype(np.float64)
         if given.dtype.kind not in "fi" or not np.all((p > 0) & (p < 1)):
@@ -115,20 +220,43 @@ class VoxelSet:
     def __len__(self) -> int:
         return len(self.centres)
 
-    def keys(self) -> np.ndarray:
-        """(K,3) int64 voxel indices k = floor(centre / voxel_size); ValueError if a centre is
-        not a voxel centre of this size."""
+    def keys(self) -> npt.NDArray[np.int64]:
+        """Integer voxel indices of the centres.
+
+        Returns
+        -------
+        (K, 3) ndarray of int64
+            ``floor(centre / voxel_size)``.
+
+        Raises
+        ------
+        ValueError
+            If a centre sits more than 0.01 voxel off a voxel centre of this size.
+        """
         scaled = self.centres / self.voxel_size
         keys = np.floor(scaled).astype(np.int64)
         if len(keys) and np.abs(scaled - keys - 0.5).max() > _CENTRE_TOLERANCE:
             raise ValueError(f"centres are not centres of voxels of {self.voxel_size} m")
         return keys
 
-    def state(self) -> np.ndarray:
-        """(K,) int8: vj.UNKNOWN (0), vj.FREE (1), vj.OCCUPIED (2), as the source map classifies."""
+    def state(self) -> npt.NDArray[np.int8]:
+        """The voxels' states, as the source map classifies them.
+
+        Returns
+        -------
+        (K,) ndarray of int8
+            vj.UNKNOWN (0), vj.FREE (1) or vj.OCCUPIED (2).
+        """
         return self.states
 
-    def probability(self) -> np.ndarray:
+    def probability(self) -> npt.NDArray[np.float32]:
+        """The voxels' occupancy probabilities.
+
+        Returns
+        -------
+        (K,) ndarray of float32
+            ``1 - 1 / (1 + exp(log_odds))``, computed in float64.
+        """
         return (1.0 - 1.0 / (1.0 + np.exp(self.log_odds.astype(np.float64)))).astype(np.float32)
 
 
@@ -139,9 +267,26 @@ def _thresholds(occupied: float, free: float) -> tuple[np.float32, np.float32]:
     return logodds(occupied), logodds(free)
 
 
-def load_map(path, device=None):
-    """The map a .vog file holds, as the class its header names (VoxelMap, GlobalMap or
-    ConfidenceMap)."""
+def load_map(path: str | PathLike, device: str | wp.Device | None = None) -> VoxelMap | GlobalMap | ConfidenceMap:
+    """Load a .vog map file as the class its header names.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A map file holding a VoxelMap, GlobalMap or ConfidenceMap.
+    device : str or warp.Device or None, optional
+        Warp device for the map (None: CUDA when available, else the CPU).
+
+    Returns
+    -------
+    VoxelMap, GlobalMap or ConfidenceMap
+        The map.
+
+    Raises
+    ------
+    ValueError
+        If the file is no map file, holds another kind of map, or is damaged.
+    """
     from vogjax.maps import GlobalMap, VoxelMap
     from vogjax.maps.confidence import ConfidenceMap
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax import devices
@@ -14,6 +16,7 @@ from vogjax.config import MapConfig
 from vogjax.kernels import hashing, queries
 from vogjax.maps import parallel
 from vogjax.maps.blocks import BLOCK_VOXELS, GRID_CELLS, BlockGrid, BlockStore, voxel_keys
+from vogjax.maps.levels import Levels, check_level, level_scales
 from vogjax.maps.locking import ReadWriteLock
 from vogjax.validation import float_array, positive_range, within_key_range
 
@@ -58,25 +61,66 @@ class RayTables:
 
 @dataclasses.dataclass(frozen=True)
 class RaycastResult:
-    """Per ray: `hit` (R,) bool, an OCCUPIED voxel was met before `max_range`;
-    `distance` (R,) float32, where the ray enters that voxel, else `max_range`;
-    `num_unknown`, `num_free` (R,) int32, voxels of each state passed before it.
-    NumPy arrays, or Warp arrays on the map's device for rays given on the device."""
+    """What a ray cast (`BlockMap.raycast`, `VogMap.raycast`) found along each of R rays.
 
-    hit: np.ndarray
-    distance: np.ndarray
-    num_unknown: np.ndarray
-    num_free: np.ndarray
+    NumPy arrays, or Warp arrays on the map's device for rays given on the device.
+
+    Attributes
+    ----------
+    hit : (R,) ndarray of bool
+        An OCCUPIED voxel was met before `max_range`.
+    distance : (R,) ndarray of float32
+        Where the ray enters that voxel, metres; `max_range` where there was no hit.
+    num_unknown : (R,) ndarray of int32
+        UNKNOWN voxels the ray passed before that voxel (or within its range).
+    num_free : (R,) ndarray of int32
+        FREE voxels the ray passed before that voxel (or within its range).
+    """
+
+    hit: npt.NDArray[np.bool_] | wp.array
+    distance: npt.NDArray[np.float32] | wp.array
+    num_unknown: npt.NDArray[np.int32] | wp.array
+    num_free: npt.NDArray[np.int32] | wp.array
 
 
 class BlockMap:
-    """A map whose voxel blocks carry a float32 "log_odds" layer (NaN: never observed).
+    """The read side shared by every map of hashed 8x8x8 voxel blocks: queries and contents.
+
+    The map's voxel blocks carry a float32 "log_odds" layer (NaN: never observed). `VoxelMap`,
+    `Submap` and `GlobalMap` are BlockMaps: make one of those, not a BlockMap itself.
 
     Queries hold the map's read lock, so they may run from many threads while updates, which
     hold its write lock, wait for them and see no reader mid-way.
+
+    Every query takes `level`: 0 (the default) reads the map's voxels; level k >= 1 reads voxels
+    of voxel_size * 2^k aligned as OctoMap's depth 16 - k, each holding the largest log-odds of
+    its observed voxels (unknown when none is observed), OctoMap's inner-node value. A level is
+    built on its first query and kept current by every write after (`vogjax.maps.levels`).
+
+    Parameters
+    ----------
+    config : MapConfig or None
+        Voxel size, sensor model, thresholds and clamping (None: ``MapConfig()``).
+    device : str or warp.Device or None
+        Warp device; None picks CUDA when available, else the CPU.
+    layers : dict of str to (dtype, value)
+        The layers the blocks carry besides "log_odds": name -> (Warp dtype, value of a voxel
+        never written).
+
+    Attributes
+    ----------
+    config : MapConfig
+        The map's settings.
+    device : warp.Device
+        Where the map lives.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a MapConfig or `device` is not available.
     """
 
-    def __init__(self, config: MapConfig | None, device, layers: dict):
+    def __init__(self, config: MapConfig | None, device: str | wp.Device | None, layers: dict[str, tuple]):
         if config is not None and not isinstance(config, MapConfig):
             raise ValueError(f"config must be a vj.MapConfig, got {type(config).__name__}")
         self.config = config or MapConfig()
@@ -85,7 +129,12 @@ class BlockMap:
         self._lock = ReadWriteLock()
         self._values_revision = 0  # counts writes of log-odds, for the ray-cast state cache
         self._ray_tables_cache = None  # (key, RayTables), rebuilt after writes
+        self._level_ray_tables: dict = {}  # level >= 1 -> (key, RayTables)
         self._ray_tables_lock = threading.Lock()
+        # the coarse levels built so far: a voxel of a map without a "count" layer (a VoxelMap)
+        # never goes back to unobserved, so its coarse blocks never empty
+        self._levels = Levels(self.device, releases="count" in layers)
+        self._levels_lock = threading.Lock()
         # Ray casts on a CPU read a voxel's state at every step without a test for a block change
         # (queries.cast_rays_dense, cast_rays_on_grid: a branch at each block crossing
         # mispredicts there and costs more than a load); on a GPU, where that would be a second
@@ -98,27 +147,82 @@ class BlockMap:
         """The block storage, for kernel launchers in vogjax.maps (read it under `reading()`)."""
         return self._store
 
-    def reading(self):
-        """Context manager holding the map's read lock: no update runs while it is held."""
+    def reading(self) -> contextlib.AbstractContextManager[None]:
+        """Hold the map's read lock: no update runs while it is held.
+
+        Returns
+        -------
+        contextlib.AbstractContextManager
+            A context manager; other readers may hold the lock at the same time.
+        """
         return self._lock.reading()
 
-    def _values_changed(self) -> None:
-        """Call (under the write lock) after writing log-odds: the ray-cast states go stale."""
-        self._values_revision += 1
+    def store_at(self, level: int = 0) -> BlockStore:
+        """The block storage of a level, built or brought up to date first.
 
-    def _ray_tables(self) -> RayTables:
+        For kernel launchers (the planner) that read a coarse level's voxels; call it under
+        `reading()` and keep the lock while the store is read.
+
+        Parameters
+        ----------
+        level : int, optional
+            0: the map's own store (`store`); k in [1, 15]: the store of level k, whose voxels
+            have the edge `vogjax.maps.levels.level_scales(config.voxel_size, k)[0]`.
+
+        Returns
+        -------
+        BlockStore
+            The level's blocks, current with every write so far.
+
+        Raises
+        ------
+        ValueError
+            When `level` is no integer in [0, 15].
+        """
+        level = check_level(level)
+        if level == 0:
+            return self._store
+        if self._levels.count < level or self._levels.stale:
+            # writes only note blocks under the write lock, so no reader is mid-way through a
+            # level while another one brings it up to date here; concurrent readers share one
+            with self._levels_lock:
+                self._levels.extend(self._store, level)
+        return self._levels.store(level)
+
+    @property
+    def levels_kept(self) -> int:
+        """The coarsest level this map keeps current (0: none built yet)."""
+        return self._levels.count
+
+    def _values_changed(self, keys: np.ndarray | None = None) -> None:
+        """Call (under the write lock) after writing log-odds: the ray-cast states go stale, and
+        the coarse levels above the written blocks (packed keys `keys` (K,) int64; None: the
+        store was replaced, every level is rebuilt) are noted for the next coarse query."""
+        self._values_revision += 1
+        if self._levels.count:
+            if keys is None:
+                self._levels.rebuild(self._store)
+            else:
+                self._levels.note(self._store, keys)
+
+    def _ray_tables(self, level: int = 0) -> RayTables:
         """What ray casts read, rebuilt after the log-odds or the blocks changed; call under the
         read lock (concurrent readers share one build)."""
-        store = self._store
+        store = self.store_at(level)
         key = (self._values_revision, store.version, store.block_capacity, self._cpu_casts)
         with self._ray_tables_lock:
-            cached = self._ray_tables_cache
+            cached = self._ray_tables_cache if level == 0 else self._level_ray_tables.get(level)
             if cached is None or cached[0] != key or cached[1].store is not store:
-                self._ray_tables_cache = cached = (key, self._build_ray_tables())
+                cached = (key, self._build_ray_tables(store))
+                if level == 0:
+                    self._ray_tables_cache = cached
+                else:
+                    self._level_ray_tables[level] = cached
             return cached[1]
 
-    def _build_ray_tables(self) -> RayTables:
-        store, device, cfg = self._store, self.device, self.config
+    def _build_ray_tables(self, store: BlockStore | None = None) -> RayTables:
+        store = self._store if store is None else store
+        device, cfg = self.device, self.config
         grid = store.grid()
         padded = tuple(d + 2 for d in grid.dims)
         on_cpu = self._cpu_casts and grid.dims[0] > 0
@@ -183,48 +287,138 @@ class BlockMap:
         check_extent(self.config, origins=origins, points=points)
 
     # ---------------------------------------------------------------- point queries
-    def _lookup(self, points) -> np.ndarray:
+    def _lookup(self, points, level: int = 0) -> np.ndarray:
         """Stored log-odds at each point, NaN where never observed."""
         points = float_array("points", points, (-1, 3))
+        level = check_level(level)
         with self._lock.reading():
-            return self._lookup_unlocked(points)
+            return self._lookup_unlocked(points, level)
 
-    def _lookup_unlocked(self, points: np.ndarray) -> np.ndarray:
+    def _lookup_unlocked(self, points: np.ndarray, level: int = 0) -> np.ndarray:
         values = wp.empty(points.shape[0], dtype=wp.float32, device=self.device)
         if points.shape[0]:
+            store = self.store_at(level)
             wp.launch(
                 queries.lookup_log_odds,
                 dim=points.shape[0],
                 inputs=[
                     wp.array(points, dtype=wp.vec3f, device=self.device),
-                    np.float64(1.0 / self.config.voxel_size),
-                    self._store.table_keys,
-                    self._store.table_slots,
-                    self._store.layers["log_odds"],
+                    level_scales(self.config.voxel_size, level)[1],
+                    store.table_keys,
+                    store.table_slots,
+                    store.layers["log_odds"],
                 ],
                 outputs=[values],
                 device=self.device,
             )
         return values.numpy()
 
-    def log_odds(self, points) -> np.ndarray:
-        """(M,) float32 log-odds of the voxels holding `points` (M,3); 0.0 where unknown."""
-        return np.nan_to_num(self._lookup(points), nan=0.0)
+    def log_odds(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
+        """Log-odds of the voxels holding `points`.
 
-    def probability(self, points) -> np.ndarray:
-        """(M,) float32 occupancy probability; 0.5 where unknown."""
-        return probability_from_log_odds(self.log_odds(points))
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: the voxel of edge voxel_size * 2^k holding each
+            point (the maximum log-odds of its observed voxels).
 
-    def state(self, points) -> np.ndarray:
-        """(M,) int8: UNKNOWN (never observed, or between the thresholds), FREE or OCCUPIED."""
-        return classify(self._lookup(points), self.config)
+        Returns
+        -------
+        (M,) ndarray of float32
+            The log-odds; 0.0 where unknown (never observed).
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3), holds NaN or infinite values, or `level` is no integer
+            in [0, 15].
+        """
+        return np.nan_to_num(self._lookup(points, level), nan=0.0)
+
+    def probability(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
+        """Occupancy probability of the voxels holding `points`.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            As for `log_odds`.
+
+        Returns
+        -------
+        (M,) ndarray of float32
+            Probabilities in [0, 1]; 0.5 where unknown.
+
+        Raises
+        ------
+        ValueError
+            As for `log_odds`.
+        """
+        return probability_from_log_odds(self.log_odds(points, level))
+
+    def state(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.int8]:
+        """States of the voxels holding `points`.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            As for `log_odds`. A coarse voxel is OCCUPIED when any of its voxels is, FREE when
+            its most occupied observed voxel is FREE (unobserved ones do not count).
+
+        Returns
+        -------
+        (M,) ndarray of int8
+            UNKNOWN (never observed, or between the thresholds), FREE or OCCUPIED.
+
+        Raises
+        ------
+        ValueError
+            As for `log_odds`.
+        """
+        return classify(self._lookup(points, level), self.config)
 
     # ---------------------------------------------------------------- ray queries
-    def raycast(self, origins, directions, max_range) -> RaycastResult:
-        """First OCCUPIED voxel along each ray, within `max_range` (float or (R,)) metres.
+    def raycast(
+        self,
+        origins: npt.ArrayLike | wp.array,
+        directions: npt.ArrayLike | wp.array,
+        max_range: float | npt.ArrayLike | wp.array,
+        level: int = 0,
+    ) -> RaycastResult:
+        """First OCCUPIED voxel along each ray, within `max_range` metres.
 
-        origins (R,3) inside the key range, directions (R,3) (any nonzero length; normalised
-        in the kernel, as `unit_directions` does). Any range is accepted: stretches of unknown
+        Parameters
+        ----------
+        origins : (R, 3) array_like of float or warp.array
+            Ray origins, metres, world frame, inside the key range (float64).
+        directions : (R, 3) array_like of float or warp.array
+            Directions of any nonzero length (normalised in the kernel, as
+            `unit_directions` does).
+        max_range : float or (R,) array_like of float or warp.array
+            One range for every ray, or one per ray (float64), metres, positive.
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: voxels of edge voxel_size * 2^k (see `state`).
+
+        Returns
+        -------
+        RaycastResult
+            hit (R,) bool, distance (R,) float32, num_unknown and num_free (R,) int32.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument: arrays of the wrong shape, NaN, infinite or out-of-range
+            origins, zero directions, ranges that are not positive, a bad level; for rays on
+            the device, Warp arrays of another dtype, shape or device, or mixed with NumPy ones.
+
+        Notes
+        -----
+        Any range is accepted: stretches of unknown
         space outside the map's box are counted without walking them, so a ray costs at most
         about the voxels of the map it crosses; voxels outside the key range
         (`hashing.VOXEL_KEY_LIMIT` voxels from the origin per axis) are not counted.
@@ -234,9 +428,14 @@ class BlockMap:
         enabled, without a copy) and max_range a number or a float64 Warp array of (R,), the
         checks run in a kernel and the result's fields are Warp arrays on the device, final
         when this returns.
+
+        At `level` k >= 1 the rays walk the voxels of edge voxel_size * 2^k: a ray meets an
+        OCCUPIED coarse voxel at or before the level-0 voxel it would hit (one it spends more
+        than a millionth of an edge in), and the counts are of coarse voxels.
         """
+        level = check_level(level)
         if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
-            return self._raycast_on_device(origins, directions, max_range)
+            return self._raycast_on_device(origins, directions, max_range, level)
         origins, directions, ranges = ray_arguments(origins, directions, max_range, normalise=False)
         check_extent(self.config, origins=origins)
         # one range for every ray: one value for the kernel (cast_rays reads a length-1 array
@@ -248,10 +447,11 @@ class BlockMap:
             wp.array(origins, dtype=wp.vec3d, device=device, copy=False),
             wp.array(directions, dtype=wp.vec3d, device=device, copy=False),
             wp.array(ranges[:1] if shared else ranges, dtype=wp.float64, device=device, copy=False),
+            level,
         )
         return RaycastResult(**{name: a.numpy() for name, a in out.items()})
 
-    def _raycast_on_device(self, origins, directions, max_range) -> RaycastResult:
+    def _raycast_on_device(self, origins, directions, max_range, level: int = 0) -> RaycastResult:
         origins = device_rays("origins", origins, -1, self.device)
         count = origins.shape[0]
         directions = device_rays("directions", directions, count, self.device)
@@ -297,15 +497,16 @@ class BlockMap:
         ):
             if bad[fault] < count:
                 raise ValueError(f"{name}: ray {bad[fault]} is {what}")
-        out = self._cast(origins, directions, ranges)
+        out = self._cast(origins, directions, ranges, level)
         if self.device.is_cuda:  # final on return, as the docstring says (later launches queue behind it)
             wp.synchronize_stream(wp.get_stream(self.device))
         return RaycastResult(**out)
 
-    def _cast(self, origins: wp.array, directions: wp.array, ranges: wp.array) -> dict:
-        """cast_rays over checked device rays (ranges: one per ray, or one for all): the
-        RaycastResult fields as Warp arrays."""
-        count, device, cfg = origins.shape[0], self.device, self.config
+    def _cast(self, origins: wp.array, directions: wp.array, ranges: wp.array, level: int = 0) -> dict:
+        """cast_rays over checked device rays (ranges: one per ray, or one for all) at `level`:
+        the RaycastResult fields as Warp arrays."""
+        count, device = origins.shape[0], self.device
+        resolution, inv_resolution = level_scales(self.config.voxel_size, level)
         shared = ranges.shape[0] == 1 and count > 1
         out = {
             "hit": wp.empty(count, dtype=wp.bool, device=device),
@@ -319,8 +520,8 @@ class BlockMap:
                 origins[lo:hi],
                 directions[lo:hi],
                 ranges if shared else ranges[lo:hi],
-                np.float64(cfg.voxel_size),
-                np.float64(1.0 / cfg.voxel_size),
+                resolution,
+                inv_resolution,
             ]
             outputs = [a[lo:hi] for a in out.values()]
             if tables.kind != "device":
@@ -359,35 +560,56 @@ class BlockMap:
                 )
 
         with self._lock.reading():
-            tables = self._ray_tables()
+            tables = self._ray_tables(level)
             box_lo, box_hi = wp.vec3i(*tables.grid.lo), wp.vec3i(*tables.grid.hi)
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return out
 
-    def line_query(self, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    def line_query(
+        self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int32]]:
         """Log-odds of every voxel from the voxel of each start to that of its end, inclusive.
 
-        Returns values (R,S) float32 (0.0 where unknown, NaN past each line's end) and
-        lengths (R,) int32, the number of voxels of each line.
+        Parameters
+        ----------
+        starts, ends : (R, 3) array_like of float
+            World points, metres.
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: the voxels of edge voxel_size * 2^k (see
+            `state`).
+
+        Returns
+        -------
+        values : (R, S) ndarray of float32
+            Log-odds along each line, S its longest; 0.0 where unknown, NaN past each line's end.
+        lengths : (R,) ndarray of int32
+            The number of voxels of each line.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument: arrays of the wrong shape, NaN, infinite or out-of-range
+            points, a line crossing more than MAX_LINE_VOXELS (65536) voxels, a bad level.
         """
-        starts, ends = line_arguments(self.config, starts, ends)
+        level = check_level(level)
+        starts, ends = line_arguments(self.config, starts, ends, level)
         count, device = starts.shape[0], self.device
         if count == 0:
             return np.zeros((0, 0), np.float32), np.zeros(0, np.int32)
-        d_starts, d_ends, lengths = _line_lengths(self.config, device, starts, ends)
+        d_starts, d_ends, lengths = _line_lengths(self.config, device, starts, ends, level)
         values = wp.full((count, int(lengths.max())), math.nan, dtype=wp.float32, device=device)
         with self._lock.reading():
+            store = self.store_at(level)
             wp.launch(
                 queries.fill_line_values,
                 dim=count,
                 inputs=[
                     d_starts,
                     d_ends,
-                    np.float64(self.config.voxel_size),
-                    np.float64(1.0 / self.config.voxel_size),
-                    self._store.table_keys,
-                    self._store.table_slots,
-                    self._store.layers["log_odds"],
+                    *level_scales(self.config.voxel_size, level),
+                    store.table_keys,
+                    store.table_slots,
+                    store.layers["log_odds"],
                 ],
                 outputs=[values],
                 device=device,
@@ -395,23 +617,53 @@ class BlockMap:
         return values.numpy(), lengths
 
     # ---------------------------------------------------------------- contents
-    def voxels(self) -> tuple[np.ndarray, np.ndarray]:
-        """Observed voxels: centres (K,3) float64 and log-odds (K,) float32, sorted by voxel key."""
+    def voxels(self, level: int = 0) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
+        """The observed voxels of a level.
+
+        Parameters
+        ----------
+        level : int, optional
+            0: the map's voxels; k in [1, 15]: the voxels of edge voxel_size * 2^k holding an
+            observed one, with their maximum log-odds.
+
+        Returns
+        -------
+        centres : (K, 3) ndarray of float64
+            Voxel centres, metres, sorted by voxel key.
+        log_odds : (K,) ndarray of float32
+            Their log-odds.
+
+        Raises
+        ------
+        ValueError
+            When `level` is no integer in [0, 15].
+        """
+        level = check_level(level)
         with self._lock.reading():
-            keys, layers = self._store.host_blocks()
+            keys, layers = self.store_at(level).host_blocks()
         values = layers["log_odds"]
         block_index, local = np.nonzero(~np.isnan(values))
-        return (voxel_keys(keys, block_index, local) + 0.5) * self.config.voxel_size, values[block_index, local]
+        size = level_scales(self.config.voxel_size, level)[0]
+        return (voxel_keys(keys, block_index, local) + 0.5) * size, values[block_index, local]
 
     @property
     def num_blocks(self) -> int:
+        """8x8x8 blocks allocated so far (512 voxels each, observed or not); blocks a GlobalMap
+        released still count (their slots are reused)."""
         return self._store.num_blocks
 
     def memory_bytes(self) -> int:
-        """Bytes of device memory the map holds (table, block pool, per-block scratch, the
-        ray-cast caches)."""
-        cached = self._ray_tables_cache
-        return self._store.memory_bytes() + (cached[1].memory_bytes() if cached else 0)
+        """Device memory the map holds.
+
+        Returns
+        -------
+        int
+            Bytes of the hash table, the block pool, the per-block scratch, the coarse levels
+            and the ray-cast caches.
+        """
+        cached = [self._ray_tables_cache, *self._level_ray_tables.values()]
+        tables = sum(c[1].memory_bytes() for c in cached if c is not None)
+        return self._store.memory_bytes() + self._levels.memory_bytes() + tables
 
     def __repr__(self) -> str:
         return (
@@ -496,48 +748,48 @@ def check_extent(config: MapConfig, **arrays: np.ndarray) -> None:
         within_key_range(name, array, config.voxel_size, hashing.VOXEL_KEY_LIMIT)
 
 
-def line_arguments(config: MapConfig, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+def line_arguments(config: MapConfig, starts, ends, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
     starts = float_array("starts", starts, (-1, 3))
     ends = float_array("ends", ends, (starts.shape[0], 3))
     check_extent(config, starts=starts, ends=ends)
     # a line visits one voxel per unit of L1 key distance, plus its first
-    inv = 1.0 / config.voxel_size
+    size, inv = level_scales(config.voxel_size, level)
     span = np.abs(np.floor(ends.astype(np.float64) * inv) - np.floor(starts.astype(np.float64) * inv)).sum(axis=1) + 1
     if starts.shape[0] and span.max() > MAX_LINE_VOXELS:
         i = int(np.argmax(span))
         raise ValueError(
             f"ends: line {i} crosses {int(span[i])} voxels; line_query takes at most "
-            f"{MAX_LINE_VOXELS} voxels per line ({MAX_LINE_VOXELS * config.voxel_size:.0f} m "
+            f"{MAX_LINE_VOXELS} voxels per line ({MAX_LINE_VOXELS * size:.0f} m "
             "along an axis): split longer lines"
         )
     return starts, ends
 
 
-def _line_lengths(config: MapConfig, device, starts: np.ndarray, ends: np.ndarray):
+def _line_lengths(config: MapConfig, device, starts: np.ndarray, ends: np.ndarray, level: int = 0):
     d_starts = wp.array(starts, dtype=wp.vec3f, device=device)
     d_ends = wp.array(ends, dtype=wp.vec3f, device=device)
     lengths = wp.empty(starts.shape[0], dtype=wp.int32, device=device)
     wp.launch(
         queries.count_line_voxels,
         dim=starts.shape[0],
-        inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+        inputs=[d_starts, d_ends, *level_scales(config.voxel_size, level)],
         outputs=[lengths],
         device=device,
     )
     return d_starts, d_ends, lengths.numpy()
 
 
-def line_voxels(config: MapConfig, device, starts, ends) -> tuple[np.ndarray, np.ndarray]:
-    """Voxel keys (R,S,3) on each line, as line queries walk them, and the lengths (R,)."""
-    starts, ends = line_arguments(config, starts, ends)
+def line_voxels(config: MapConfig, device, starts, ends, level: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel keys (R,S,3) of `level` on each line, as line queries walk them, and the lengths (R,)."""
+    starts, ends = line_arguments(config, starts, ends, level)
     if starts.shape[0] == 0:
         return np.zeros((0, 0, 3), np.int32), np.zeros(0, np.int32)
-    d_starts, d_ends, lengths = _line_lengths(config, device, starts, ends)
+    d_starts, d_ends, lengths = _line_lengths(config, device, starts, ends, level)
     voxels = wp.zeros((starts.shape[0], int(lengths.max())), dtype=wp.vec3i, device=device)
     wp.launch(
         queries.fill_line_voxels,
         dim=starts.shape[0],
-        inputs=[d_starts, d_ends, np.float64(config.voxel_size), np.float64(1.0 / config.voxel_size)],
+        inputs=[d_starts, d_ends, *level_scales(config.voxel_size, level)],
         outputs=[voxels],
         device=device,
     )

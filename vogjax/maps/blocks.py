@@ -262,6 +262,16 @@ class BlockStore:
         }
         return keys[order], layers
 
+    def copy(self) -> BlockStore:
+        """An independent store holding the same blocks in the same slots (the arrays cloned)."""
+        other = BlockStore(self.device, self.layer_specs)
+        other.num_blocks, other.free_slots, other.tombstones = self.num_blocks, list(self.free_slots), self.tombstones
+        other.table_keys, other.table_slots = wp.clone(self.table_keys), wp.clone(self.table_slots)
+        other.slot_keys = wp.clone(self.slot_keys)
+        other.layers = {name: wp.clone(array) for name, array in self.layers.items()}
+        other.version = self.version
+        return other
+
     @classmethod
     def from_host(cls, device, layers: dict, keys: np.ndarray, values: dict) -> BlockStore:
         """A store holding host blocks: packed keys (K,) and each layer as (K,512)."""

@@ -43,11 +43,14 @@ flag byte): 73 bytes at K = 16, against VoxelMap's 4.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import math
 import warnings
+from os import PathLike
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax import devices
@@ -77,20 +80,36 @@ PLAN_ENTRIES = 1 << 21
 
 @dataclasses.dataclass(frozen=True)
 class ConfidenceRaycast:
-    """Per ray, R rays: `hit` (R,) bool, a voxel whose mean reaches occupied_threshold was met
-    within the range; `distance` (R,) float32, where the ray enters it, else the range;
-    over the voxels passed before it (never-observed ones at the prior): `num_unknown`,
-    `num_free` (R,) int32; `variance_sum`, `variance_max` (R,) float32, the sum and the largest
-    of their variances (what a planner weighs as risk, Eq. 34); `reach_probability` (R,)
-    float32, the chance a beam passes them all without bouncing, prod(1 - mean) (Eq. 16)."""
+    """What `ConfidenceMap.raycast` found along each of R rays.
 
-    hit: np.ndarray
-    distance: np.ndarray
-    num_unknown: np.ndarray
-    num_free: np.ndarray
-    variance_sum: np.ndarray
-    variance_max: np.ndarray
-    reach_probability: np.ndarray
+    The counts, variances and reach probability are over the voxels a ray passed before its hit
+    (or over its whole range), never-observed ones at the prior.
+
+    Attributes
+    ----------
+    hit : (R,) ndarray of bool
+        A voxel whose mean reaches occupied_threshold was met within the range.
+    distance : (R,) ndarray of float32
+        Where the ray enters that voxel, metres; the range where there was no hit.
+    num_unknown : (R,) ndarray of int32
+        Voxels passed whose mean lies between the thresholds (never-observed ones included).
+    num_free : (R,) ndarray of int32
+        Voxels passed whose mean is at or below free_threshold.
+    variance_sum : (R,) ndarray of float32
+        Sum of the passed voxels' variances (what a planner weighs as risk, Eq. 34).
+    variance_max : (R,) ndarray of float32
+        The largest of them.
+    reach_probability : (R,) ndarray of float32
+        The chance a beam passes them all without bouncing, ``prod(1 - mean)`` (Eq. 16).
+    """
+
+    hit: npt.NDArray[np.bool_]
+    distance: npt.NDArray[np.float32]
+    num_unknown: npt.NDArray[np.int32]
+    num_free: npt.NDArray[np.int32]
+    variance_sum: npt.NDArray[np.float32]
+    variance_max: npt.NDArray[np.float32]
+    reach_probability: npt.NDArray[np.float32]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,13 +172,50 @@ class _Beams:
 
 
 class ConfidenceMap:
-    """Confidence-rich occupancy map on dense 8x8x8 blocks in a hash table.
+    """The confidence-rich occupancy map of Agha-mohammadi, on dense 8x8x8 blocks in a hash table.
 
-    config: CrmConfig (voxel size, range noise, bins, sensor-model constants, thresholds)
-    device: Warp device; None picks CUDA when available, else the CPU
+    Each voxel holds a distribution over its occupancy level m in [0, 1] (`CrmConfig.num_bins`
+    levels), so the map reports how sure it is (the variance) besides what it believes (the
+    mean); beams are explained by a forward sensor model. A never-observed voxel answers the
+    uniform prior (mean 0.5). `integrate_scans` gives the same map, bit for bit, as
+    `integrate_scan` scan by scan; queries may run from many threads while updates wait for
+    them. Memory: ``4 * num_bins + 9`` bytes per voxel of an allocated block (73 at 16 bins).
+
+    Parameters
+    ----------
+    config : CrmConfig or None, optional
+        Voxel size, range noise, bins, sensor-model constants and thresholds (default:
+        ``CrmConfig()``).
+    device : str or warp.Device or None, optional
+        Warp device; None picks CUDA when available, else the CPU.
+
+    Attributes
+    ----------
+    config : CrmConfig
+        The map's settings.
+    device : warp.Device
+        Where the map lives.
+    prior_resets : int
+        Voxel updates that fell back to the prior because every bin underflowed within a scan
+        (each also warns: more bins, or fewer readings a scan, avoid it).
+    revision : int
+        Counts integrations.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a CrmConfig or `device` is not available.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> crm = ConfidenceMap(CrmConfig(voxel_size=0.1), device="cpu")
+    >>> crm.integrate_scan([0.0, 0.0, 0.0], [[2.05, 0.05, 0.05]])
+    >>> bool(crm.mean([[2.05, 0.05, 0.05]])[0] > 0.5), bool(crm.mean([[1.05, 0.05, 0.05]])[0] < 0.5)
+    (True, True)
     """
 
-    def __init__(self, config: CrmConfig | None = None, device=None):
+    def __init__(self, config: CrmConfig | None = None, device: str | wp.Device | None = None):
         if config is not None and not isinstance(config, CrmConfig):
             raise ValueError(f"config must be a CrmConfig, got {type(config).__name__}")
         self.config = config or CrmConfig()
@@ -190,14 +246,35 @@ class ConfidenceMap:
         """The block storage (layers "bins", "mean", "variance", "pending"); read under `reading()`."""
         return self._store
 
-    def reading(self):
-        """Context manager holding the map's read lock: no update runs while it is held."""
+    def reading(self) -> contextlib.AbstractContextManager[None]:
+        """Hold the map's read lock: no update runs while it is held.
+
+        Returns
+        -------
+        contextlib.AbstractContextManager
+            A context manager; other readers may hold the lock at the same time.
+        """
         return self._lock.reading()
 
     # ---------------------------------------------------------------- integration
-    def integrate_scan(self, origin, points) -> None:
-        """Integrate one scan: `origin` (3,) sensor position, `points` (N,3) beam endpoints
-        (world frame; an endpoint farther than max_range means no return along that beam)."""
+    def integrate_scan(self, origin: npt.ArrayLike, points: npt.ArrayLike) -> None:
+        """Integrate one scan: every beam is explained by the map as it was before the scan.
+
+        Parameters
+        ----------
+        origin : (3,) array_like of float
+            Sensor position, metres, world frame.
+        points : (N, 3) array_like of float
+            Beam endpoints, metres, world frame; an endpoint farther than max_range from
+            `origin` means no return along that beam. The order of the points changes no bit.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes, if an array has the wrong shape or holds NaN or infinite
+            values, a point equals the origin (a beam needs a direction), or a beam reaches
+            beyond the key range.
+        """
         origin = float_array("origin", origin, (3,))
         points = float_array("points", points, (-1, 3))
         beams = self._beams(origin[None], points, np.zeros(points.shape[0], np.int32))
@@ -205,11 +282,24 @@ class ConfidenceMap:
             self._integrate_passes(beams)
             self.revision += 1
 
-    def integrate_scans(self, origins, points, scan_index) -> None:
-        """Integrate a batch of scans; the same map, bit for bit, as `integrate_scan` in order.
+    def integrate_scans(self, origins: npt.ArrayLike, points: npt.ArrayLike, scan_index: npt.ArrayLike) -> None:
+        """Integrate a batch of scans: the same map, bit for bit, as `integrate_scan` in order.
 
-        origins (S,3): sensor position per scan; points (N,3): beam endpoints;
-        scan_index (N,): the scan each point belongs to, in [0, S).
+        Parameters
+        ----------
+        origins : (S, 3) array_like of float
+            Sensor position per scan, metres, world frame.
+        points : (N, 3) array_like of float
+            Beam endpoints, metres (farther than max_range from their origin: no return).
+        scan_index : (N,) array_like of int
+            The scan each point belongs to, in [0, S).
+
+        Raises
+        ------
+        ValueError
+            Before anything changes, if an array has the wrong shape or holds NaN or infinite
+            values, `scan_index` is out of [0, S), a point equals its scan's origin, or a beam
+            reaches beyond the key range.
         """
         origins = float_array("origins", origins, (-1, 3))
         points = float_array("points", points, (-1, 3))
@@ -619,31 +709,111 @@ class ConfidenceMap:
                 )
             return out_mean.numpy(), out_variance.numpy()
 
-    def mean(self, points) -> np.ndarray:
-        """(M,) float32 mean occupancy of the voxels holding `points` (M,3); the prior's (0.5)
-        where never observed."""
+    def mean(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Mean occupancy level of the voxels holding some points.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, metres, world frame.
+
+        Returns
+        -------
+        (M,) ndarray of float32
+            The means; the prior's (0.5) where never observed.
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3) finite numbers.
+        """
         mean, _ = self._moments(points)
         return np.where(np.isnan(mean), self.config.prior_mean, mean).astype(np.float32)
 
-    def variance(self, points) -> np.ndarray:
-        """(M,) float32 variance of the occupancy level; the prior's where never observed."""
+    def variance(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Variance of the occupancy level of the voxels holding some points: how unsure the map is.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, metres, world frame.
+
+        Returns
+        -------
+        (M,) ndarray of float32
+            The variances; the prior's, ``(K + 1) / (12 (K - 1))`` for K bins, where never
+            observed.
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3) finite numbers.
+        """
         _, variance = self._moments(points)
         return np.where(np.isnan(variance), self.config.prior_variance, variance).astype(np.float32)
 
-    def observed(self, points) -> np.ndarray:
-        """(M,) bool: the voxel holding each point has been updated at least once."""
+    def observed(self, points: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """Whether the voxels holding some points have been updated at least once.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, metres, world frame.
+
+        Returns
+        -------
+        (M,) ndarray of bool
+            True where the voxel has been updated.
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3) finite numbers.
+        """
         mean, _ = self._moments(points)
         return ~np.isnan(mean)
 
-    def state(self, points) -> np.ndarray:
-        """(M,) int8 by the mean: OCCUPIED at or above occupied_threshold, FREE at or below
-        free_threshold, UNKNOWN between them or where never observed."""
+    def state(self, points: npt.ArrayLike) -> npt.NDArray[np.int8]:
+        """States of the voxels holding some points, by their means.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, metres, world frame.
+
+        Returns
+        -------
+        (M,) ndarray of int8
+            vj.OCCUPIED at or above occupied_threshold, vj.FREE at or below free_threshold,
+            vj.UNKNOWN between them or where never observed.
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3) finite numbers.
+        """
         mean, _ = self._moments(points)
         return classify(mean, self.config)
 
-    def distribution(self, points) -> np.ndarray:
-        """(M, num_bins) float32 distribution over the levels `config.bin_centres` of the voxels
-        holding `points`; the prior where never observed."""
+    def distribution(self, points: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Distributions over the occupancy levels of the voxels holding some points.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, metres, world frame.
+
+        Returns
+        -------
+        (M, num_bins) ndarray of float32
+            Probability of each level ``config.bin_centres``, summing to 1; the prior (uniform)
+            where never observed.
+
+        Raises
+        ------
+        ValueError
+            If `points` is not (M, 3) finite numbers.
+        """
         points = float_array("points", points, (-1, 3))
         count, device, store = points.shape[0], self.device, self._store
         values = wp.empty(count, dtype=self._kernels.Bins, device=device)
@@ -666,11 +836,35 @@ class ConfidenceMap:
             return values.numpy().reshape(count, self.config.num_bins)
 
     # ---------------------------------------------------------------- ray queries
-    def raycast(self, origins, directions, max_range) -> ConfidenceRaycast:
-        """First voxel whose mean reaches occupied_threshold along each ray within `max_range`
-        (float or (R,)) metres, with the variance and reach probability met before it.
+    def raycast(
+        self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike
+    ) -> ConfidenceRaycast:
+        """Cast rays: the first voxel whose mean reaches occupied_threshold along each, and what lies before it.
 
-        origins (R,3), directions (R,3) (any nonzero length; normalised here).
+        Every voxel on the way is walked (unknown space has a mean and a variance too), so a ray
+        may cross at most MAX_LINE_VOXELS (65536) voxel edges.
+
+        Parameters
+        ----------
+        origins : (R, 3) array_like of float
+            Ray origins, metres, world frame.
+        directions : (R, 3) array_like of float
+            Directions, any nonzero length (normalised here).
+        max_range : float or (R,) array_like of float
+            How far each ray looks, metres, positive.
+
+        Returns
+        -------
+        ConfidenceRaycast
+            Per ray: hit, distance, counts of unknown and free voxels passed, the sum and the
+            largest of their variances, and the probability of reaching the end.
+
+        Raises
+        ------
+        ValueError
+            If an array has the wrong shape or holds NaN or infinite values, a direction is zero,
+            `max_range` is not positive, a ray is longer than MAX_LINE_VOXELS voxels, or it
+            reaches beyond the key range.
         """
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         cfg, device, store = self.config, self.device, self._store
@@ -732,8 +926,18 @@ class ConfidenceMap:
         variance = store.layers["variance"].numpy()[: n * BLOCK_VOXELS].reshape(n, BLOCK_VOXELS)[order]
         return keys[order], bins, mean, variance
 
-    def voxels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Observed voxels, sorted by voxel key: centres (V,3) float64, mean and variance (V,) float32."""
+    def voxels(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """The observed voxels, sorted by voxel key.
+
+        Returns
+        -------
+        centres : (V, 3) ndarray of float64
+            Voxel centres, metres.
+        mean : (V,) ndarray of float32
+            Their mean occupancy levels.
+        variance : (V,) ndarray of float32
+            Their variances.
+        """
         with self._lock.reading():
             keys, _, mean, variance = self._host_blocks()
         block_index, local = np.nonzero(~np.isnan(mean))
@@ -742,6 +946,7 @@ class ConfidenceMap:
 
     @property
     def num_blocks(self) -> int:
+        """Allocated 8x8x8 blocks (each holds 512 voxels, observed or not)."""
         return self._store.live_blocks
 
     @property
@@ -750,11 +955,24 @@ class ConfidenceMap:
         return 4 * self.config.num_bins + 4 + 4 + 1
 
     def memory_bytes(self) -> int:
-        """Bytes of device memory the map holds (table, block pool, per-block scratch)."""
+        """Device memory the map holds.
+
+        Returns
+        -------
+        int
+            Bytes of the hash table, the block pool and the per-block scratch.
+        """
         return self._store.memory_bytes()
 
     def copy(self) -> ConfidenceMap:
-        """An independent map with the same contents (e.g. to predict future readings on)."""
+        """An independent copy, e.g. to predict future readings on.
+
+        Returns
+        -------
+        ConfidenceMap
+            A map of the same settings, device and contents; changing one leaves the other as it
+            is.
+        """
         with self._lock.reading():
             keys, bins, mean, _ = self._host_blocks()
         return self._from_host(self.config, self.device, keys, bins, ~np.isnan(mean))
@@ -766,8 +984,20 @@ class ConfidenceMap:
         )
 
     # ---------------------------------------------------------------- files
-    def save(self, path) -> None:
-        """Write the map (config included) to one file, atomically."""
+    def save(self, path: str | PathLike) -> None:
+        """Write the map, settings included, to one map file, atomically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file to write (replaced if it exists; a reader sees the old file or the
+            whole new one).
+
+        Raises
+        ------
+        ValueError
+            If `path` cannot be written (see `vogjax.io.write_map_file`).
+        """
         with self._lock.reading():
             keys, bins, mean, _ = self._host_blocks()
         write_map_file(
@@ -778,8 +1008,27 @@ class ConfidenceMap:
         )
 
     @classmethod
-    def load(cls, path, device=None) -> ConfidenceMap:
-        """A map written by `save`; ValueError naming the path if the file is not a valid one."""
+    def load(cls, path: str | PathLike, device: str | wp.Device | None = None) -> ConfidenceMap:
+        """Read a map written by `save`, checking the whole file and its contents.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file.
+        device : str or warp.Device or None, optional
+            Warp device for the map (None: CUDA when available, else the CPU).
+
+        Returns
+        -------
+        ConfidenceMap
+            The map, the same bit for bit as the one saved.
+
+        Raises
+        ------
+        ValueError
+            Naming the path if the file is not a valid ConfidenceMap file (damaged, another kind
+            of map, or contents that break the map's invariants).
+        """
         metadata, arrays = read_map_file(path, "ConfidenceMap")
         where = f"path {str(path)!r} has invalid map contents"
         try:
@@ -822,9 +1071,26 @@ class ConfidenceMap:
         return crm
 
 
-def check_walk_length(name: str, lengths_m: np.ndarray, voxel_size: float) -> None:
-    """Queries of a ConfidenceMap walk every voxel on their way (unknown space has a mean and a
-    variance too), so their work grows with the length: at most MAX_LINE_VOXELS voxel edges."""
+def check_walk_length(name: str, lengths_m: npt.NDArray[np.floating], voxel_size: float) -> None:
+    """Refuse query lines longer than a confidence-map query walks.
+
+    Queries of a ConfidenceMap walk every voxel on their way (unknown space has a mean and a
+    variance too), so their work grows with the length: at most MAX_LINE_VOXELS voxel edges.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for the error message.
+    lengths_m : (R,) ndarray of float
+        The lines' lengths, metres.
+    voxel_size : float
+        The map's voxel edge, metres.
+
+    Raises
+    ------
+    ValueError
+        Naming `name` and the longest entry if it exceeds ``MAX_LINE_VOXELS * voxel_size``.
+    """
     longest = MAX_LINE_VOXELS * voxel_size
     if len(lengths_m) and not lengths_m.max() <= longest:
         i = int(np.argmax(lengths_m))
@@ -862,8 +1128,22 @@ def _scan_order(points: np.ndarray, scan_index: np.ndarray) -> np.ndarray:
     return order
 
 
-def classify(mean: np.ndarray, config: CrmConfig) -> np.ndarray:
-    """States of stored means (NaN: never observed)."""
+def classify(mean: npt.NDArray[np.floating], config: CrmConfig) -> npt.NDArray[np.int8]:
+    """States of stored means, by the map's thresholds.
+
+    Parameters
+    ----------
+    mean : ndarray of float
+        Mean occupancy levels; NaN: never observed.
+    config : CrmConfig
+        The thresholds.
+
+    Returns
+    -------
+    ndarray of int8
+        Of the shape of `mean`: OCCUPIED at or above occupied_threshold, FREE at or below
+        free_threshold, UNKNOWN between them or where NaN.
+    """
     state = np.full(mean.shape, UNKNOWN, dtype=np.int8)
     with np.errstate(invalid="ignore"):
         state[mean >= config.occupied_threshold] = OCCUPIED

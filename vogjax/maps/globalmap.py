@@ -13,8 +13,10 @@ import contextlib
 import dataclasses
 import math
 import time
+from os import PathLike
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax.config import MapConfig, PipelineConfig
@@ -30,6 +32,8 @@ from vogjax.maps.views import submap_views
 from vogjax.validation import real_array
 
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
+# Submaps (the newest) whose copies `_follow` keeps, to undo them once they were written to.
+FOLLOW_SNAPSHOTS = 2
 # Marginals whose x, y, yaw block fails these checks are not covariances.
 _SYMMETRY_TOLERANCE = 1e-9
 
@@ -48,20 +52,29 @@ class Applied:
 
 @dataclasses.dataclass(frozen=True)
 class UpdateReport:
-    """What `update_poses` did.
+    """What `GlobalMap.update_poses` did (Sodhi et al., Algorithm 1).
 
-    reapplied: ids undone at their applied pose and redone at their current one (S1 and S2)
-    moved: ids whose pose moved by more than eps_rot or eps_trans (S1)
-    uncertain: ids whose x-y-yaw confidence volume exceeds eps_cov now or did when they were
-        last applied (S2); None: all, no marginals
-    eps_cov: the volume threshold used (None without marginals)
-    voxels_touched: global voxel updates made (each undo and each redo counts its voxels)
-    seconds: wall time of the update
+    Attributes
+    ----------
+    reapplied : tuple of int
+        Ids undone at their applied pose and redone at their current one (in S1 and S2).
+    moved : tuple of int
+        Ids whose pose moved by more than eps_rot or eps_trans (and, with eps_move_m > 0, moved
+        a corner of their box by more than it): S1.
+    uncertain : tuple of int or None
+        Ids whose x-y-yaw confidence volume exceeds eps_cov now or did when they were last
+        applied: S2; None: all of them, there were no marginals.
+    eps_cov : float or None
+        The volume threshold used ("auto" resolved to its value); None without marginals.
+    voxels_touched : int
+        Global voxel updates made (each undo and each redo counts its voxels).
+    seconds : float
+        Wall time of the update, seconds.
     """
 
-    reapplied: tuple
-    moved: tuple
-    uncertain: tuple | None
+    reapplied: tuple[int, ...]
+    moved: tuple[int, ...]
+    uncertain: tuple[int, ...] | None
     eps_cov: float | None
     voxels_touched: int
     seconds: float
@@ -70,21 +83,64 @@ class UpdateReport:
 class GlobalMap(BlockMap):
     """The online global map of Sodhi et al. over the submaps of a VogMap.
 
+    Each voxel holds the exact fixed-point sum of the log-odds its submaps contribute (at the
+    poses they were applied at) and how many contribute; clamping and the state come at query
+    time. So `update_poses`, which undoes a moved submap's contribution and redoes it at its
+    new pose, leaves exactly what `merge` at the new poses builds, bit for bit (Algorithm 1,
+    with the p_min = 0, p_max = 1 restriction lifted).
+
     Queries (those of VoxelMap) read the map under a shared lock; `merge`, `add` and
     `update_poses` hold it exclusively for their whole run, so a planner querying from another
     thread sees the map before an update or after it, never in between.
+
+    Parameters
+    ----------
+    config : MapConfig or None, optional
+        Settings; they must be the VogMap's (default: ``MapConfig()``).
+    device : str or warp.Device or None, optional
+        Warp device; None picks CUDA when available, else the CPU.
+
+    Attributes
+    ----------
+    config : MapConfig
+        The map's settings.
+    device : warp.Device
+        Where the map lives.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a MapConfig or `device` is not available.
     """
 
-    def __init__(self, config: MapConfig | None = None, device=None):
+    def __init__(self, config: MapConfig | None = None, device: str | wp.Device | None = None):
         super().__init__(config, device, layers=LAYERS)
         self._applied: dict[int, Applied] = {}
+        self._snapshots: dict = {}  # id -> Submap copy as applied, kept by `_follow` (a VogMap's coarse map)
 
     @property
-    def applied_ids(self) -> tuple:
+    def applied_ids(self) -> tuple[int, ...]:
+        """Ids of the submaps whose contribution the map holds, ascending."""
         return tuple(sorted(self._applied))
 
-    def applied_pose(self, i: int) -> np.ndarray:
-        """(4,4) the pose at which submap `i`'s contribution stands in the map."""
+    def applied_pose(self, i: int) -> npt.NDArray[np.float64]:
+        """The pose at which a submap's contribution stands in the map.
+
+        Parameters
+        ----------
+        i : int
+            A submap id in `applied_ids`.
+
+        Returns
+        -------
+        (4, 4) ndarray of float64
+            Its ``T_world_submap`` when it was last applied, a copy.
+
+        Raises
+        ------
+        ValueError
+            If `i` is not an integer or not in `applied_ids`.
+        """
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
             raise ValueError(f"i must be a submap id (an integer), got {i!r}")
         i = int(i)
@@ -93,27 +149,67 @@ class GlobalMap(BlockMap):
         return self._applied[i].pose.copy()
 
     # ---------------------------------------------------------------- building
-    def merge(self, vog: VogMap, marginals=None) -> int:
+    def merge(self, vog: VogMap, marginals: npt.ArrayLike | None = None) -> int:
         """Rebuild from scratch with every submap at its current pose (the "full merge").
 
-        marginals: (N,6,6) covariances of the poses, as for update_poses (None: not known).
-        Returns the number of voxel updates made."""
+        Parameters
+        ----------
+        vog : VogMap
+            The submaps, of this map's config.
+        marginals : (N, 6, 6) array_like of float or None, optional
+            Covariances of all N submaps' poses, as for `update_poses` (None: not known).
+
+        Returns
+        -------
+        int
+            The number of global voxel updates made.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes: `vog` is no VogMap of this map's config, `marginals` is
+            not valid (see `update_poses`), or a submap at its pose reaches beyond the voxel
+            keys the map can pack.
+        """
         self._check_vog(vog)
         volumes = self._volumes(vog, marginals)
         self._check_key_range(vog, range(vog.num_submaps))
         with self._lock.writing():
             self._store = BlockStore(self.device, self._store.layer_specs)
-            self._applied = {}
+            self._applied, self._snapshots = {}, {}
             touched = []
             pulls = self._apply(vog, range(vog.num_submaps), touched, volumes)
-            self._refresh(touched)
+            self._refresh(touched, rebuilt=True)
         return pulls
 
-    def add(self, vog: VogMap, ids, marginals=None) -> int:
+    def add(self, vog: VogMap, ids: npt.ArrayLike, marginals: npt.ArrayLike | None = None) -> int:
         """Add submaps not yet in the map at their current poses (the cached merge).
 
-        marginals: (N,6,6) covariances of all N submaps' poses (rows of `ids` are read), as for
-        update_poses; None: not known, so these submaps count as uncertain until re-applied."""
+        Add a submap once it is complete: one written to after it was added cannot be
+        re-applied (`update_poses` refuses it).
+
+        Parameters
+        ----------
+        vog : VogMap
+            The submaps, of this map's config.
+        ids : (n,) array_like of int
+            Ids of submaps of `vog` not in the map yet, none repeated.
+        marginals : (N, 6, 6) array_like of float or None, optional
+            Covariances of all N submaps' poses (rows of `ids` are read), as for
+            `update_poses`; None: not known, so these submaps count as uncertain until
+            re-applied.
+
+        Returns
+        -------
+        int
+            The number of global voxel updates made.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes: as for `merge`, or bad ids, ids already in the map, or
+            repeated ones (moved submaps are re-applied by `update_poses`).
+        """
         self._check_vog(vog)
         volumes = self._volumes(vog, marginals)
         ids = [int(i) for i in vog.check_ids("ids", ids)]
@@ -133,10 +229,10 @@ class GlobalMap(BlockMap):
     def update_poses(
         self,
         vog: VogMap,
-        marginals=None,
+        marginals: npt.ArrayLike | None = None,
         eps_rot: float = PipelineConfig.eps_rot,
         eps_trans: float = PipelineConfig.eps_trans,
-        eps_cov=PipelineConfig.eps_cov,
+        eps_cov: float | str = PipelineConfig.eps_cov,
         eps_move_m: float = 0.0,
     ) -> UpdateReport:
         """Sodhi et al. Algorithm 1: re-apply the submaps that moved and are uncertain.
@@ -155,6 +251,40 @@ class GlobalMap(BlockMap):
         Why "or when last applied": a loop closure that moves an uncertain submap usually also
         makes it certain. Judged by the new marginal alone, it would be left in the map at its
         old, wrong pose, and the online map would stop agreeing with a full merge.
+
+        Parameters
+        ----------
+        vog : VogMap
+            The VogMap the map was merged or added from, its submaps at their current poses.
+        marginals : (N, 6, 6) array_like of float or None, optional
+            Marginal covariances of all N submaps' poses (`PoseGraph.marginals`), GTSAM tangent
+            order; rows of NaN: not computed (uncertain). None: every submap uncertain.
+        eps_rot : float, optional
+            S1's rotation threshold, radians (default `PipelineConfig.eps_rot`, 1e-2).
+        eps_trans : float, optional
+            S1's translation threshold, metres (default `PipelineConfig.eps_trans`, 2e-3).
+        eps_cov : float or "auto", optional
+            S2's threshold on the 95% x-y-yaw confidence volume (default "auto": the largest
+            current volume among submaps 0-9).
+        eps_move_m : float, optional
+            S1's threshold on how far a corner of a submap's observed box moves, metres; 0:
+            not applied.
+
+        Returns
+        -------
+        UpdateReport
+            The submaps re-applied, those in S1 and S2, the threshold used, the voxel updates
+            made and the time taken.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes: `vog` is no VogMap of this map's config or holds other
+            submaps than the map was built from, a threshold is out of its range (see
+            `PipelineConfig`), `marginals` has the wrong shape, infinite values, NaN in rows
+            that are not all NaN, or is not symmetric positive semi-definite, a submap to
+            re-apply was written since it was added, or one at its new pose reaches beyond the
+            voxel keys the map can pack.
         """
         start = time.perf_counter()
         self._check_vog(vog)
@@ -203,16 +333,78 @@ class GlobalMap(BlockMap):
             time.perf_counter() - start,
         )
 
+    def _follow(self, vog: VogMap) -> None:
+        """Make the map equal `merge(vog)` at vog's current poses, bit for bit, doing as little
+        as it can: submaps whose pose changed at all are undone and redone, new ones added. A
+        submap written since it was applied is undone from the copy kept of it then (kept of
+        the last FOLLOW_SNAPSHOTS submaps: the one being filled); any other forces a merge.
+        (How a VogMap answers coarse queries: from a global map it keeps beside its submaps.)"""
+        self._check_vog(vog)
+        count = vog.num_submaps
+        submaps = vog.submaps(range(count))
+        snapshots = self._snapshots
+        stale = not self._applied or any(
+            i >= count
+            or a.uid != submaps[i].uid
+            or (a.revision != submaps[i].revision and (i not in snapshots or snapshots[i].revision != a.revision))
+            for i, a in self._applied.items()
+        )
+        if stale:
+            self.merge(vog)
+            self._snapshots = {i: submaps[i].snapshot() for i in range(max(0, count - FOLLOW_SNAPSHOTS), count)}
+            return
+        written = {i for i, a in self._applied.items() if a.revision != submaps[i].revision}
+        poses = vog.poses()
+        moved = [i for i, a in sorted(self._applied.items()) if i in written or np.any(a.pose != poses[i])]
+        new = [i for i in range(count) if i not in self._applied]
+        if not moved and not new:
+            return
+        self._check_key_range(vog, moved + new)
+        with self._lock.writing():
+            touched = []
+            undone = [(snapshots[i] if i in written else submaps[i], self._applied[i].pose) for i in moved]
+            self._contribute(undone, -1, touched)
+            self._apply(vog, moved + new, touched, None)
+            self._refresh(touched, release=True)
+        recent = range(max(0, count - FOLLOW_SNAPSHOTS), count)
+        self._snapshots = {
+            i: snapshots[i] if i in snapshots and i not in moved + new else submaps[i].snapshot() for i in recent
+        }
+
     def moved_submaps(
         self,
         vog: VogMap,
         eps_rot: float = PipelineConfig.eps_rot,
         eps_trans: float = PipelineConfig.eps_trans,
         eps_move_m: float = 0.0,
-    ) -> tuple:
-        """Algorithm 1's S1 as `update_poses` judges it with the same thresholds: the only
-        submaps whose marginals it reads (besides submaps 0-9 for eps_cov = "auto"), so a caller
-        may compute just those and pass NaN for the rest."""
+    ) -> tuple[int, ...]:
+        """Algorithm 1's S1 as `update_poses` judges it with the same thresholds.
+
+        These are the only submaps whose marginals `update_poses` reads (besides submaps 0-9
+        for eps_cov = "auto"), so a caller may compute just those and pass NaN for the rest.
+
+        Parameters
+        ----------
+        vog : VogMap
+            The submaps at their current poses.
+        eps_rot : float, optional
+            S1's rotation threshold, radians, as for `update_poses`.
+        eps_trans : float, optional
+            S1's translation threshold, metres, as for `update_poses`.
+        eps_move_m : float, optional
+            S1's threshold on how far a corner of a submap's box moves, metres (0: not
+            applied), as for `update_poses`.
+
+        Returns
+        -------
+        tuple of int
+            Ids of the applied submaps that moved, ascending.
+
+        Raises
+        ------
+        ValueError
+            If `vog` is no VogMap of this map's config or a threshold is out of its range.
+        """
         self._check_vog(vog)
         for name, value in (("eps_rot", eps_rot), ("eps_trans", eps_trans), ("eps_move_m", eps_move_m)):
             check_setting(PipelineConfig, name, value)
@@ -405,15 +597,15 @@ class GlobalMap(BlockMap):
             touched.append(np.flatnonzero(flags.numpy()).astype(np.int32))
         return int(pulls.numpy().sum())
 
-    def _refresh(self, touched: list, release: bool = False) -> None:
-        """Recompute the queryable log-odds of touched blocks; release those no submap uses."""
-        self._values_changed()
-        if not touched:
-            return
-        slots = np.unique(np.concatenate(touched)).astype(np.int32)
+    def _refresh(self, touched: list, release: bool = False, rebuilt: bool = False) -> None:
+        """Recompute the queryable log-odds of touched blocks; release those no submap uses;
+        then the coarse levels above them (all of them when the store was `rebuilt`)."""
+        slots = np.unique(np.concatenate(touched)).astype(np.int32) if touched else np.zeros(0, np.int32)
         if len(slots) == 0:
+            self._values_changed(None if rebuilt else np.zeros(0, np.int64))
             return
         store, device = self._store, self.device
+        keys = store.slot_keys.numpy()[slots]  # before any is released
         d_slots = wp.array(slots, dtype=wp.int32, device=device)
         voxels = len(slots) * BLOCK_VOXELS
         parallel.split_launch(
@@ -443,11 +635,21 @@ class GlobalMap(BlockMap):
                 device=device,
             )
             store.release(slots[unused.numpy() == 1])
+        self._values_changed(None if rebuilt else keys)
 
     # ---------------------------------------------------------------- contents and files
-    def sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Voxels with contributions: keys (K,3) int64, fixed-point sums (K,) int64 (units of
-        2^-24 log-odds) and contributing submap counts (K,) int32, sorted by key."""
+    def sums(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int32]]:
+        """The voxels with contributions, as stored: what makes the map exact.
+
+        Returns
+        -------
+        keys : (K, 3) ndarray of int64
+            Voxel keys (voxel k covers ``[k*s, (k+1)*s)`` per axis), sorted.
+        sums : (K,) ndarray of int64
+            Fixed-point sums of the submaps' log-odds, in units of 2^-24 log-odds.
+        counts : (K,) ndarray of int32
+            How many submaps contribute to each voxel.
+        """
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
         block_index, local = np.nonzero(layers["count"] != 0)
@@ -457,8 +659,21 @@ class GlobalMap(BlockMap):
             layers["count"][block_index, local],
         )
 
-    def save(self, path) -> None:
-        """One file: config, applied poses and revisions, sums and counts."""
+    def save(self, path: str | PathLike) -> None:
+        """Write the map to one map file, atomically: config, applied poses and revisions, sums
+        and counts.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file to write (replaced if it exists; a reader sees the old file or the
+            whole new one).
+
+        Raises
+        ------
+        ValueError
+            If `path` cannot be written (see `vogjax.io.write_map_file`).
+        """
         with self._lock.reading():
             keys, layers = self._store.host_blocks()
             applied = {
@@ -477,7 +692,31 @@ class GlobalMap(BlockMap):
         )
 
     @classmethod
-    def load(cls, path, device=None) -> GlobalMap:
+    def load(cls, path: str | PathLike, device: str | wp.Device | None = None) -> GlobalMap:
+        """Read a map written by `save`, checking the whole file and its contents.
+
+        The submap objects are not in the file: the map answers queries as saved, and
+        `update_poses` takes a VogMap with the submaps it was built from.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The .vog file.
+        device : str or warp.Device or None, optional
+            Warp device for the map (None: CUDA when available, else the CPU).
+
+        Returns
+        -------
+        GlobalMap
+            The map, with the sums, counts and applied poses saved.
+
+        Raises
+        ------
+        ValueError
+            Naming the path if the file is not a valid GlobalMap file (damaged, another kind of
+            map, applied submaps that are not valid records, block keys that are not valid,
+            sums or counts of the wrong type or shape, or counts no applied submaps give).
+        """
         metadata, arrays = read_map_file(path, "GlobalMap")
         where = f"path {str(path)!r}"
         try:

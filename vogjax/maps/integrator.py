@@ -47,6 +47,7 @@ class Scratch:
     def __init__(self, device, parts: int):
         self.device = device
         self.parts = parts
+        self.touched: list | None = None  # where a call collects the keys of the blocks it wrote
         self._tables(1024)
         self._blocks(_MIN_BLOCKS * BLOCK_VOXELS * 2)
 
@@ -141,8 +142,16 @@ def beams(device, origins: np.ndarray, points: np.ndarray, scan_index: np.ndarra
     )
 
 
-def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass: int, budget_bytes: int) -> None:
-    """Integrate every scan of `batch`, `scans_per_pass` at a time, into `store`."""
+def integrate(
+    store: BlockStore,
+    config: MapConfig,
+    batch: Beams,
+    scans_per_pass: int,
+    budget_bytes: int,
+    touched: list | None = None,
+) -> None:
+    """Integrate every scan of `batch`, `scans_per_pass` at a time, into `store`; with a
+    `touched` list, append to it per pass the packed keys (K,) int64 of the blocks written."""
     num_scans = batch.host_origins.shape[0]
     if batch.scan_index.shape[0] == 0:
         return
@@ -151,6 +160,7 @@ def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass
     boxes = _boxes(batch, firsts, bounds, config.voxel_size)
     parts = parallel.num_parts(store.device, int(np.diff(bounds).max()))
     scratch = _take(store.device, parts)
+    scratch.touched = touched
     try:
         blocks_per_scan = 0.0
         for k, first in enumerate(firsts.tolist()):
@@ -170,6 +180,7 @@ def integrate(store: BlockStore, config: MapConfig, batch: Beams, scans_per_pass
                     blocks_per_scan,
                 )
     finally:
+        scratch.touched = None
         _give(scratch)
 
 
@@ -324,6 +335,8 @@ def _apply(
         return
     store.ensure_blocks(keys)
     slots = store.find(keys)
+    if scratch.touched is not None:
+        scratch.touched.append(keys.numpy())
     inputs = [
         words,
         capacity,

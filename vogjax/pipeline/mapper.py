@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import defaultdict
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -38,15 +39,41 @@ from vogjax.config import CrmConfig, PipelineConfig
 from vogjax.geometry import inverse
 from vogjax.io.dataset import MAX_BEAMS, ScanBatch, check_scans
 from vogjax.maps import ConfidenceMap, GlobalMap, VogMap, VoxelMap
+from vogjax.maps.submaps import Submap
 from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
 from vogjax.sensors import mapped_beams
-from vogjax.slam import LoopClosureDetector, PoseGraph
+from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection
 
 
 class Mapper:
-    def __init__(self, config: PipelineConfig | None = None, metadata: dict | None = None):
+    """Scans in, submaps, SLAM and the global map out (see the module's docstring).
+
+    Parameters
+    ----------
+    config : PipelineConfig, optional
+        The pipeline's settings.
+    metadata : dict, optional
+        The run's metadata (sensor, scene).
+    overlap : bool, optional
+        Run each submap's SLAM step (pose-graph node, loop closures, iSAM2) on a second thread
+        while the next scans are integrated; the global map takes each result in before the
+        next submap joins the graph, so the maps, poses and closures are the same bits as
+        without. Between `add` calls the last submap's SLAM may still be in flight: `sync()`
+        (or `finish_submap()`, `result()`) brings everything up to date. The detector then
+        runs on the host even when the maps are on a GPU (the host's and the device's front
+        ends agree but at near-exact ties), so no two threads launch on one device. Default
+        False (a live mapper, queried between batches, sees every finished submap);
+        `pipeline.run` passes `PipelineConfig.slam_thread`.
+
+    Raises
+    ------
+    ValueError
+        When config is not a PipelineConfig.
+    """
+
+    def __init__(self, config: PipelineConfig | None = None, metadata: dict | None = None, overlap: bool = False):
         self.config = config = config or PipelineConfig()
         if not isinstance(config, PipelineConfig):
             raise ValueError(f"config must be a PipelineConfig, got {type(config).__name__}")
@@ -59,11 +86,15 @@ class Mapper:
         self.standard_map = VoxelMap(config.map) if config.standard_map else None
         self.confidence_map = self._confidence_map() if config.confidence_map else None
         self.graph: PoseGraph | None = None
-        # on a GPU the front end's searches run beside the maps; on the CPU the FFTs and trees win
-        self.detector = LoopClosureDetector(
-            config.nav_noise, config.loop_closure, self.global_map.device if self.global_map.device.is_cuda else None
-        )
+        # on a GPU the front end's searches run beside the maps (unless SLAM has its own thread:
+        # then on the host, beside the maps' kernels); on the CPU the FFTs and trees win
+        on_gpu = self.global_map.device.is_cuda and not overlap
+        front_end = self.global_map.device if on_gpu else None
+        self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure, front_end)
         self.cutter = SubmapCutter(config)
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam") if overlap else None
+        self._slam_future: Future | None = None
+        self._bounds: list = []  # per finished submap: its observed box (SubmapRecord order)
         self.timings = defaultdict(list)
         self.submaps: list[SubmapRecord] = []
         self.accepted, self.rejected = [], []
@@ -109,7 +140,7 @@ class Mapper:
                 self._pending.append(batch.rows(first, first + room))
                 first += room
             if first < len(batch):  # the submap is full
-                self.finish_submap()
+                self._close_submap()
         self.scans += len(batch)
 
     def _check(self, batch) -> None:
@@ -130,41 +161,96 @@ class Mapper:
         self._beams = beams
 
     def finish_submap(self) -> None:
-        """Close the submap being filled (if any): SLAM and the global map take it in."""
+        """Close the submap being filled (if any) and bring SLAM and the global map up to date:
+        every finished submap is then in the pose graph and the global map."""
+        self._close_submap()
+        self.sync()
+
+    def sync(self) -> None:
+        """Wait for the SLAM step running on the second thread (if any) and take its result into
+        the maps; after it every finished submap is in the pose graph and the global map."""
+        if self._slam_future is None:
+            return
+        future, self._slam_future = self._slam_future, None
+        self._take_slam(*future.result())
+
+    def _close_submap(self) -> None:
+        """Integrate the submap being filled, then hand it to SLAM: at once, or (with `overlap`)
+        on the second thread while the next scans are integrated. The maps and the graph see
+        the same steps in the same order either way, so the results are the same bits."""
         if not self._pending:
             return
-        cfg = self.config
         scans = ScanBatch.concatenate(self._pending)
         self._pending = []
+        staged = self._integrate_submap(scans)  # map work: needs nothing from SLAM
+        self.sync()  # the previous submap's SLAM and map update, before this one joins them
+        record, submap, cloud, bounds = staged
         k = len(self.submaps)
-        self._integrate_submap(scans)
-        nav_bases = np.array([s.T_world_base_nav for s in self.submaps])
+        self.vog.add_submap(record.T_world_base_nav if self.graph is None else self._predicted_pose(record), submap)
+        self.submaps.append(record)
+        self.clouds.append(cloud)
+        self._bounds.append(bounds)
+        inputs = (
+            k,
+            list(self.clouds),
+            list(self._bounds),
+            np.array([s.T_world_base_nav for s in self.submaps]),
+            np.array([s.time_s for s in self.submaps]),
+        )
+        if self._executor is None:
+            self._take_slam(*self._slam(*inputs))
+        else:
+            self._slam_future = self._executor.submit(self._slam, *inputs)
+
+    def _slam(self, k: int, clouds: list, bounds: list, nav_bases: np.ndarray, times_s: np.ndarray) -> tuple:
+        """The SLAM step of submap k, on the pose graph and the detector only (no map): its node,
+        loop closures and the graph's update. Returns (k, poses, accepted, rejected)."""
+        cfg = self.config
         # a. pose-graph node with its xyh and zpr factors
         start = time.perf_counter()
         if self.graph is None:
-            self.graph = PoseGraph(cfg.nav_noise, prior_pose=nav_bases[0])
+            self.graph = PoseGraph(cfg.nav_noise, prior_pose=nav_bases[0], config=cfg.pose_graph)
             self.graph.add_submap(nav_bases[0])
         else:
-            self.graph.add_submap(nav_bases[k], self.submaps[k].time_s - self.submaps[k - 1].time_s)
+            self.graph.add_submap(nav_bases[k], times_s[k] - times_s[k - 1])
         poses = self.graph.update()
         self.timings["isam2"].append(time.perf_counter() - start)
         # b. loop closures against earlier submaps
         start = time.perf_counter()
-        submaps = [self.vog.submap(i) for i in range(k + 1)]
-        accepted, rejected = self.detector.detect(
-            k, self.clouds, [s.bounds() for s in submaps], poses, nav_bases, np.array([s.time_s for s in self.submaps])
-        )
-        self.accepted += accepted
-        self.rejected += rejected
+        found, rejected = self.detector.detect(k, clouds, bounds, poses, nav_bases, times_s)
         self.timings["loop_closure"].append(time.perf_counter() - start)
         for phase, seconds in self.detector.seconds.items():  # its parts
             self.timings[phase].append(seconds)
-        # c. iSAM2 with the new constraints
+        # c. iSAM2 with the new constraints, each screened by the graph first
         start = time.perf_counter()
-        for closure in accepted:
-            self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+        accepted = []
+        for closure in found:
+            check = self.graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+            if check.accepted:
+                accepted.append(dataclasses.replace(closure, distance=check.distance))
+            else:
+                rejected.append(
+                    Rejection(
+                        closure.i,
+                        closure.k,
+                        "inconsistent",
+                        closure.fitness,
+                        _deviation_m(nav_bases[closure.i], nav_bases[k], closure.T_i_k),
+                        check.distance,
+                        check.limit,
+                        closure.T_i_k,
+                    )
+                )
         poses = self.graph.update()
         self.timings["isam2"][-1] += time.perf_counter() - start
+        return k, poses, accepted, rejected
+
+    def _take_slam(self, k: int, poses: np.ndarray, accepted: list, rejected: list) -> None:
+        """Submap k's SLAM result into the maps: the virtual map's poses, Algorithm 1's undo and
+        redo in the global map, the new submap added (the graph is idle here)."""
+        cfg = self.config
+        self.accepted += accepted
+        self.rejected += rejected
         # d. move the submaps (the virtual map's whole update)
         start = time.perf_counter()
         self.vog.set_poses(np.arange(k + 1), poses)
@@ -191,8 +277,17 @@ class Mapper:
         self.timings["closures"].append(len(accepted))
         # g. timing probes, every so many submaps (their time is kept apart)
         every = cfg.timing.every_submaps
-        if every and len(self.submaps) % every == 0:
+        if every and (k + 1) % every == 0:
             self._probe()
+
+    def close(self) -> None:
+        """Finish the SLAM step in flight (if any) and stop the second thread."""
+        try:
+            self.sync()
+        finally:
+            if self._executor is not None:
+                self._executor.shutdown(wait=True)
+                self._executor = None
 
     def _probe(self) -> None:
         start = time.perf_counter()
@@ -237,8 +332,10 @@ class Mapper:
             CrmConfig(voxel_size=cfg.voxel_size, max_range=self.reach_m, range_sigma_m=max(noise, cfg.voxel_size / 2))
         )
 
-    def _integrate_submap(self, scans: ScanBatch) -> None:
-        """The complete submap: its base at the middle scan, every scan integrated in that frame."""
+    def _integrate_submap(self, scans: ScanBatch) -> tuple:
+        """The complete submap: its base at the middle scan, every scan integrated in that frame,
+        outside the virtual map (SLAM may still be running on the previous one); returns its
+        (SubmapRecord, Submap, cloud of returns, bounds)."""
         start = time.perf_counter()
         middle = len(scans) // 2
         base = scans.pose_nav[middle]
@@ -248,23 +345,24 @@ class Mapper:
         # the same beams placed by the truth, in the frame of the base's true pose
         true_rays = None if truth is None else scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
         rigid = None if truth is None else rigid_truth(returns, true_rays[1][scans.returned], truth)
-        self.submaps.append(
-            SubmapRecord(scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]), base, truth, rigid)
+        record = SubmapRecord(
+            scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]), base, truth, rigid
         )
-        i = self.vog.add_submap(base if self.graph is None else self._predicted_pose(base))
-        self.vog.submap(i).integrate_scans(*mapped_beams(origins, endpoints, scans.invalid))
+        submap = Submap(self.config.map, self.vog.device)
+        submap.integrate_scans(*mapped_beams(origins, endpoints, scans.invalid))
+        staged = (record, submap, voxel_means(returns, self.config.map.voxel_size), submap.bounds())
         self.timings["integration"].append(time.perf_counter() - start)
-        self.clouds.append(voxel_means(returns, self.config.map.voxel_size))
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
             j = self.truth_vog.add_submap(truth)
             self.truth_vog.submap(j).integrate_scans(*mapped_beams(*true_rays, scans.invalid))
             self.timings["truth_maps"].append(time.perf_counter() - start)
+        return staged
 
-    def _predicted_pose(self, base_nav: np.ndarray) -> np.ndarray:
+    def _predicted_pose(self, record: SubmapRecord) -> np.ndarray:
         """Where the optimised previous submap puts a new base pose (navigation's relative motion)."""
         previous = self.graph.num_submaps - 1
-        return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ base_nav
+        return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ record.T_world_base_nav
 
 
 def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndarray) -> np.ndarray:
@@ -289,6 +387,11 @@ def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:
     sums = np.zeros((len(counts), 3))
     np.add.at(sums, inverse_index.reshape(-1), points)
     return sums / counts[:, None]
+
+
+def _deviation_m(T_world_i_nav: np.ndarray, T_world_k_nav: np.ndarray, T_i_k: np.ndarray) -> float:
+    """x-y offset (m) of a closure from the navigation's relative pose, as the detector measures it."""
+    return float(np.linalg.norm((inverse(inverse(T_world_i_nav) @ T_world_k_nav) @ T_i_k)[:2, 3]))
 
 
 def _stack(parts: list) -> np.ndarray:

@@ -124,7 +124,34 @@ class Result:
         closures = {"accepted": len(self.loop_closures), "rejected": len(self.rejected), "rejected_by_reason": rejected}
         if truth is not None:
             closures.update(self.closure_errors())
+        closures["rejections"] = self.rejection_errors()
         return {"trajectory_rmse_m": errors, "loop_closures": closures}
+
+    def rejection_errors(self) -> list[dict]:
+        """Per rejected candidate: i, k, the reason, the figure that failed and its bound, and
+        (when the alignment ran and the run has truth) the translation error of what it found
+        against the true and the rigid-truth relative pose (m, all three directions): whether
+        the test that refused it was right.
+
+        Returns
+        -------
+        list of dict
+            One per `Rejection`, in the order they were made; NaN where a figure is undefined.
+        """
+        truth, rigid = self.truth, self.rigid_truth
+        out = []
+        for r in self.rejected:
+            entry = {"i": r.i, "k": r.k, "reason": r.reason, "value": r.value, "limit": r.limit}
+            for suffix, poses in (("", truth), ("_rigid", rigid)):
+                if poses is None:
+                    continue
+                if r.T_i_k is None:
+                    entry["translation_m" + suffix] = float("nan")
+                    continue
+                twist = log_se3(inverse(inverse(poses[r.i]) @ poses[r.k]) @ r.T_i_k)
+                entry["translation_m" + suffix] = float(np.linalg.norm(twist[3:]))
+            out.append(entry)
+        return out
 
     def gauge_alignment(self, which: str = "optimized") -> np.ndarray | None:
         """T_world_true_world_est (4,4): the x-y-yaw motion that best fits the "optimized" or
@@ -155,7 +182,15 @@ class Result:
 
         for c in self.loop_closures:
             basis = np.eye(6) if c.basis is None else c.basis
-            error = {"i": c.i, "k": c.k, "directions": int(basis.shape[1])}
+            error = {
+                "i": c.i,
+                "k": c.k,
+                "directions": int(basis.shape[1]),
+                "fitness_m2": c.fitness,
+                "overlap": c.overlap,
+                "ambiguity": c.ambiguity,
+                "distance": c.distance,
+            }
             measured = {"": (truth, c.T_i_k), "_rigid": (rigid, c.T_i_k)}
             if rigid is not None:
                 measured["_bend"] = (truth, relative(rigid, c))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from tqdm import tqdm
 
+from vogjax import devices
 from vogjax.config import PipelineConfig
 from vogjax.io.dataset import Dataset
 from vogjax.pipeline.mapper import Mapper
@@ -11,19 +12,31 @@ from vogjax.pipeline.result import Result
 
 
 def run(dataset, config: PipelineConfig | None = None, progress: bool = True) -> Result:
-    """Reprocess a run (a path or an open vogjax.io.dataset.Dataset) into maps."""
+    """Reprocess a run (a path or an open vogjax.io.dataset.Dataset) into maps; with
+    `config.slam_thread` on (or "auto" with the maps on a CUDA GPU) each submap's SLAM runs on
+    a second thread beside the map work (the same results, bit for bit)."""
     config = config or PipelineConfig()
     own = not isinstance(dataset, Dataset)
     ds = Dataset(dataset) if own else dataset
     try:
         if len(ds) == 0:
             raise ValueError(f"dataset {str(ds.path)!r} holds no scans")
-        mapper = Mapper(config, ds.metadata)
-        with tqdm(total=len(ds), unit="scan", desc="mapping", disable=not progress) as bar:
-            for batch in ds.batches(config.batch_scans):
-                mapper.add(batch)
-                bar.update(len(batch))
-        return mapper.result()
+        mapper = Mapper(config, ds.metadata, overlap=_overlap(config))
+        try:
+            with tqdm(total=len(ds), unit="scan", desc="mapping", disable=not progress) as bar:
+                for batch in ds.batches(config.batch_scans):
+                    mapper.add(batch)
+                    bar.update(len(batch))
+            return mapper.result()
+        finally:
+            mapper.close()
     finally:
         if own:
             ds.close()
+
+
+def _overlap(config: PipelineConfig) -> bool:
+    """Whether SLAM gets its own thread: `slam_thread` "on", or "auto" with the maps on CUDA."""
+    if config.slam_thread == "auto":
+        return devices.resolve(None).is_cuda
+    return config.slam_thread == "on"

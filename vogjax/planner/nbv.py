@@ -42,6 +42,7 @@ branches still get deep.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -50,6 +51,7 @@ import numpy as np
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
 from vogjax.kernels import hashing
+from vogjax.maps import VogMap
 from vogjax.planner.collision import clear_edges
 from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.graph import ExploredGraph
@@ -265,19 +267,26 @@ class NbvPlanner:
         self._obstacle_margins = self.config.obstacle_margins_m(float(drift_m))
         root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])
         start_s = time.perf_counter()
-        with opened(map_) as source:
+        cfg = self.config
+        # the levels collision checks and gain rays read (PlannerConfig.collision_level,
+        # gain_level): a VogMap's coarse map brought up to date once, before any lock is taken
+        levels_map = map_.coarse_map() if isinstance(map_, VogMap) and cfg.collision_level + cfg.gain_level else map_
+        with contextlib.ExitStack() as stack:
+            levels = {0: stack.enter_context(opened(map_))}
+            for level in sorted({cfg.collision_level, cfg.gain_level} - {0}):
+                levels[level] = stack.enter_context(opened(levels_map, level))
+            source, sources = levels[0], (levels[cfg.collision_level], levels[cfg.gain_level])
             # checked before the first sample is drawn: a refused plan leaves the random state
             reach = np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.checked_box_m)
             within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
-            tree, rays, iterations = self._grow_tree(source, root)
-            cfg = self.config
+            tree, rays, iterations = self._grow_tree(sources, root)
             relaxed = cfg.obstacle_margins_m()
             if tree.scores.max() <= 0 and (self._obstacle_margins != relaxed or cfg.min_edge_length_m > 0):
                 # blocked or gaining nothing under the drift margin or the shortest edge: both are
                 # preferences (a tight corner may leave only short ways out), the box and its
                 # margins are not
                 self._obstacle_margins, self._min_edge_m = relaxed, 0.0
-                tree, more_rays, more_iterations = self._grow_tree(source, root)
+                tree, more_rays, more_iterations = self._grow_tree(sources, root)
                 rays, iterations = rays + more_rays, iterations + more_iterations
                 self._min_edge_m = cfg.min_edge_length_m
         if cfg.global_step:  # the explored graph keeps the tree: where a later global step may go
@@ -300,13 +309,14 @@ class NbvPlanner:
             float(tree.times[best]),
         )
 
-    def _grow_tree(self, source, root: np.ndarray) -> tuple[_Tree, int, int]:
-        """A tree from `root`: the remembered branch, then rounds of samples until N_max nodes
-        gain something, N_tol nodes are grown or the attempts run out. Returns the tree, the
-        gain rays cast and the samples drawn."""
+    def _grow_tree(self, sources, root: np.ndarray) -> tuple[_Tree, int, int]:
+        """A tree from `root` (sources: the opened maps of the collision checks and of the gain
+        rays): the remembered branch, then rounds of samples until N_max nodes gain something,
+        N_tol nodes are grown or the attempts run out. Returns the tree, the gain rays cast and
+        the samples drawn."""
         cfg = self.config
         tree = _Tree(root, cfg)
-        rays = self._grow(source, tree, self.memory, root, chain=True)
+        rays = self._grow(sources, tree, self.memory, root, chain=True)
         iterations = len(self.memory)
         while True:
             nodes = len(tree.states) - 1
@@ -315,7 +325,7 @@ class NbvPlanner:
             if iterations >= cfg.tolerance_nodes * cfg.attempts_per_node:
                 break
             count = min(cfg.max_nodes, max((len(tree.states) + 1) // 2, cfg.min_round_samples))
-            rays += self._grow(source, tree, self._samples(root, count), root, chain=False)
+            rays += self._grow(sources, tree, self._samples(root, count), root, chain=False)
             iterations += count
         return tree, rays, iterations
 
@@ -340,8 +350,9 @@ class NbvPlanner:
             targets[sloped, 4] = np.where(u > 0, u * self.slopes[0], u * self.slopes[1])[sloped]
         return targets
 
-    def _grow(self, source, tree: _Tree, targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
-        """Steer, check and add edges toward `targets`. With `chain`, targets (x, y, z, yaw) are
+    def _grow(self, sources, tree: _Tree, targets: np.ndarray, root: np.ndarray, chain: bool) -> int:
+        """Steer, check and add edges toward `targets` (sources: the opened maps of the collision
+        checks and of the gain rays). With `chain`, targets (x, y, z, yaw) are
         one branch from the root (the remembered one: it breaks at its first edge that is too
         long, turns too far or collides); else each target (x, y, z, yaw offset) attaches to its
         nearest node. Returns the gain rays cast."""
@@ -378,8 +389,9 @@ class NbvPlanner:
             ok &= (scale >= 1.0) & (np.abs(wrap_angle(ends[:, 3] - starts[:, 3])) <= cfg.max_heading_change_rad + 1e-9)
             ok = np.cumprod(ok).astype(bool)
         box = np.array(cfg.checked_box_m)
+        collide, see = sources
         ok[ok] = clear_edges(
-            source,
+            collide,
             starts[ok, :3],
             ends[ok, :3],
             box,
@@ -393,7 +405,7 @@ class NbvPlanner:
         if not ok.any():
             return 0
         counts, rays = edge_counts(
-            source,
+            see,
             starts[ok],
             ends[ok],
             self.sensor,
@@ -402,7 +414,7 @@ class NbvPlanner:
             self.region,
             frontier=cfg.gain == "frontier",
         )
-        visible, unknown_m3 = self._visible(counts, source.config.voxel_size)
+        visible, unknown_m3 = self._visible(counts, see.config.voxel_size)
         if cfg.risk_weight > 0:
             risk = np.asarray(self.risk(starts[ok, :3], ends[ok, :3]), np.float64)
             if risk.shape != (int(ok.sum()),) or not np.all(np.isfinite(risk)) or np.any(risk < 0):

@@ -16,6 +16,7 @@ import warp as wp
 from vogjax.config import MapConfig
 from vogjax.kernels import planner_maps
 from vogjax.maps import GlobalMap, VogMap, VoxelMap
+from vogjax.maps.levels import check_level, level_scales
 from vogjax.maps.views import submap_views
 
 
@@ -99,12 +100,25 @@ def check_map(map_) -> None:
 
 
 @contextlib.contextmanager
-def opened(map_):
-    """`map_` read-locked (its submaps too) as a Source, for the length of the block."""
+def opened(map_, level: int = 0):
+    """`map_` read-locked (its submaps too) as a Source, for the length of the block; at
+    `level` k >= 1 its coarse level k (a VogMap's from `VogMap.coarse_map()`, made before any
+    lock is taken), whose Source's config has voxel_size * 2^k."""
     check_map(map_)
+    level = check_level(level)
+    if level and isinstance(map_, Overlay):
+        raise ValueError(
+            f"level {level}: an Overlay has no coarse levels (the submaps on top are not in its base's); "
+            "plan at level 0, or on the GlobalMap or the VogMap"
+        )
+    coarse = map_.coarse_map() if level and isinstance(map_, VogMap) else map_
     config, device = map_.config, map_.device
     with contextlib.ExitStack() as stack:
-        if isinstance(map_, VogMap):
+        if level:  # a coarse level: a block store of log-odds of its own, no submaps on top
+            stack.enter_context(coarse.reading())
+            store, kind = coarse.store_at(level), planner_maps.LOG_ODDS_STORE
+            submaps, poses = [], np.zeros((0, 4, 4))
+        elif isinstance(map_, VogMap):
             store, kind = None, planner_maps.NO_STORE
             submaps, poses = _observed(stack, map_, range(map_.num_submaps))
         elif isinstance(map_, Overlay):
@@ -134,11 +148,15 @@ def opened(map_):
         access.counts = store.layers["count"] if has_sums else wp.zeros(1, dtype=wp.int32, device=device)
         views = submap_views(submaps, poses, device)
         access.views = views if len(submaps) else wp.zeros(1, dtype=views.dtype, device=device)
-        access.resolution = np.float64(config.voxel_size)
-        access.inv_resolution = np.float64(1.0 / config.voxel_size)
+        access.resolution, access.inv_resolution = level_scales(config.voxel_size, level)
         access.clamp_min, access.clamp_max = config.log_clamp_min, config.log_clamp_max
         access.log_occupied, access.log_free = config.log_occupied, config.log_free
         boxes = np.array([_world_box(s, p) for s, p in zip(submaps, poses)]).reshape(-1, 2, 3)
+        if level:
+            try:
+                config = dataclasses.replace(config, voxel_size=float(access.resolution))
+            except ValueError as error:
+                raise ValueError(f"level {level}: voxels of {access.resolution:g} m: {error}") from None
         yield Source(access, boxes, config, device)
 
 

@@ -1,7 +1,18 @@
-"""The report layer: measures, timing curves, figures and the `vogjax map` job. It reads a
-pipeline `Result` (maps, poses, timings) and writes what people look at.
+"""The report layer: measures, timing curves, figures and the `vogjax map` job.
+
+It reads a pipeline `Result` (maps, poses, timings) and writes what people look at. The package
+exports the job (`map_runs`, `map_run`), the evaluation against ground truth (`evaluate_run`)
+and the measures it uses; the rest has a module each: `vogjax.report.timing` (the timing
+curves of Figs. 8 and 9), `vogjax.report.plots` (figures), `vogjax.report.viewer` (the rerun
+viewer), `vogjax.report.workers` (many runs at once with Ray) and `vogjax.report.fields` (what
+each field of report.json means).
+
+Examples
+--------
+Map a recorded run into ``out/run/`` and read its headline figures:
 
     reports = vj.report.map_runs(["run.h5"], "out")
+    reports[0]["auc"]
 """
 
 from vogjax.report.evaluate import evaluate_run

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from vogjax.maps import OCCUPIED, UNKNOWN
@@ -10,22 +12,47 @@ from vogjax.report.metrics import misclassified, reconstruction_rmse, roc
 from vogjax.scenes import FREE
 from vogjax.scenes import OCCUPIED as TRUE_OCCUPIED
 
+if TYPE_CHECKING:
+    from vogjax.pipeline import Result
+    from vogjax.report.metrics import Roc
+    from vogjax.scenes import Scene
 
-def evaluate_run(result, scene, surface_points: int = 50_000) -> tuple[dict, dict]:
-    """Measures of a pipeline Result against a Scene's ground truth.
 
-    Returns (metrics, curves): metrics holds `auc` for the online global map, the virtual map at
-    the optimised poses, a full merge, the standard map and (with true poses) `true_pose`, the
-    same submaps built and placed by the truth, and `rigid_truth`, the pipeline's own submaps
-    at their rigid truths (one good placement of these rigid, navigation-bent submaps);
-    `auc_aligned`, the online, virtual and full-merge maps registered to the truth by the best
-    x-y-yaw fit of the optimised base poses (`Result.gauge_alignment`), and `true_pose` and
-    `rigid_truth` as they are, over the voxels the registered online map or the standard map
-    observed (empty without truth, or when those voxels hold one class only);
-    `auc_vs_reference`, the same maps scored against the true-pose map's states instead of the
-    mesh; `rmse_m` for the standard map and the virtual map without and with loop closures;
-    `agreement` of the online map with the full merge. curves holds the ROC curves (for plots),
-    the registered online map's among them.
+def evaluate_run(result: Result, scene: Scene, surface_points: int = 50_000) -> tuple[dict, dict[str, Roc]]:
+    """Score a pipeline run's maps against its scene's ground truth.
+
+    Maps are scored over the voxels of the truth (water or surface) that the online map or the
+    standard map observed.
+
+    Parameters
+    ----------
+    result : Result
+        A pipeline run (`vj.pipeline.run`).
+    scene : Scene
+        The scene the run was recorded in (its ground-truth occupancy and surface).
+    surface_points : int, optional
+        Points sampled on the true surface for the reconstruction RMSE.
+
+    Returns
+    -------
+    metrics : dict
+        ``auc``: AUC for the online global map, the virtual map at the optimised poses, a full
+        merge, the standard map, the confidence-rich map (if built) and (with true poses)
+        ``true_pose``, the same submaps built and placed by the truth, and ``rigid_truth``, the
+        pipeline's own submaps at their rigid truths (one good placement of these rigid,
+        navigation-bent submaps). ``auc_aligned``: the online, virtual and full-merge maps
+        registered to the truth by the best x-y-yaw fit of the optimised base poses
+        (`Result.gauge_alignment`), and ``true_pose`` and ``rigid_truth`` as they are, over the
+        voxels the registered online map or the standard map observed (empty without truth, or
+        when those voxels hold one class only). ``auc_vs_reference``: the same maps scored
+        against the true-pose map's states instead of the mesh. ``rmse_m``: reconstruction RMSE
+        (metres, None when not measurable) of the standard map and of the virtual map without
+        and with loop closures. ``confidence_map``: the confidence-rich map's mean error and
+        inconsistency per voxel beside the standard map's (empty without one). ``agreement``:
+        `misclassified` of the online map against the full merge. ``evaluated_voxels``: how many
+        voxels were scored.
+    curves : dict of str to Roc
+        The ROC curves by map name (for plots), the registered online map's among them.
     """
     cfg = result.config.map
     truth = scene.occupancy(cfg.voxel_size)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable
+from os import PathLike
 from pathlib import Path
 
 from vogjax import pipeline, scenes
@@ -22,19 +24,74 @@ from vogjax.report import document, files, plots, timing
 from vogjax.report.evaluate import evaluate_run
 
 
-def map_runs(paths, out, config: JobConfig | None = None, progress: bool = True) -> list[dict]:
-    """Map each run in `paths` into out/<run name>/; returns the reports."""
+def map_runs(
+    paths: Iterable[str | PathLike],
+    out: str | PathLike,
+    config: JobConfig | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> list[dict]:
+    """Map, evaluate and report each run: the `vogjax map` job.
+
+    Every input is read and checked (scans, ground truth at the map's voxel size) and every
+    output folder checked writable before any run is mapped; each run's folder appears only once
+    every file in it is written. Kernel compilation is kept out of the timings.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Run files (.h5); no two with the same name (they would share an output folder).
+    out : str or os.PathLike
+        The output folder: run ``NAME.h5`` is written to ``out/NAME/`` (global_map.vog,
+        trajectories, TUM files, report.json and figures).
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+    overwrite : bool, optional
+        Replace a run's existing output folder; without it an existing one is an error, raised
+        before any work.
+
+    Returns
+    -------
+    list of dict
+        Each run's report, as written to its report.json (see the report.json reference).
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, `paths` is empty or two runs share a name, a run's output
+        folder exists and `overwrite` is not set, a run file is missing, damaged or empty, its
+        scene's ground truth is refused at this voxel size, or an output folder cannot be
+        written.
+    """
     config, paths = check_job(paths, config)
+    out = Path(out)
+    for path in paths:
+        refuse_existing(out / path.stem, overwrite)
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
             if len(ds) == 0:
                 raise ValueError(f"dataset {str(path)!r} holds no scans")
             ds.validate()
             _check_ground_truth(ds, config)
-    out = Path(out)
     for path in paths:
         check_writable(out / path.stem, folder=True)
     return [_map_into(path, out / path.stem, config, progress) for path in paths]
+
+
+def refuse_existing(out_dir: Path, overwrite: bool) -> None:
+    """A ValueError when a run's output folder exists and `overwrite` is not set.
+
+    Parameters
+    ----------
+    out_dir : Path
+        The run's output folder.
+    overwrite : bool
+        Whether replacing it was asked for.
+    """
+    if out_dir.exists() and not overwrite:
+        raise ValueError(f"out {str(out_dir)!r} exists (pass overwrite=True to replace it)")
 
 
 def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
@@ -60,9 +117,44 @@ def _check_ground_truth(ds: Dataset, config: JobConfig) -> None:
         scenes.load(name).check_occupancy(config.pipeline.map.voxel_size)
 
 
-def map_run(path, out_dir, config: JobConfig | None = None, progress: bool = True) -> dict:
-    """Map one run into `out_dir` (replaced only when everything is written); its report."""
+def map_run(
+    path: str | PathLike,
+    out_dir: str | PathLike,
+    config: JobConfig | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> dict:
+    """Map, evaluate and report one run into a folder of its own.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The run file (.h5).
+    out_dir : str or os.PathLike
+        The folder to write; with `overwrite`, an existing one is replaced only once everything
+        is written.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    progress : bool, optional
+        Show progress bars (on stderr).
+    overwrite : bool, optional
+        Replace an existing `out_dir`; without it that is an error, raised before any work.
+
+    Returns
+    -------
+    dict
+        The run's report, as written to out_dir/report.json.
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a JobConfig, `out_dir` exists and `overwrite` is not set, the run file
+        is missing or not a run file, its scene's
+        ground truth is refused at this voxel size, `out_dir` cannot be written, or the run is
+        found damaged while it is mapped.
+    """
     config, (path,) = check_job([path], config)
+    refuse_existing(Path(out_dir), overwrite)
     with Dataset(path) as ds:
         _check_ground_truth(ds, config)
     check_writable(out_dir, folder=True)
@@ -98,13 +190,24 @@ def _evaluate_and_write(
     files.save_tum_trajectories(result, folder)
     # 2. figures
     centres, log_odds = result.global_map.voxels()
-    label = f"{path.stem}: {result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"
-    plots.top_view(centres, log_odds, result.config.map, folder / "top_view.png", title=f"{label}, top view")
-    plots.trajectories(result, folder / "trajectory.png", title=label)
+    counts = f"{result.vog.num_submaps} submaps, {len(result.loop_closures)} loop closures"
+    plots.top_view(
+        centres,
+        log_odds,
+        result.config.map,
+        folder / "top_view.png",
+        title=f"{path.stem}: the online global map from above\n{counts}",
+        scene=scene,
+    )
+    plots.trajectories(result, folder / "trajectory.png", title=f"{path.stem}: vehicle path from above\n{counts}")
     if roc:
-        plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth")
+        voxels = metrics.get("evaluated_voxels", 0)
+        scored = f"Scored over the {voxels:,} ground-truth voxels the online or standard map observed."
+        plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth (ROC)", note=scored)
     if curves is not None:
-        plots.timing(curves, folder / "timing.png", title=f"{path.stem}, {result.global_map.device}")
+        plots.timing(
+            curves, folder / "timing.png", title=f"{path.stem}: update and query times on {result.global_map.device}"
+        )
     # 3. the report last: its presence says the rest is there
     (folder / "report.json").write_text(
         json.dumps(document.finite_or_null(report), indent=2, default=document.json_default, allow_nan=False)

@@ -6,30 +6,69 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from vogjax.config import IcpConfig
 from vogjax.maps import OCCUPIED
 from vogjax.slam import correlative_xyh, icp
 from vogjax.slam.icp import MIN_POINTS
-from vogjax.validation import real_array
+from vogjax.validation import float_array, real_array
 
 
 @dataclasses.dataclass(frozen=True)
 class Roc:
-    """false_positive_rate, true_positive_rate (T,) from the highest threshold down; auc."""
+    """A receiver operating characteristic curve of occupancy scores against ground truth.
 
-    false_positive_rate: np.ndarray
-    true_positive_rate: np.ndarray
-    thresholds: np.ndarray
+    Points run from the highest threshold down, starting at (0, 0).
+
+    Attributes
+    ----------
+    false_positive_rate : (T,) ndarray of float64
+        Fraction of the free voxels scored at or above each threshold.
+    true_positive_rate : (T,) ndarray of float64
+        Fraction of the occupied voxels scored at or above each threshold.
+    thresholds : (T,) ndarray of float64
+        The thresholds, decreasing: inf, then each distinct score.
+    auc : float
+        Area under the curve (trapezoidal): 1 separates perfectly, 0.5 is chance.
+    """
+
+    false_positive_rate: npt.NDArray[np.float64]
+    true_positive_rate: npt.NDArray[np.float64]
+    thresholds: npt.NDArray[np.float64]
     auc: float
 
 
-def roc(scores: np.ndarray, occupied: np.ndarray) -> Roc:
-    """ROC of `scores` (occupancy probability per voxel) against truth `occupied` (bool).
+def roc(scores: npt.ArrayLike, occupied: npt.ArrayLike) -> Roc:
+    """The ROC curve of occupancy scores against the truth (Sodhi et al., Fig. 10).
 
-    Ties share a threshold, so an uninformative map (all 0.5) gets AUC 0.5 exactly. `occupied`
-    may also hold numbers that are exactly 0 or 1; NaN scores are refused (they sort anywhere)."""
+    Ties share a threshold, so an uninformative map (all 0.5) gets AUC 0.5 exactly.
+
+    Parameters
+    ----------
+    scores : (N,) array_like of float
+        Occupancy probability (or any score) per voxel; no NaN (it would sort anywhere).
+    occupied : (N,) array_like of bool
+        Whether each voxel is truly occupied: booleans, or numbers exactly 0 or 1. Both classes
+        must occur.
+
+    Returns
+    -------
+    Roc
+        The curve and its AUC.
+
+    Raises
+    ------
+    ValueError
+        If the arrays are not 1-D of one length, `scores` holds NaN, `occupied` holds other
+        numbers than 0 and 1, or only one class.
+
+    Examples
+    --------
+    >>> roc([0.9, 0.8, 0.3, 0.1], [True, False, True, False]).auc
+    0.75
+    """
     scores = real_array("scores", scores)
     occupied = _labels("occupied", occupied)
     if scores.shape != occupied.shape or scores.ndim != 1:
@@ -61,22 +100,74 @@ def _labels(name: str, value) -> np.ndarray:
 
 
 def register_to_surface(
-    points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None, search_radius_m: float = 3.0
-) -> np.ndarray:
-    """T_surface_points (4, 4) registering `points` to the true `surface` points: a correlative
-    x-y-yaw search within `search_radius_m` (a drifted map can sit farther off than ICP
-    reaches), then point-to-plane ICP."""
+    points: npt.ArrayLike, surface: npt.ArrayLike, config: IcpConfig | None = None, search_radius_m: float = 3.0
+) -> npt.NDArray[np.float64]:
+    """Register a map's points to the true surface.
+
+    A correlative x-y-yaw search within `search_radius_m` (a drifted map can sit farther off
+    than ICP reaches), then point-to-plane ICP.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float
+        The map's points (occupied voxel centres), metres; at least 3.
+    surface : (M, 3) array_like of float
+        Points on the true surface, metres.
+    config : IcpConfig or None, optional
+        The ICP's settings (default: ``IcpConfig(max_correspondence_m=0.5)``).
+    search_radius_m : float, optional
+        Reach of the correlative search in x and y, metres.
+
+    Returns
+    -------
+    (4, 4) ndarray of float64
+        ``T_surface_points``.
+
+    Raises
+    ------
+    ValueError
+        If `points` or `surface` is not an (N, 3) array of finite points, or holds fewer than 3
+        (the message names the argument).
+    """
+    points = float_array("points", points, (-1, 3), np.float64)
+    surface = float_array("surface", surface, (-1, 3), np.float64)
+    for name, cloud in (("points", points), ("surface", surface)):
+        if len(cloud) < MIN_POINTS:
+            raise ValueError(f"{name} must hold at least {MIN_POINTS} points to register, got {len(cloud)}")
     config = config or IcpConfig(max_correspondence_m=0.5)
     seed = correlative_xyh(points, surface, np.eye(4), search_radius_m, yaw_radius_rad=0.05)
     return icp(points, surface, seed.T_target_source, config=config).T_target_source
 
 
 def reconstruction_rmse(
-    points: np.ndarray, surface: np.ndarray, config: IcpConfig | None = None, search_radius_m: float = 3.0
+    points: npt.ArrayLike, surface: npt.ArrayLike, config: IcpConfig | None = None, search_radius_m: float = 3.0
 ) -> float | None:
-    """RMSE (m) of `points` (a map's occupied voxel centres) to the true `surface` points, after
-    registering them to it (`register_to_surface`); None (not measurable) when there are fewer
-    points than registration needs (MIN_POINTS, ICP's): a map with next to nothing occupied."""
+    """Reconstruction RMSE of a map's points to the true surface, after registration (Ho, Table 4.3).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float
+        The map's occupied voxel centres, metres.
+    surface : (M, 3) array_like of float
+        Points on the true surface, metres.
+    config : IcpConfig or None, optional
+        The registration's ICP settings (see `register_to_surface`).
+    search_radius_m : float, optional
+        Reach of the registration's correlative search, metres.
+
+    Returns
+    -------
+    float or None
+        RMS distance of the registered points to their nearest surface points, metres; None (not
+        measurable) when there are fewer points than registration needs (MIN_POINTS, ICP's): a
+        map with next to nothing occupied.
+
+    Raises
+    ------
+    ValueError
+        If `points` or `surface` cannot be registered (see `register_to_surface`).
+    """
+    points = float_array("points", points, (-1, 3), np.float64)
     if len(points) < MIN_POINTS:
         return None
     T = register_to_surface(points, surface, config, search_radius_m)
@@ -84,8 +175,25 @@ def reconstruction_rmse(
     return float(np.sqrt(np.mean(distance**2)))
 
 
-def misclassified(states_a: np.ndarray, states_b: np.ndarray) -> dict:
-    """How many voxels two maps classify differently, and how many of those are occupied in one."""
+def misclassified(states_a: npt.ArrayLike, states_b: npt.ArrayLike) -> dict[str, int]:
+    """How many voxels two maps classify differently.
+
+    Parameters
+    ----------
+    states_a, states_b : (N,) array_like of int
+        The two maps' states of the same voxels: vj.UNKNOWN, vj.FREE or vj.OCCUPIED.
+
+    Returns
+    -------
+    dict of str to int
+        ``voxels``: N; ``misclassified``: voxels whose states differ; ``occupied_disagreements``:
+        those of them that one of the maps calls occupied.
+
+    Raises
+    ------
+    ValueError
+        If the arrays are not 1-D of one length, or not real numbers.
+    """
     states_a, states_b = real_array("states_a", states_a), real_array("states_b", states_b)
     if states_a.ndim != 1 or states_a.shape != states_b.shape:
         raise ValueError(

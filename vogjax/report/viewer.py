@@ -20,20 +20,41 @@ its run name.
 from __future__ import annotations
 
 import json
+from os import PathLike
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.io.atomic import AtomicPath
 from vogjax.io.ply import height_colours
 from vogjax.io.voxels import VoxelSet, load_map
 
+if TYPE_CHECKING:
+    import rerun as rr
+
+    from vogjax.maps import GlobalMap, VoxelMap
+    from vogjax.maps.confidence import ConfidenceMap
+
 TRAJECTORIES = {"navigation": (220, 60, 40), "optimized": (40, 110, 220), "truth": (120, 120, 120)}
 CLOSURE_COLOUR = (40, 180, 60)
 
 
-def rerun():
-    """The rerun module; a ValueError naming the extra when it is not installed."""
+def rerun() -> ModuleType:
+    """Import rerun, an optional dependency.
+
+    Returns
+    -------
+    module
+        The `rerun` module.
+
+    Raises
+    ------
+    ValueError
+        If rerun is not installed, naming the extra that installs it (``vogjax[view]``).
+    """
     try:
         import rerun as rr
     except ImportError:
@@ -41,10 +62,30 @@ def rerun():
     return rr
 
 
-def view(path, save=None, spawn: bool | None = None) -> dict:
-    """Log a map file (.vog) or report folder into a rerun recording, saved to `save` (.rrd)
-    and/or shown in a spawned viewer (default: when not saving). Returns what was logged:
-    entity path -> number of items."""
+def view(path: str | PathLike, save: str | PathLike | None = None, spawn: bool | None = None) -> dict[str, int]:
+    """Log a map file or a `vogjax map` report folder into a rerun recording.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A map file (.vog), a `vogjax map` run folder, or a folder of run folders (each logged
+        under its run name).
+    save : str or os.PathLike or None, optional
+        An .rrd file to save the recording to (published atomically when complete).
+    spawn : bool or None, optional
+        Show the recording in a spawned viewer (None: when not saving).
+
+    Returns
+    -------
+    dict of str to int
+        What was logged: entity path -> number of items.
+
+    Raises
+    ------
+    ValueError
+        If `path` does not exist or is neither a map file nor a run folder, `save` does not
+        end in .rrd, rerun is not installed, or a file of the folder cannot be read.
+    """
     path = Path(path)
     if not path.exists():
         raise ValueError(f"path {str(path)!r} does not exist")
@@ -94,8 +135,25 @@ def _entity(prefix: str, name: str) -> str:
     return f"{prefix}/{name}" if prefix else name
 
 
-def log_map(recording, source, prefix: str = "") -> dict:
-    """Occupied voxels of a map (or VoxelSet) as boxes coloured by height."""
+def log_map(
+    recording: rr.RecordingStream, source: VoxelMap | GlobalMap | ConfidenceMap | VoxelSet, prefix: str = ""
+) -> dict[str, int]:
+    """Log a map's occupied voxels as boxes coloured by height (viridis), static.
+
+    Parameters
+    ----------
+    recording : rerun.RecordingStream
+        The recording to log into.
+    source : VoxelMap, GlobalMap, ConfidenceMap or VoxelSet
+        The map.
+    prefix : str, optional
+        Entity path prefix (a run's name; "" for none).
+
+    Returns
+    -------
+    dict of str to int
+        ``{"PREFIX/map/occupied": number of boxes}``.
+    """
     rr = rerun()
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
     centres = voxels.centres[voxels.state() == 2]
@@ -113,8 +171,29 @@ def log_map(recording, source, prefix: str = "") -> dict:
     return {entity: len(centres)}
 
 
-def log_folder(recording, folder: Path, prefix: str = "") -> dict:
-    """A `vogjax map` run folder: map, trajectories, loop closures, per-submap timings, report."""
+def log_folder(recording: rr.RecordingStream, folder: Path, prefix: str = "") -> dict[str, int]:
+    """Log a `vogjax map` run folder: map, trajectories, loop closures, per-submap timings, report.
+
+    Parameters
+    ----------
+    recording : rerun.RecordingStream
+        The recording to log into.
+    folder : Path
+        The run folder (global_map.vog, trajectories.csv, and loop_closures.csv and report.json
+        where present).
+    prefix : str, optional
+        Entity path prefix (a run's name; "" for none).
+
+    Returns
+    -------
+    dict of str to int
+        What was logged: entity path -> number of items.
+
+    Raises
+    ------
+    ValueError
+        If a file of the folder is missing (the map, the trajectories) or cannot be read.
+    """
     rr = rerun()
     logged = log_map(recording, load_map(folder / "global_map.vog", device="cpu"), prefix)
     table = read_trajectories(folder / "trajectories.csv")
@@ -152,9 +231,25 @@ def log_folder(recording, folder: Path, prefix: str = "") -> dict:
     return logged
 
 
-def read_trajectories(path: Path) -> dict:
-    """trajectories.csv as {"submap": (N,), "first_scan": (N,), name: (N,3) positions per
-    trajectory present (navigation, optimized, truth)}."""
+def read_trajectories(path: Path) -> dict[str, npt.NDArray]:
+    """Read a run folder's trajectories.csv.
+
+    Parameters
+    ----------
+    path : Path
+        The trajectories.csv `vogjax map` wrote.
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``"submap"`` and ``"first_scan"``: (N,) int; and per trajectory present
+        (``"navigation"``, ``"optimized"``, ``"truth"``) the (N, 3) float base positions, metres.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be read or lacks the submap and first_scan columns.
+    """
     try:
         table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
     except (OSError, ValueError) as error:
@@ -170,14 +265,35 @@ def read_trajectories(path: Path) -> dict:
     return out
 
 
-def read_loop_closures(path: Path, submaps: int) -> np.ndarray:
-    """(C,2) int submap pairs (i, k) of loop_closures.csv (columns i and k), none if absent."""
+def read_loop_closures(path: Path, submaps: int) -> npt.NDArray[np.int_]:
+    """Read the submap pairs of a run folder's loop_closures.csv.
+
+    Parameters
+    ----------
+    path : Path
+        The loop_closures.csv `vogjax map` wrote (absent: no closures).
+    submaps : int
+        The run's number of submaps; every id must lie below it.
+
+    Returns
+    -------
+    (C, 2) ndarray of int
+        Submap pairs (i, k) of the accepted closures (columns i and k; with a verdict column, the
+        rows "accepted" only); (0, 2) when the file is absent.
+
+    Raises
+    ------
+    ValueError
+        If the file lacks columns i and k or names submaps outside 0 to ``submaps - 1``.
+    """
     if not path.is_file():
         return np.zeros((0, 2), dtype=int)
-    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1, dtype=None, encoding="utf-8")
     names = table.dtype.names or ()
     if "i" not in names or "k" not in names:
         raise ValueError(f"path {str(path)!r} needs columns i and k (submap ids), has {names}")
+    if "verdict" in names:
+        table = table[table["verdict"] == "accepted"]
     pairs = np.stack([table["i"], table["k"]], axis=1).astype(int).reshape(-1, 2)
     if len(pairs) and (pairs.min() < 0 or pairs.max() >= submaps):
         raise ValueError(f"path {str(path)!r} names submaps outside 0-{submaps - 1}")

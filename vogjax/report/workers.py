@@ -21,11 +21,14 @@ import dataclasses
 import logging
 import os
 import warnings
+from collections.abc import Iterable
+from os import PathLike
 from pathlib import Path
+from types import ModuleType
 
 from vogjax.config import JobConfig
 from vogjax.io.atomic import check_writable
-from vogjax.report.job import check_job
+from vogjax.report.job import check_job, refuse_existing
 
 WORKER_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 # forwarded from this process when set, so workers find the same caches and devices
@@ -34,15 +37,36 @@ FORWARDED_ENV = ("WARP_CACHE_PATH", "CUDA_VISIBLE_DEVICES", "JAX_PLATFORMS")
 
 @dataclasses.dataclass(frozen=True)
 class Outcome:
-    """One run: its path, its report (None when it failed) and the error (one line, or None)."""
+    """What became of one run of `map_runs_parallel`.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    report : dict or None
+        Its report, as written to report.json; None when it failed.
+    error : str or None
+        Why it failed, in one line; None when it succeeded.
+    """
 
     path: Path
     report: dict | None
     error: str | None
 
 
-def ray_module():
-    """Ray, or a ValueError naming the extra that installs it."""
+def ray_module() -> ModuleType:
+    """Import Ray, an optional dependency.
+
+    Returns
+    -------
+    module
+        The `ray` module.
+
+    Raises
+    ------
+    ValueError
+        If Ray is not installed, naming the extra that installs it (``vogjax[workers]``).
+    """
     try:
         import ray
     except ImportError:
@@ -51,10 +75,50 @@ def ray_module():
 
 
 def map_runs_parallel(
-    paths, out, config: JobConfig | None = None, workers: int = 2, address: str | None = None, progress: bool = False
+    paths: Iterable[str | PathLike],
+    out: str | PathLike,
+    config: JobConfig | None = None,
+    workers: int = 2,
+    address: str | None = None,
+    progress: bool = False,
+    overwrite: bool = False,
 ) -> list[Outcome]:
-    """Map every run into out/<run name>/ with `workers` Ray tasks at a time (a local Ray when
-    `address` is None, else the cluster there); the outcomes in the order of `paths`."""
+    """Map every run with Ray tasks, each run in its own worker process (`map_run`).
+
+    A run that fails fails alone: its outcome carries the error and the other runs finish. The
+    settings, the run files and the output folders are checked before Ray starts.
+
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        Run files (.h5), reachable at these paths from every node; no two with the same name.
+    out : str or os.PathLike
+        The output folder: run ``NAME.h5`` is written to ``out/NAME/``.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    workers : int, optional
+        Runs mapped at a time (each task takes one CPU and a share of the GPUs, at most one).
+    address : str or None, optional
+        A Ray cluster's address (such as "ray://head:10001"); None starts a local Ray with
+        `workers` CPUs, shut down again when done.
+    progress : bool, optional
+        Show a progress bar of finished runs (on stderr).
+    overwrite : bool, optional
+        Replace a run's existing folder; without it an existing one is an error, raised before
+        any work.
+
+    Returns
+    -------
+    list of Outcome
+        One per run, in the order of `paths`.
+
+    Raises
+    ------
+    ValueError
+        If `workers` is not a positive integer, `config` is not a JobConfig, `paths` is empty,
+        names a missing file or two runs with the same name, an output folder cannot be
+        written, Ray is not installed, or Ray cannot be started or reached.
+    """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be a positive integer, got {workers!r}")
     config, paths = check_job(paths, config)
@@ -63,6 +127,7 @@ def map_runs_parallel(
             raise ValueError(f"path {str(path)!r} does not exist")
     out = Path(out)
     for path in paths:
+        refuse_existing(out / path.stem, overwrite)
         check_writable(out / path.stem, folder=True)
     ray = ray_module()
     out.mkdir(parents=True, exist_ok=True)
@@ -122,11 +187,12 @@ def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: b
 
 def _map_one(path: str, out_dir: str, config: JobConfig, cwd: str) -> dict:
     """The task: one run mapped in a worker (quiet: no progress bars), from the caller's
-    working folder, so relative paths and the report's `run` read as they would one by one."""
+    working folder, so relative paths and the report's `run` read as they would one by one
+    (an existing folder was refused, or its replacement asked for, before the tasks began)."""
     from vogjax.report.job import map_run
 
     os.chdir(cwd)
-    return map_run(path, out_dir, config, progress=False)
+    return map_run(path, out_dir, config, progress=False, overwrite=True)
 
 
 def _one_line(error: BaseException) -> str:

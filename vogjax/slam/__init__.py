@@ -1,13 +1,27 @@
-"""SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection."""
+"""SLAM backend: GTSAM pose graph (iSAM2), ICP, loop-closure detection.
 
-from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig
+- `PoseGraph`: submap base poses on iSAM2, odometry factors from the navigation's drift, loop
+  closures screened against the graph (`ClosureCheck`) and entered with a robust loss;
+- `LoopClosureDetector`: candidate pairs of submaps, aligned and accepted or rejected
+  (`LoopClosure`, `Rejection`);
+- `correlative_xyh`: the x-y-yaw search over the navigation's drift that seeds ICP
+  (`CorrelativeMatch`);
+- `icp`: point-to-plane (degeneracy-aware) and 2D point-to-point ICP, batched (`IcpResult`,
+  `IcpTarget`).
+
+Poses are (4, 4) rigid transforms named by their frames (``T_world_submap``, ``T_i_k``);
+covariances and tangents follow GTSAM's Pose3 order, rotation then translation.
+"""
+
+from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
 from vogjax.geometry import pose_deltas
-from vogjax.slam.backend import PoseGraph
+from vogjax.slam.backend import ClosureCheck, PoseGraph
 from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch
 from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 
 __all__ = [
+    "ClosureCheck",
     "CorrelativeConfig",
     "CorrelativeMatch",
     "IcpConfig",
@@ -17,6 +31,7 @@ __all__ = [
     "LoopClosureConfig",
     "LoopClosureDetector",
     "PoseGraph",
+    "PoseGraphConfig",
     "Rejection",
     "correlative_xyh",
     "correlative_xyh_batch",

@@ -5,17 +5,28 @@ the previous one and a unary zpr factor, with covariances from the navigation dr
 times the time between the two base poses (Eq. 2, 10); ICP loop closures, either full Pose3
 constraints or, for degenerate alignments, partial factors that constrain only the
 well-conditioned directions (Ho, Eq. 4.2-4.4). iSAM2 receives only the new factors each update.
+
+A wrong loop closure cannot bend the graph at will (`PoseGraphConfig`): each closure is first
+screened against the graph (its error at the current estimate, whitened by its covariance plus
+the graph's joint marginal uncertainty of the two poses: a chi-square test, so a closure the
+graph can already tell is wrong never enters), and enters with a robust loss (GTSAM's
+`noiseModel.Robust`), so one that passed the screen while nothing contradicted it loses its
+weight once other closures do.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 
 import gtsam
 import numpy as np
+import numpy.typing as npt
+from scipy import special
 
 from vogjax.config import NavNoise
-from vogjax.geometry import rigid_pose, wrap_angle
+from vogjax.config.slam import PoseGraphConfig
+from vogjax.geometry import inverse, log_se3, rigid_pose, wrap_angle
 from vogjax.slam import factors
 from vogjax.validation import real_array
 
@@ -29,6 +40,62 @@ MIN_DURATION_S = 1e-3
 # odometry factor's information (step^2 / variance) swamp the rest of the graph: iSAM2's
 # Cholesky then reports an indeterminate system (seen from about 1e7.5 sigmas).
 MAX_STEP_SIGMAS = 1e7
+
+
+ROBUST_ESTIMATORS = {
+    "huber": gtsam.noiseModel.mEstimator.Huber,
+    "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
+    "geman_mcclure": gtsam.noiseModel.mEstimator.GemanMcClure,
+    "dcs": gtsam.noiseModel.mEstimator.DCS,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class ClosureCheck:
+    """The verdict of `PoseGraph.add_loop_closure` on one closure.
+
+    Attributes
+    ----------
+    accepted : bool
+        Whether the closure entered the graph.
+    distance : float
+        Its Mahalanobis distance from the current estimate (the error in the constrained
+        directions, whitened by the closure's covariance plus the graph's uncertainty of the
+        relative pose); NaN when it was not screened.
+    limit : float
+        The largest distance the screen lets in (the chi-square bound for `directions` at
+        `PoseGraphConfig.screen_sigmas`); NaN when it was not screened.
+    directions : int
+        How many directions the closure constrains (6 for a full factor).
+    scale : float
+        How much wider than the closure's own sigma its robust loss starts (at least 1): the
+        largest ratio of the screen's sigma (closure plus graph) to the closure's own, over the
+        constrained directions; 1 when it was not screened.
+    """
+
+    accepted: bool
+    distance: float
+    limit: float
+    directions: int
+    scale: float = 1.0
+
+
+def screen_limit(sigmas: float, directions: int) -> float:
+    """The Mahalanobis distance within which a closure passes the screen.
+
+    Parameters
+    ----------
+    sigmas : float
+        How many sigmas of one normal variable (3: the probability 0.9973 of lying within).
+    directions : int
+        Degrees of freedom of the closure's error (1 to 6).
+
+    Returns
+    -------
+    float
+        sqrt of the chi-square quantile with `directions` degrees of freedom at that probability.
+    """
+    return float(np.sqrt(special.chdtri(directions, special.erfc(sigmas / np.sqrt(2.0)))))
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -87,11 +154,55 @@ def _covariance(name: str, covariance, size: int) -> np.ndarray:
 class PoseGraph:
     """Submap base poses optimised incrementally with iSAM2.
 
-    noise: NavNoise, drift of the navigation per second
-    prior_pose: (4,4) where the first submap is anchored
+    Node i is submap i's base pose ``T_world_submap``. Factors (Sodhi et al. Eq. 3): a prior on
+    the first pose; per new submap a relative x-y-yaw factor to the previous one and a unary
+    depth-pitch-roll factor, their covariances the navigation's drift per second times the time
+    between the two base poses; loop closures (`add_loop_closure`), screened against the graph
+    and with a robust loss (`PoseGraphConfig`). iSAM2 receives only the new factors each
+    `update`. Covariances and tangents are in GTSAM's Pose3 order: rotation, then translation.
+
+    Parameters
+    ----------
+    noise : NavNoise or None, optional
+        Drift of the navigation per second (the odometry factors' covariances; default:
+        ``NavNoise()``).
+    prior_pose : (4, 4) array_like of float or None, optional
+        Where the first submap is anchored, a rigid transform (None: the identity).
+    prior_sigmas : (6,) array_like of float, optional
+        Sigmas of the anchor (rad, rad, rad, m, m, m), each in [1e-6, 1e6] (default: 1e-4 rad
+        and 1e-3 m).
+    config : PoseGraphConfig or None, optional
+        How loop closures enter: the screen and the robust loss (default:
+        ``PoseGraphConfig()``).
+
+    Attributes
+    ----------
+    config : PoseGraphConfig
+        The loop-closure settings.
+    noise : NavNoise
+        The navigation's drift.
+    prior_pose : (4, 4) ndarray of float64
+        The anchor of the first submap.
+    factors : list of tuple
+        (kind, keys) of every factor added, for inspection: kind "prior", "xyh", "zpr", "loop"
+        or "partial_loop", keys the submap ids it ties.
+
+    Raises
+    ------
+    ValueError
+        When an argument is not what it should be (named in the message).
     """
 
-    def __init__(self, noise: NavNoise | None = None, prior_pose=None, prior_sigmas=PRIOR_SIGMAS):
+    def __init__(
+        self,
+        noise: NavNoise | None = None,
+        prior_pose: npt.ArrayLike | None = None,
+        prior_sigmas: npt.ArrayLike = PRIOR_SIGMAS,
+        config: PoseGraphConfig | None = None,
+    ):
+        self.config = config = PoseGraphConfig() if config is None else config
+        if not isinstance(config, PoseGraphConfig):
+            raise ValueError(f"config must be a PoseGraphConfig, got {type(config).__name__}")
         self.noise = noise or NavNoise()
         self.prior_pose = rigid_pose("prior_pose", np.eye(4) if prior_pose is None else prior_pose)
         sigmas = real_array("prior_sigmas", prior_sigmas)
@@ -114,10 +225,35 @@ class PoseGraph:
 
     @property
     def num_submaps(self) -> int:
+        """Nodes in the graph, optimised or not yet (their ids are 0 to num_submaps - 1)."""
         return len(self._nav)
 
-    def add_submap(self, T_world_submap_nav, duration_s: float = 0.0) -> int:
-        """A new node at the navigation pose; `duration_s`: time since the previous base pose."""
+    def add_submap(self, T_world_submap_nav: npt.ArrayLike, duration_s: float = 0.0) -> int:
+        """Add a node at a submap's navigation base pose, tied to the previous one by odometry.
+
+        The node starts from the optimised previous pose moved by the navigation's relative
+        motion; it is optimised at the next `update`.
+
+        Parameters
+        ----------
+        T_world_submap_nav : (4, 4) array_like of float
+            The submap's base pose as the navigation has it, a rigid transform.
+        duration_s : float, optional
+            Time since the previous base pose, seconds, in [1e-3, 1e7] (ignored for the first
+            node, which gets the prior): the odometry factors' covariances grow with it.
+
+        Returns
+        -------
+        int
+            The new node's submap id.
+
+        Raises
+        ------
+        ValueError
+            Before anything changes: a pose that is not rigid, `duration_s` not a number in
+            [1e-3, 1e7] s, or a step from the previous base pose of more than 1e7 drift sigmas
+            in x-y (a jump the pose graph cannot weigh).
+        """
         T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
         i = self.num_submaps
         if i > 0 and not (
@@ -155,46 +291,125 @@ class PoseGraph:
         self._nav.append(T)
         return i
 
-    def add_loop_closure(self, i: int, k: int, T_i_k, covariance, basis=None) -> None:
-        """Constrain T_world_i^-1 T_world_k = T_i_k; `covariance` (6,6) in GTSAM order.
+    def add_loop_closure(
+        self, i: int, k: int, T_i_k: npt.ArrayLike, covariance: npt.ArrayLike, basis: npt.ArrayLike | None = None
+    ) -> ClosureCheck:
+        """Constrain T_world_i^-1 T_world_k = T_i_k, if the screen lets the closure in.
 
-        basis (6,r), orthonormal columns: only these directions are constrained (partial
-        factor), with covariance basis^T covariance basis.
+        Parameters
+        ----------
+        i, k : int
+            Submap ids, different, both in the graph.
+        T_i_k : (4, 4) array_like of float
+            Rigid transform: where submap k's base pose sits in submap i's frame.
+        covariance : (6, 6) array_like of float
+            Symmetric positive definite, GTSAM tangent order (rotation, translation; rad and
+            m), its eigenvalues in [1e-12, 1e12] (sigmas from a micrometre to a megametre).
+        basis : (6, r) array_like of float or None, optional
+            Orthonormal columns: only these directions are constrained (a partial factor, with
+            covariance basis^T covariance basis); None constrains all six.
+
+        Returns
+        -------
+        ClosureCheck
+            Whether it entered, and its distance from the estimate against the screen's limit.
+            The screen judges it against the graph as of the last `update()` (the graph is
+            updated first when i or k was added since). With `robust_loss` it enters with that
+            loss; a closure refused leaves the graph as it was.
+
+        Raises
+        ------
+        ValueError
+            On bad ids, a non-rigid T_i_k, a covariance that is not a valid one, or a basis
+            that is not (6, r) orthonormal; nothing is changed then.
         """
         for name, value in (("i", i), ("k", k)):
             if not isinstance(value, (int, np.integer)) or not 0 <= value < self.num_submaps:
                 raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
         if i == k:
             raise ValueError("i and k must differ")
+        i, k = int(i), int(k)
         T_i_k = rigid_pose("T_i_k", T_i_k)
         covariance = _covariance("covariance", covariance, 6)
+        if basis is not None:
+            try:
+                basis = np.asarray(basis, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError("basis must be a (6, r) matrix") from None
+            if (
+                basis.ndim != 2
+                or basis.shape[0] != 6
+                or not 1 <= basis.shape[1] <= 6
+                or not np.all(np.isfinite(basis))
+                or not np.allclose(basis.T @ basis, np.eye(basis.shape[1]), atol=1e-6)
+            ):
+                raise ValueError("basis must be (6, r), 1 <= r <= 6, with orthonormal columns")
+        directions = 6 if basis is None else basis.shape[1]
+        check = ClosureCheck(True, np.nan, np.nan, directions)
+        if self.config.screen == "graph":
+            check = self._screen(i, k, T_i_k, covariance, basis)
+            if not check.accepted:
+                return check
         if basis is None:
-            self._pending.add(
-                gtsam.BetweenFactorPose3(
-                    int(i), int(k), _pose3(T_i_k), gtsam.noiseModel.Gaussian.Covariance(covariance)
-                )
-            )
-            self.factors.append(("loop", (int(i), int(k))))
-            return
-        try:
-            basis = np.asarray(basis, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError("basis must be a (6, r) matrix") from None
-        if (
-            basis.ndim != 2
-            or basis.shape[0] != 6
-            or not 1 <= basis.shape[1] <= 6
-            or not np.allclose(basis.T @ basis, np.eye(basis.shape[1]), atol=1e-6)
-        ):
-            raise ValueError("basis must be (6, r), 1 <= r <= 6, with orthonormal columns")
+            noise = self._closure_noise(covariance, check.scale)
+            self._pending.add(gtsam.BetweenFactorPose3(i, k, _pose3(T_i_k), noise))
+            self.factors.append(("loop", (i, k)))
+            return check
         unit = gtsam.noiseModel.Unit.Create(6)
-        between = gtsam.BetweenFactorPose3(int(i), int(k), _pose3(T_i_k), unit)
-        noise = gtsam.noiseModel.Gaussian.Covariance(basis.T @ covariance @ basis)
-        self._pending.add(gtsam.CustomFactor(noise, [int(i), int(k)], partial(_partial_error, between, basis)))
-        self.factors.append(("partial_loop", (int(i), int(k))))
+        between = gtsam.BetweenFactorPose3(i, k, _pose3(T_i_k), unit)
+        noise = self._closure_noise(basis.T @ covariance @ basis, check.scale)
+        self._pending.add(gtsam.CustomFactor(noise, [i, k], partial(_partial_error, between, basis)))
+        self.factors.append(("partial_loop", (i, k)))
+        return check
 
-    def update(self) -> np.ndarray:
-        """Hand the new factors to iSAM2; (N,4,4) optimised poses."""
+    def _closure_noise(self, covariance: np.ndarray, scale: float):
+        """A closure's noise model: Gaussian, or wrapped in the configured robust loss of width
+        robust_width x scale (sigmas of its whitened error). iSAM2 weighs a robust factor at the
+        estimate it linearises it at and re-weighs it only when it relinearises it, so a
+        closure that enters far from the estimate in its own sigmas (after a long loop, the
+        graph still uncertain) would start, and stay, at next to no weight: its loss starts
+        as wide as the uncertainty it was screened with (`ClosureCheck.scale`)."""
+        gaussian = gtsam.noiseModel.Gaussian.Covariance(covariance)
+        if self.config.robust_loss == "none":
+            return gaussian
+        width = self.config.robust_width * scale
+        # DCS's parameter is a squared error (weight 1 up to e^2 = phi)
+        parameter = width**2 if self.config.robust_loss == "dcs" else width
+        estimator = ROBUST_ESTIMATORS[self.config.robust_loss].Create(parameter)
+        return gtsam.noiseModel.Robust.Create(estimator, gaussian)
+
+    def _screen(self, i: int, k: int, T_i_k: np.ndarray, covariance: np.ndarray, basis) -> ClosureCheck:
+        """The closure's Mahalanobis distance from the estimate against the screen's limit.
+
+        With GTSAM's right perturbations T_i Exp(xi_i), T_k Exp(xi_k), the relative pose P =
+        T_i^-1 T_k moves by xi_k - Ad(P^-1) xi_i, so its covariance is A J A^T with A =
+        [-Ad(P^-1), I] and J iSAM2's joint marginal of (i, k). The error log(P^-1 T_i_k) then
+        has covariance A J A^T + covariance (the closure's noise), both projected on basis."""
+        if max(i, k) >= len(self._estimates):  # a node not yet optimised: no estimate to judge by
+            self.update()
+        P = inverse(self._estimates[i]) @ self._estimates[k]
+        joint = self._isam.jointMarginalCovariance([i, k]).fullMatrix()
+        A = np.hstack([-gtsam.Pose3(inverse(P)).AdjointMap(), np.eye(6)])
+        B = np.eye(6) if basis is None else basis
+        innovation = B.T @ (A @ joint @ A.T + covariance) @ B
+        error = B.T @ log_se3(inverse(P) @ T_i_k)
+        distance = float(np.sqrt(max(error @ np.linalg.solve(innovation, error), 0.0)))
+        limit = screen_limit(self.config.screen_sigmas, B.shape[1])
+        # the largest ratio of innovation to closure variance over all directions: the
+        # eigenvalues of C^-1/2 S C^-1/2, with C = B^T covariance B
+        own = np.linalg.cholesky(B.T @ covariance @ B)
+        whitened = np.linalg.solve(own, np.linalg.solve(own, innovation).T)
+        scale = float(np.sqrt(max(np.linalg.eigvalsh((whitened + whitened.T) / 2).max(), 1.0)))
+        return ClosureCheck(bool(distance <= limit), distance, limit, B.shape[1], scale)
+
+    def update(self) -> npt.NDArray[np.float64]:
+        """Hand the new factors and nodes to iSAM2 and read the estimate back.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            The optimised base poses ``T_world_submap`` of all N submaps, a copy.
+        """
         if self._pending.size() or self._pending_values.size():
             self._isam.update(self._pending, self._pending_values)
             self._pending = gtsam.NonlinearFactorGraph()
@@ -203,15 +418,47 @@ class PoseGraph:
             self._estimates = np.stack([estimate.atPose3(i).matrix() for i in range(self.num_submaps)])
         return self._estimates.copy()
 
-    def poses(self) -> np.ndarray:
-        """(N,4,4) poses as of the last update."""
+    def poses(self) -> npt.NDArray[np.float64]:
+        """The optimised poses as of the last `update`.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            ``T_world_submap`` of the N submaps optimised so far, a copy.
+        """
         return self._estimates.copy()
 
-    def navigation_poses(self) -> np.ndarray:
+    def navigation_poses(self) -> npt.NDArray[np.float64]:
+        """The navigation's base poses, as added.
+
+        Returns
+        -------
+        (N, 4, 4) ndarray of float64
+            ``T_world_submap_nav`` of every node, in the order added.
+        """
         return np.stack(self._nav) if self._nav else np.zeros((0, 4, 4))
 
-    def marginals(self, ids) -> np.ndarray:
-        """(n,6,6) marginal covariances of `ids` (GTSAM tangent order), as of the last update."""
+    def marginals(self, ids: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Marginal covariances of some poses, as of the last `update`.
+
+        What `GlobalMap.update_poses` takes (S2 of Algorithm 1).
+
+        Parameters
+        ----------
+        ids : int or (n,) array_like of int
+            Submap ids, updated at least once.
+
+        Returns
+        -------
+        (n, 6, 6) ndarray of float64
+            iSAM2's marginal covariance of each pose, GTSAM tangent order (rotation, then
+            translation; rad and m).
+
+        Raises
+        ------
+        ValueError
+            If `ids` are not integers, or hold ids unknown or not yet updated.
+        """
         array = np.atleast_1d(np.asarray(ids))
         if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
             raise ValueError(f"ids must be submap ids, got {ids!r}")

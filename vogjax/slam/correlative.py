@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 from scipy import fft, ndimage
 
@@ -40,23 +41,34 @@ MAX_DIRECT_WORK = 1e11
 
 @dataclasses.dataclass(frozen=True)
 class CorrelativeMatch:
-    """T_target_source (4,4) at the peak; score: mean blurred occupancy under the source points
-    (1 when every point lands on a target voxel); runner_up: the best score at least
-    `exclusion_m` from the peak in x-y; ratio = runner_up / score (small: unambiguous)."""
+    """The peak of a correlative x-y-yaw search, and how clearly it stands out.
 
-    T_target_source: np.ndarray
+    Attributes
+    ----------
+    T_target_source : (4, 4) ndarray of float64
+        The pose at the peak: T_init corrected in x, y and yaw.
+    score : float
+        Mean blurred occupancy of the target under the source points there (1 when every point
+        lands on a target voxel; 0 when no target point was in reach, T_target_source then
+        being T_init).
+    runner_up : float
+        The best score at least `CorrelativeConfig.exclusion_m` from the peak in x-y.
+    """
+
+    T_target_source: npt.NDArray[np.float64]
     score: float
     runner_up: float
 
     @property
     def ratio(self) -> float:
+        """``runner_up / score`` (small: unambiguous; 1 when the score is 0)."""
         return self.runner_up / self.score if self.score > 0 else 1.0
 
 
 def correlative_xyh(
-    source: np.ndarray,
-    target: np.ndarray,
-    T_init: np.ndarray,
+    source: npt.ArrayLike,
+    target: npt.ArrayLike,
+    T_init: npt.ArrayLike,
     radius_m: float,
     yaw_radius_rad: float,
     config: CorrelativeConfig = CorrelativeConfig(),
@@ -64,13 +76,40 @@ def correlative_xyh(
     """Best x-y-yaw correction of T_init (source -> target frame) within radius_m and yaw_radius_rad.
 
     The correction rotates about the source cloud's centroid (in the target frame) and then
-    shifts by whole voxels in x and y.
+    shifts by whole voxels in x and y. Depth, pitch and roll stay as T_init has them.
+
+    Parameters
+    ----------
+    source : (N, 3) array_like of float
+        The source cloud, metres, in its own frame; non-empty, finite, within 1e7 m.
+    target : (M, 3) array_like of float
+        The target cloud, metres; non-empty, finite, within 1e7 m.
+    T_init : (4, 4) array_like of float
+        The estimate to correct: ``T_target_source``, a rigid transform.
+    radius_m : float
+        How far to search in x and y, metres, in [0, 1000].
+    yaw_radius_rad : float
+        How far to search in yaw, radians, in [0, pi].
+    config : CorrelativeConfig, optional
+        Grid resolution, yaw step, blur and the runner-up's exclusion radius.
+
+    Returns
+    -------
+    CorrelativeMatch
+        The peak's pose, its score and the runner-up's.
+
+    Raises
+    ------
+    ValueError
+        As for `correlative_xyh_batch`.
     """
     return correlative_xyh_batch([(source, target, T_init, radius_m, yaw_radius_rad)], config)[0]
 
 
 def correlative_xyh_batch(
-    searches: list, config: CorrelativeConfig = CorrelativeConfig(), device=None
+    searches: list[tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike, float, float]],
+    config: CorrelativeConfig = CorrelativeConfig(),
+    device: str | wp.Device | None = None,
 ) -> list[CorrelativeMatch]:
     """`correlative_xyh` for many (source, target, T_init, radius_m, yaw_radius_rad) at once.
 
@@ -80,6 +119,29 @@ def correlative_xyh_batch(
     allow; a search whose direct correlation would take more than MAX_DIRECT_WORK lookups runs
     on the host instead. The two agree to the FFT's float32 rounding of the scores, so they
     find the same peaks but at near-exact ties.
+
+    Parameters
+    ----------
+    searches : list of tuple
+        (source, target, T_init, radius_m, yaw_radius_rad) per search, as `correlative_xyh`
+        takes them.
+    config : CorrelativeConfig, optional
+        The settings of every search.
+    device : str or warp.Device or None, optional
+        None: FFTs on the host; a Warp device: direct correlation there.
+
+    Returns
+    -------
+    list of CorrelativeMatch
+        One per search, in order.
+
+    Raises
+    ------
+    ValueError
+        If a cloud is empty, not (N, 3), not finite or beyond 1e7 m, a T_init is not rigid,
+        radius_m is not in [0, 1000] or yaw_radius_rad not in [0, pi], a search would need a
+        grid of more than 5e7 cells or more than 1e9 cells x yaw steps (a coarser
+        resolution_m or a smaller radius), or `device` is not available.
     """
     device = None if device is None else devices.resolve(device)
     if device is None:  # one search at a time: only one field is held

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 from scipy.spatial import cKDTree
 
@@ -31,39 +33,97 @@ MIN_POINTS = 3  # fewer cannot fix a pose
 
 @dataclasses.dataclass(frozen=True)
 class IcpResult:
-    """T_target_source (4,4); converged; fitness: mean squared inlier distance (m^2);
-    num_inliers; hessian (6,6); eigenvalues (6,) ascending with eigenvectors (6,6) as columns;
-    basis (6,r): the directions with eigenvalue >= lambda_min * num_inliers (r = 6: nothing
-    degenerate)."""
+    """What one ICP alignment found, and how well each direction is constrained.
 
-    T_target_source: np.ndarray
+    Attributes
+    ----------
+    T_target_source : (4, 4) ndarray of float64
+        The alignment: maps source points into the target's frame.
+    converged : bool
+        An update moved less than `IcpConfig.tolerance` within `max_iterations`, with at least
+        `min_inliers` inliers at the result.
+    fitness : float
+        Mean squared distance of the inliers to their nearest target points at the result,
+        m^2; inf when there are none.
+    num_inliers : int
+        Source points with a target point strictly within `max_correspondence_m` at the result.
+    iterations : int
+        Iterations run.
+    hessian : (6, 6) ndarray of float64
+        Gauss-Newton J^T J of the point-to-plane residuals at the result, with respect to
+        GTSAM's Pose3 tangent of T_target_source (rotation, then translation), whichever the
+        method; a direction ICP held (`IcpConfig.free`) contributes nothing.
+    eigenvalues : (6,) ndarray of float64
+        Its eigenvalues, ascending.
+    eigenvectors : (6, 6) ndarray of float64
+        The matching eigenvectors, as columns.
+    basis : (6, r) ndarray of float64
+        The eigenvectors whose eigenvalue reaches ``lambda_min * num_inliers``: the
+        well-constrained directions (r = 6: nothing degenerate).
+    """
+
+    T_target_source: npt.NDArray[np.float64]
     converged: bool
     fitness: float
     num_inliers: int
     iterations: int
-    hessian: np.ndarray
-    eigenvalues: np.ndarray
-    eigenvectors: np.ndarray
-    basis: np.ndarray
+    hessian: npt.NDArray[np.float64]
+    eigenvalues: npt.NDArray[np.float64]
+    eigenvectors: npt.NDArray[np.float64]
+    basis: npt.NDArray[np.float64]
 
     @property
     def degenerate(self) -> bool:
+        """Whether some direction is not well constrained (`basis` has fewer than 6 columns)."""
         return self.basis.shape[1] < 6
 
 
 @dataclasses.dataclass(frozen=True)
 class IcpTarget:
-    """A target cloud prepared for ICP once, for as many alignments as it takes part in:
-    points (M,3), their k-d tree, and their unit normals fitted to `neighbours` points each."""
+    """A target cloud prepared for ICP once, for as many alignments as it takes part in.
 
-    points: np.ndarray
+    Make it with `prepare_target`: `icp_batch` refuses one whose parts do not belong together.
+
+    Attributes
+    ----------
+    points : (M, 3) ndarray of float64
+        The target's points, metres (read-only).
+    tree : scipy.spatial.cKDTree
+        Their k-d tree.
+    normals : (M, 3) ndarray of float64
+        Their unit normals (read-only), each the smallest principal axis of its `neighbours`
+        nearest points.
+    neighbours : int
+        The points each normal was fitted to (`IcpConfig.normal_neighbours`).
+    """
+
+    points: npt.NDArray[np.float64]
     tree: cKDTree
-    normals: np.ndarray
+    normals: npt.NDArray[np.float64]
     neighbours: int
 
 
-def prepare_target(target, config: IcpConfig | None = None) -> IcpTarget:
-    """`target` (M,3) checked, with its k-d tree and normals (config.normal_neighbours)."""
+def prepare_target(target: npt.ArrayLike, config: IcpConfig | None = None) -> IcpTarget:
+    """Check a target cloud and fit its k-d tree and normals, once for many alignments.
+
+    Parameters
+    ----------
+    target : (M, 3) array_like of float
+        The target cloud, metres; at least 3 points, finite, within 1e7 m of the origin.
+    config : IcpConfig or None, optional
+        ICP settings: `normal_neighbours` is read (default: ``IcpConfig()``).
+
+    Returns
+    -------
+    IcpTarget
+        A copy of the points, with their tree and normals.
+
+    Raises
+    ------
+    ValueError
+        If `target` is not an (M, 3) array of real numbers, has fewer than 3 points, NaN or
+        infinite values, or coordinates beyond 1e7 m.
+    """
     config = config or IcpConfig()
     points = np.array(_cloud("target", target))  # a copy: the tree and normals describe these values
     points.setflags(write=False)
@@ -117,18 +177,57 @@ def _plane_system(moved, rotation, source, matched, normals):
     return np.concatenate([d_omega, n_rotated], axis=-1), residuals
 
 
-def icp(source, target, T_init=None, method: str = "point_to_plane", config: IcpConfig | None = None) -> IcpResult:
-    """Align `source` (N,3) to `target` (M,3), starting from T_init (4,4) T_target_source."""
+def icp(
+    source: npt.ArrayLike,
+    target: npt.ArrayLike | IcpTarget,
+    T_init: npt.ArrayLike | None = None,
+    method: str = "point_to_plane",
+    config: IcpConfig | None = None,
+) -> IcpResult:
+    """Align a source cloud to a target cloud (`icp_batch` for one pair).
+
+    Parameters
+    ----------
+    source : (N, 3) array_like of float
+        The source cloud, metres; at least 3 points.
+    target : (M, 3) array_like of float or IcpTarget
+        The target cloud, metres, or one prepared by `prepare_target`.
+    T_init : (4, 4) array_like of float or None, optional
+        Where to start: ``T_target_source``, a rigid transform (None: the identity).
+    method : {"point_to_plane", "point_to_point_xyh"}, optional
+        Point-to-plane with degeneracy-aware updates (Ho, Algorithm 7), or the 2D
+        point-to-point x, y, yaw of Ho's Algorithm 6.
+    config : IcpConfig or None, optional
+        ICP settings (default: ``IcpConfig()``).
+
+    Returns
+    -------
+    IcpResult
+        The alignment ``T_target_source``, whether it converged, its fitness, and how well each
+        direction is constrained.
+
+    Raises
+    ------
+    ValueError
+        As for `icp_batch`.
+    """
     return icp_batch([source], [target], None if T_init is None else [T_init], method, config)[0]
 
 
 def icp_batch(
-    sources, targets, T_inits=None, method: str = "point_to_plane", config: IcpConfig | None = None, device=None
+    sources: Sequence[npt.ArrayLike],
+    targets: Sequence[npt.ArrayLike | IcpTarget],
+    T_inits: npt.ArrayLike | None = None,
+    method: str = "point_to_plane",
+    config: IcpConfig | None = None,
+    device: str | wp.Device | None = None,
 ) -> list[IcpResult]:
-    """Align many (source, target) pairs at once: the neighbour searches run per pair, the normal
-    equations, eigen-decompositions and updates for all pairs together (padded arrays). A
-    target may be an `IcpTarget` (`prepare_target`): its tree and normals are used as they are,
-    so a cloud that is a target many times is prepared once, with the same results.
+    """Align many (source, target) pairs at once.
+
+    The neighbour searches run per pair, the normal equations, eigen-decompositions and
+    updates for all pairs together (padded arrays). A target may be an `IcpTarget`
+    (`prepare_target`): its tree and normals are used as they are, so a cloud that is a target
+    many times is prepared once, with the same results.
 
     With the rotation held (point-to-plane, free="translation"), a pair whose correspondences
     can only cycle stops there, unconverged, before max_iterations (why: the comment at
@@ -138,7 +237,39 @@ def icp_batch(
     GPU; "cpu" runs the same kernel on the host): from one hash grid over every target, all
     pairs in one launch. Both find the nearest point strictly within max_correspondence_m, so
     the results are the same but where two target points are equally near (the tree may pick
-    either; the grid picks the lower index)."""
+    either; the grid picks the lower index).
+
+    Parameters
+    ----------
+    sources : sequence of (N_p, 3) array_like of float
+        The source clouds, metres; at least 3 points each, finite, within 1e7 m of the origin.
+    targets : sequence of (M_p, 3) array_like of float or IcpTarget
+        One target per source, as clouds or prepared by `prepare_target` (with this config's
+        `normal_neighbours`).
+    T_inits : (P, 4, 4) array_like of float or None, optional
+        Where each pair starts: ``T_target_source``, rigid transforms (None: the identity).
+    method : {"point_to_plane", "point_to_point_xyh"}, optional
+        As for `icp`.
+    config : IcpConfig or None, optional
+        ICP settings (default: ``IcpConfig()``).
+    device : str or warp.Device or None, optional
+        Where the nearest neighbours are found: None, the k-d trees; a Warp device, one hash
+        grid.
+
+    Returns
+    -------
+    list of IcpResult
+        One per pair, in order.
+
+    Raises
+    ------
+    ValueError
+        If `method` is unknown, `sources` and `targets` differ in length, a cloud is not an
+        (N, 3) array of real numbers with at least 3 points, finite and within 1e7 m, an
+        IcpTarget's parts do not belong together or were prepared with other
+        `normal_neighbours`, `T_inits` are not one rigid transform per pair, or `device` is
+        not available.
+    """
     config = config or IcpConfig()
     if method not in ("point_to_plane", "point_to_point_xyh"):
         raise ValueError(f"method must be 'point_to_plane' or 'point_to_point_xyh', got {method!r}")

@@ -12,14 +12,26 @@ unambiguous peak, ICP converged near it with a low fitness and enough of the sou
 and a result within the navigation's possible drift of the odometry relative pose. Degenerate
 alignments give partial factors over their well-conditioned directions; the rest get full
 Pose3 factors.
+
+A closure's covariance follows how well ICP's correspondences fix each direction: along an
+eigen-direction of ICP's J^T J with information lambda per inlier, sigma =
+registration_sigma_m / sqrt(lambda). On propeller surveys the closures' errors against the
+rigid truths follow that law (their rms times sqrt(lambda) stays at 0.02-0.03 m from lambda =
+0.005 to 1): a swath's residuals are not independent, a bend or an alias moves them together,
+so a direction carries about one point's worth of information per unit of lambda, not one per
+inlier. Directions below `min_information` per inlier are left to odometry: there the error is
+too large to call the closure right or wrong.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
+import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
@@ -31,26 +43,84 @@ from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
 @dataclasses.dataclass(frozen=True)
 class LoopClosure:
     """A constraint T_world_i^-1 T_world_k = T_i_k for PoseGraph.add_loop_closure, with the
-    evidence it was accepted on."""
+    evidence it was accepted on.
+
+    Attributes
+    ----------
+    i : int
+        The earlier submap.
+    k : int
+        The later submap (the new one when detected).
+    T_i_k : (4, 4) ndarray of float64
+        Where submap k's base pose sits in submap i's frame (ICP's T_target_source, i the
+        target).
+    covariance : (6, 6) ndarray of float64
+        The closure's covariance, GTSAM tangent order (rotation, then translation; rad and m).
+    basis : (6, r) ndarray of float64 or None
+        The directions a partial factor constrains (orthonormal columns); None for a full one.
+    fitness : float
+        ICP's mean squared inlier distance, m^2.
+    num_inliers : int
+        ICP's inliers (source points matched).
+    overlap : float
+        The aligner's overlap score (correlative peak); NaN when it has none.
+    ambiguity : float
+        Runner-up over peak score (0: unambiguous, 1: a tie); NaN when it has none.
+    distance : float
+        Mahalanobis distance from the graph's estimate at entry (NaN: not screened).
+    """
 
     i: int
     k: int
-    T_i_k: np.ndarray
-    covariance: np.ndarray  # (6,6), GTSAM order
-    basis: np.ndarray | None  # (6,r) for a partial factor, None for a full one
-    fitness: float  # mean squared inlier distance, m^2
+    T_i_k: npt.NDArray[np.float64]
+    covariance: npt.NDArray[np.float64]
+    basis: npt.NDArray[np.float64] | None
+    fitness: float
     num_inliers: int
-    overlap: float = np.nan  # the aligner's overlap score (correlative peak)
-    ambiguity: float = np.nan  # runner-up over peak score (0: unambiguous, 1: a tie)
+    overlap: float = np.nan
+    ambiguity: float = np.nan
+    distance: float = np.nan
+
+
+REASONS = ("overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift", "inconsistent")
 
 
 @dataclasses.dataclass(frozen=True)
 class Rejection:
+    """A candidate pair that did not become a closure, and the figure that failed.
+
+    Attributes
+    ----------
+    i : int
+        The earlier submap.
+    k : int
+        The later submap (the new one when detected).
+    reason : str
+        The first test it failed (`REASONS`): "overlap" (correlative peak score), "ambiguous"
+        (runner-up over peak), "not converged" (ICP), "fitness" (mean squared inlier distance),
+        "inliers" (share of the source matched), "refinement" (how far ICP moved the peak),
+        "drift" (offset from the navigation), "inconsistent" (the pose graph's screen).
+    fitness : float
+        ICP's mean squared inlier distance, m^2; NaN when ICP did not run.
+    deviation_m : float
+        x-y offset of ICP's result from the navigation's relative pose; NaN without ICP.
+    value : float
+        The figure that failed, in the test's units (score, ratio, m^2, share, m, or the
+        screen's Mahalanobis distance); NaN for "not converged".
+    limit : float
+        The bound it failed against.
+    T_i_k : ndarray or None
+        (4, 4) what the alignment found (None when ICP did not run), for scoring the verdict.
+    """
+
     i: int
     k: int
-    reason: str  # "overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift"
-    fitness: float  # NaN when ICP did not run ("overlap", "ambiguous")
+    reason: str
+    fitness: float
     deviation_m: float
+    value: float = np.nan
+    limit: float = np.nan
+    T_i_k: npt.NDArray[np.float64] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,12 +177,48 @@ ALIGNERS = {"correlative_icp": correlative_then_icp}
 
 
 class LoopClosureDetector:
-    """Finds loop closures of each new submap with earlier ones. device: None aligns on the host
-    (FFTs and k-d trees); a Warp device runs the correlative searches and ICP's neighbour
-    queries there (`correlative_xyh_batch`, `icp_batch`), with the same closures but at
-    near-exact ties."""
+    """Finds loop closures of each new submap with earlier ones (Ho, thesis 4.2).
 
-    def __init__(self, noise: NavNoise | None = None, config: LoopClosureConfig | None = None, device=None):
+    Candidates (`candidates`) are aligned by the configured aligner (a correlative x-y-yaw
+    search seeding ICP) and accepted or rejected by the criteria of `LoopClosureConfig`
+    (`detect`). A submap's cloud is prepared for ICP once and kept while its points stay the
+    same.
+
+    Parameters
+    ----------
+    noise : NavNoise or None, optional
+        The navigation's drift per second: how far the search looks and how far a result may
+        lie from odometry (default: ``NavNoise()``).
+    config : LoopClosureConfig or None, optional
+        The search, ICP and acceptance settings (default: ``LoopClosureConfig()``).
+    device : str or warp.Device or None, optional
+        None aligns on the host (FFTs and k-d trees); a Warp device runs the correlative
+        searches and ICP's neighbour queries there (`correlative_xyh_batch`, `icp_batch`), with
+        the same closures but at near-exact ties.
+
+    Attributes
+    ----------
+    noise : NavNoise
+        The navigation's drift.
+    config : LoopClosureConfig
+        The settings.
+    device : warp.Device or None
+        Where alignments run (None: the host).
+    seconds : dict of str to float
+        Seconds per phase ("correlative_search", "icp") in the last `detect` call.
+
+    Raises
+    ------
+    ValueError
+        If `device` is not available.
+    """
+
+    def __init__(
+        self,
+        noise: NavNoise | None = None,
+        config: LoopClosureConfig | None = None,
+        device: str | wp.Device | None = None,
+    ):
         self.noise = noise or NavNoise()
         self.config = config or LoopClosureConfig()
         self.device = None if device is None else devices.resolve(device)
@@ -133,8 +239,36 @@ class LoopClosureDetector:
             self.seconds["icp"] += time.perf_counter() - start
         return kept
 
-    def candidates(self, k: int, clouds: list, bounds: list, poses: np.ndarray) -> list[int]:
-        """Earlier submaps worth aligning with k (the thesis's precondition)."""
+    def candidates(
+        self,
+        k: int,
+        clouds: Sequence[npt.NDArray[np.floating]],
+        bounds: Sequence[tuple[npt.NDArray[np.floating], npt.NDArray[np.floating]] | None],
+        poses: npt.NDArray[np.floating],
+    ) -> list[int]:
+        """Earlier submaps worth aligning with k (the thesis's precondition).
+
+        A candidate i is at least `min_separation` before k, both clouds hold at least
+        `min_points` points (and 3), and i's box holds the centroid of k's cloud moved by the
+        current relative estimate; of those, the `max_candidates` whose cloud centroid lies
+        nearest it.
+
+        Parameters
+        ----------
+        k : int
+            The new submap's id.
+        clouds : sequence of (N_i, 3) ndarray of float
+            Each submap's occupied points, metres, in its own frame.
+        bounds : sequence of tuple of two (3,) ndarray of float, or None
+            Each submap's (lo, hi) box in its own frame (`Submap.bounds`), None when empty.
+        poses : (N, 4, 4) ndarray of float
+            The current estimates ``T_world_submap``.
+
+        Returns
+        -------
+        list of int
+            The candidates' ids, ascending.
+        """
         cfg = self.config
         least = max(cfg.min_points, 3)  # ICP's least; fewer points are no cloud to align
         if len(clouds[k]) < least:
@@ -153,13 +287,41 @@ class LoopClosureDetector:
         return sorted(found[j] for j in nearest)
 
     def detect(
-        self, k: int, clouds: list, bounds: list, poses: np.ndarray, nav_poses: np.ndarray, times_s: np.ndarray
+        self,
+        k: int,
+        clouds: Sequence[npt.NDArray[np.floating]],
+        bounds: Sequence[tuple[npt.NDArray[np.floating], npt.NDArray[np.floating]] | None],
+        poses: npt.NDArray[np.floating],
+        nav_poses: npt.NDArray[np.floating],
+        times_s: npt.NDArray[np.floating],
     ) -> tuple[list[LoopClosure], list[Rejection]]:
         """Loop closures of submap k with earlier submaps.
 
-        clouds[i]: (N,3) occupied points in submap i's frame; bounds[i]: its (lo, hi) box or None;
-        poses, nav_poses: (N,4,4) current estimates and navigation poses; times_s: (N,) times of
-        the base poses, for the drift allowed between two submaps.
+        Each candidate is searched within the drift the navigation may have gathered between
+        the two base poses (`drift_sigmas` sigmas, capped at `max_search_m`), aligned, and
+        accepted or rejected by the first test it fails (`Rejection.reason`).
+
+        Parameters
+        ----------
+        k : int
+            The new submap's id.
+        clouds : sequence of (N_i, 3) ndarray of float
+            clouds[i]: submap i's occupied points, metres, in its own frame.
+        bounds : sequence of tuple of two (3,) ndarray of float, or None
+            bounds[i]: its (lo, hi) box in its own frame, or None.
+        poses : (N, 4, 4) ndarray of float
+            Current estimates ``T_world_submap``.
+        nav_poses : (N, 4, 4) ndarray of float
+            Navigation base poses ``T_world_submap_nav``.
+        times_s : (N,) ndarray of float
+            Times of the base poses, seconds, for the drift allowed between two submaps.
+
+        Returns
+        -------
+        closures : list of LoopClosure
+            The accepted closures, for `PoseGraph.add_loop_closure`.
+        rejections : list of Rejection
+            The candidates that failed, with the figure that failed.
         """
         accepted, rejected = [], []
         self.seconds = dict.fromkeys(self.seconds, 0.0)
@@ -188,9 +350,11 @@ class LoopClosureDetector:
             deviation = (
                 np.nan if result is None else float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
             )
-            reason = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
-            if reason:
-                rejected.append(Rejection(i, k, reason, np.nan if result is None else result.fitness, deviation))
+            failed = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
+            if failed:
+                reason, value, limit = failed
+                fitness, found_T = (np.nan, None) if result is None else (result.fitness, result.T_target_source)
+                rejected.append(Rejection(i, k, reason, fitness, deviation, value, limit, found_T))
             else:
                 accepted.append(self._closure(i, k, alignment))
         return accepted, rejected
@@ -199,36 +363,50 @@ class LoopClosureDetector:
         """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma."""
         return self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
 
-    def _rejection(self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float) -> str | None:
+    def _rejection(
+        self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float
+    ) -> tuple[str, float, float] | None:
+        """(reason, the figure that failed, its bound) of the first test failed, or None."""
         cfg, result = self.config, alignment.icp
         if alignment.overlap < cfg.min_overlap_score:
-            return "overlap"
+            return "overlap", alignment.overlap, cfg.min_overlap_score
         if alignment.ambiguity > cfg.max_ambiguity:
-            return "ambiguous"
+            return "ambiguous", alignment.ambiguity, cfg.max_ambiguity
         if result is None or not result.converged:
-            return "not converged"
+            return "not converged", np.nan, np.nan
         if result.fitness > cfg.max_fitness_m2:
-            return "fitness"
+            return "fitness", result.fitness, cfg.max_fitness_m2
         if result.num_inliers < cfg.min_inlier_fraction * source_points:
-            return "inliers"
+            return "inliers", result.num_inliers / source_points, cfg.min_inlier_fraction
         refinement = float(np.linalg.norm((inverse(alignment.T_seed) @ result.T_target_source)[:2, 3]))
         if refinement > cfg.max_refinement_m:
-            return "refinement"
-        if deviation > self._drift_bound(elapsed_s):
-            return "drift"
+            return "refinement", refinement, cfg.max_refinement_m
+        bound = self._drift_bound(elapsed_s)
+        if deviation > bound:
+            return "drift", deviation, bound
         return None
 
     def _closure(self, i: int, k: int, alignment: Alignment) -> LoopClosure:
         cfg, result = self.config, alignment.icp
-        good = result.eigenvalues >= cfg.icp.lambda_min * result.num_inliers
+        inliers = max(result.num_inliers, 1)
+        floor_information = max(cfg.icp.lambda_min, cfg.min_information if cfg.registration_sigma_m > 0 else 0.0)
+        good = result.eigenvalues >= floor_information * inliers
         vectors = result.eigenvectors
-        # sigma^2 H^-1 over the constrained directions; degenerate ones left unconstrained
-        # (a partial factor drops them, a full factor never sees them: r = 6 then).
-        variance = max(result.fitness, 1e-12)
-        covariance = vectors[:, good] @ np.diag(variance / result.eigenvalues[good]) @ vectors[:, good].T
+        # ICP's sigma^2 H^-1 (fitness as sigma^2) over the constrained directions, plus, with
+        # registration_sigma_m, the misfit a bend or an alias moves all the swath's points by:
+        # registration_sigma_m^2 / lambda per inlier. Directions left out are the partial
+        # factor's to drop (a full factor never sees them: r = 6 then); they get a variance of 1
+        # so the matrix stays positive definite.
+        values = result.eigenvalues[good]
+        variance = max(result.fitness, 1e-12) / values + cfg.registration_sigma_m**2 * inliers / values
+        covariance = vectors[:, good] @ np.diag(variance) @ vectors[:, good].T
+        if cfg.registration_sigma_m > 0:  # (without it, the floors keep the matrix definite, as they always did)
+            covariance = covariance + vectors[:, ~good] @ vectors[:, ~good].T
         floor = np.array([cfg.min_sigma_rotation_rad] * 3 + [cfg.min_sigma_translation_m] * 3) ** 2
         covariance = covariance + np.diag(floor)
-        basis = None if good.all() else result.basis
+        if cfg.registration_sigma_m > 0:
+            covariance = (covariance + covariance.T) / 2
+        basis = None if good.all() else vectors[:, good]
         return LoopClosure(
             i,
             k,

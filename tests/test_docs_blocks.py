@@ -1,0 +1,179 @@
+"""Every code block of README.md and the documentation runs as written.
+
+Blocks are collected from the Markdown itself, so a page and its test cannot drift apart. Per
+page, in one fresh working folder and in page order: ```python blocks run in one namespace,
+```bash blocks in a shell with this environment's `vogjax` on PATH, ```toml blocks load as a
+settings file. A block preceded by `<!-- skip: reason -->` is not run (install commands, runs of
+hours); the reason is required. A page that starts from the survey the Getting started page
+maps says so with `<!-- uses: the boxes survey -->`: its folder then starts with that page's
+`boxes.h5` and `maps/boxes`, made once per test session by the same commands. Snippet lines
+(`--8<-- "path"`) are replaced by the file they name, as MkDocs does, so a tutorial script
+included in its page runs here.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+FENCE = re.compile(r"^(?P<indent> *)```(?P<lang>[\w-]*)[^\n]*\n(?P<body>.*?)^(?P=indent)```\s*$", re.S | re.M)
+SKIP = re.compile(r"<!-- skip: (?P<reason>[^>]+?) -->\s*$")
+SNIPPET = re.compile(r'^ *--8<-- "(?P<path>[^"]+)"$', re.M)
+RUN = ("python", "bash", "toml")
+USES_BOXES = "<!-- uses: the boxes survey -->"
+# What docs/getting-started.md runs; pages marked USES_BOXES start from its results. The same
+# commands in any page are run once per session and their outputs copied (the CLI is
+# deterministic: same inputs, same files), which keeps the docs' share of the suite short.
+SURVEY = {
+    "vogjax simulate --scene boxes --scans 600 --out boxes.h5": ["boxes.h5"],
+    "vogjax map boxes.h5 --out maps --quiet": ["maps/boxes"],
+}
+BOXES_SURVEY = "".join(f"{command}\n" for command in SURVEY)
+
+
+@dataclass
+class Block:
+    page: Path
+    line: int
+    lang: str
+    code: str
+    skip: str | None
+
+
+def blocks_of(page: Path) -> list[Block]:
+    text = SNIPPET.sub(lambda m: (ROOT / m.group("path")).read_text(), page.read_text())
+    found = []
+    for match in FENCE.finditer(text):
+        before = text[: match.start()].rstrip("\n").rsplit("\n", 1)[-1]
+        skip = SKIP.search(before)
+        indent = len(match.group("indent"))
+        body = "\n".join(line[indent:] for line in match.group("body").split("\n"))
+        found.append(
+            Block(
+                page,
+                text.count("\n", 0, match.start()) + 1,
+                match.group("lang"),
+                body,
+                skip.group("reason") if skip else None,
+            )
+        )
+    return found
+
+
+def where(block: Block) -> str:
+    return f"{block.page.relative_to(ROOT)}:{block.line}"
+
+
+def run_python(block: Block, namespace: dict) -> None:
+    exec(compile(block.code, where(block), "exec"), namespace)
+
+
+def run_bash(block: Block, folder: Path, survey=None) -> None:
+    """Run a bash block in `folder`; with `survey` (a callable giving the session's survey
+    folder), the survey's own commands copy their outputs from it instead of running again."""
+    lines = []
+    for line in block.code.split("\n"):
+        command = line.split(" #", 1)[0].strip()
+        if survey is not None and command in SURVEY:
+            for output in SURVEY[command]:
+                source = survey() / output
+                copy = shutil.copytree if source.is_dir() else shutil.copy
+                copy(source, folder / output)
+            continue
+        lines.append(line)
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(
+        ["bash", "-euo", "pipefail", "-c", "\n".join(lines)],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, f"{where(block)} exited {done.returncode}:\n{done.stdout}\n{done.stderr}"
+
+
+def check_toml(block: Block) -> None:
+    from vogjax.config import JobConfig
+    from vogjax.config.planner import ExploreConfig
+
+    document = tomllib.loads(block.code)
+    errors = []
+    for cls in (JobConfig, ExploreConfig):
+        try:
+            cls.from_document(document)
+            return
+        except ValueError as error:
+            errors.append(f"{cls.__name__}: {error}")
+    raise AssertionError(f"{where(block)} is not a settings file: {'; '.join(errors)}")
+
+
+PAGES_WITH_BLOCKS = [p for p in PAGES if any(b.lang in RUN for b in blocks_of(p))]
+
+
+@pytest.fixture(scope="session")
+def boxes_survey(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("boxes_survey")
+    run_bash(Block(ROOT / "docs" / "getting-started.md", 0, "bash", BOXES_SURVEY, None), folder)
+    return folder
+
+
+@pytest.mark.parametrize("page", PAGES_WITH_BLOCKS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_page_blocks_run_as_written(page, tmp_path, monkeypatch, request):
+    monkeypatch.chdir(tmp_path)
+    if USES_BOXES in page.read_text():
+        survey = request.getfixturevalue("boxes_survey")
+        shutil.copy(survey / "boxes.h5", tmp_path)
+        shutil.copytree(survey / "maps", tmp_path / "maps")
+    namespace = {"__name__": "__docs__"}
+    for block in blocks_of(page):
+        if block.lang not in RUN or block.skip:
+            continue
+        if block.lang == "python":
+            run_python(block, namespace)
+        elif block.lang == "bash":
+            run_bash(block, tmp_path, survey=lambda: request.getfixturevalue("boxes_survey"))
+        else:
+            check_toml(block)
+
+
+def test_every_block_is_run_or_says_why_not():
+    unknown, skipped = [], []
+    for page in PAGES:
+        for block in blocks_of(page):
+            if block.lang not in (*RUN, "text", "mermaid"):
+                unknown.append(f"{where(block)} ({block.lang or 'no language'})")
+            if block.skip:
+                skipped.append(where(block))
+    assert not unknown, f"blocks of a language the suite neither runs nor shows as output: {unknown}"
+    # skips are for what cannot run here (installs, hours-long runs); keep them rare
+    assert len(skipped) <= 20, skipped
+
+
+def test_the_boxes_survey_is_what_getting_started_runs():
+    page = (ROOT / "docs" / "getting-started.md").read_text()
+    assert f"```bash\n{BOXES_SURVEY}```" in page
+
+
+def test_the_collector_finds_what_it_should(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text(
+        "text\n\n```python\nx = 1\n```\n\n<!-- skip: needs a GPU -->\n```bash\nnvidia-smi\n```\n\n"
+        "- item\n\n  ```python\n  y = x + 1\n  ```\n"
+    )
+    found = blocks_of(page)
+    assert [(b.lang, b.code.strip(), b.skip) for b in found] == [
+        ("python", "x = 1", None),
+        ("bash", "nvidia-smi", "needs a GPU"),
+        ("python", "y = x + 1", None),
+    ]

@@ -1,0 +1,327 @@
+"""Coarse levels: OctoMap's inner nodes (octomap-python's `search(x, depth=16-k)` after
+`updateInnerOccupancy`), kept current through integration and the global map's undo/redo, and
+conservative ray casts (a hypothesis property against a float64 reference walk)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import vogjax as vj
+from vogjax.maps.levels import MAX_LEVEL
+
+from . import reference as ref
+from .submap_helpers import random_pose, random_vog
+
+octomap = pytest.importorskip("octomap")
+LEVELS = range(7)
+
+
+def octomap_tree(cfg, origins, points, scan):
+    tree = octomap.OcTree(cfg.voxel_size)
+    tree.setProbHit(cfg.prob_hit)
+    tree.setProbMiss(cfg.prob_miss)
+    tree.setClampingThresMin(cfg.clamp_min)
+    tree.setClampingThresMax(cfg.clamp_max)
+    for s in range(len(origins)):
+        tree.insertPointCloud(
+            points[scan == s].astype(np.float64), origins[s].astype(np.float64), maxrange=cfg.max_range
+        )
+    tree.updateInnerOccupancy()
+    return tree
+
+
+def octomap_level(tree, voxel_size, level):
+    """{coarse key: float32 log-odds} of every node at depth 16 - level, and of every pruned leaf
+    above it expanded to the coarse voxels it covers (OctoMap's own iterator, no vogjax)."""
+    depth = 16 - level
+    size = voxel_size * 2**level
+    cells = {}
+    for node in tree.begin_tree(depth):
+        d = node.getDepth()
+        if d != depth and not node.isLeaf():
+            continue
+        n = 2 ** (depth - d)
+        corner = np.floor((np.array(node.getCoordinate()) - node.getSize() / 2) / size + 0.5).astype(int)
+        for offset in np.ndindex(n, n, n):
+            cells[tuple((corner + offset).tolist())] = np.float32(node.getValue())
+    return cells
+
+
+def our_level(vmap, level):
+    centres, values = vmap.voxels(level)
+    keys = np.floor(centres / (vmap.config.voxel_size * 2**level)).astype(np.int64)
+    return dict(zip(map(tuple, keys.tolist()), values))
+
+
+@pytest.fixture(scope="module")
+def scans():
+    rng = np.random.default_rng(7)
+    return ref.random_scans(rng, 12, 150, spread=6.0, far=0.1)
+
+
+def test_every_level_equals_octomaps_inner_nodes_bit_for_bit(scans):
+    cfg = vj.MapConfig()
+    origins, points, scan = scans
+    tree = octomap_tree(cfg, origins, points, scan)
+    # levels built after the first half and kept current through the second
+    kept = vj.VoxelMap(cfg)
+    half = len(origins) // 2
+    kept.integrate_scans(origins[:half], points[scan < half], scan[scan < half])
+    assert kept.state(points[:1], level=6).shape == (1,) and kept.levels_kept == 6
+    kept.integrate_scans(origins[half:], points[scan >= half], scan[scan >= half] - half)
+    late = vj.VoxelMap(cfg)  # built once, from the whole map
+    late.integrate_scans(origins, points, scan)
+    rng = np.random.default_rng(1)
+    centres, _ = late.voxels()
+    queries = np.concatenate([centres[rng.choice(len(centres), 1500)] + rng.uniform(-0.4, 0.4, (1500, 3))])
+    for level in LEVELS:
+        expected = octomap_level(tree, cfg.voxel_size, level)
+        assert our_level(kept, level) == expected == our_level(late, level)
+        nodes = [tree.search(q, depth=16 - level) for q in queries]
+        theirs = np.array([_log_odds_or_zero(n) for n in nodes], np.float32)
+        np.testing.assert_array_equal(kept.log_odds(queries, level), theirs)
+        occupied = np.array([_occupied(tree, n, cfg) for n in nodes])
+        np.testing.assert_array_equal(kept.state(queries, level) == vj.OCCUPIED, occupied)
+    assert len(octomap_level(tree, cfg.voxel_size, 0)) > 20_000  # a map of some size
+    assert 0 < len(octomap_level(tree, cfg.voxel_size, 6)) < 200
+
+
+def _log_odds_or_zero(node):
+    try:
+        return node.getLogOdds()
+    except octomap.NullPointerException:
+        return 0.0
+
+
+def _occupied(tree, node, cfg):
+    try:
+        return node.getLogOdds() >= cfg.log_occupied
+    except octomap.NullPointerException:
+        return False
+
+
+def test_coarse_ray_casts_and_lines_walk_the_coarse_voxels(scans):
+    """At level k the queries are level 0's on a map of voxels of voxel_size * 2^k holding the
+    coarse values: the brute-force reference walk on those cells answers the same."""
+    cfg = vj.MapConfig()
+    vmap = vj.VoxelMap(cfg)
+    vmap.integrate_scans(*scans)
+    rng = np.random.default_rng(3)
+    origins, directions = rng.uniform(-1.5, 1.5, (300, 3)), rng.normal(size=(300, 3))
+    ranges = rng.uniform(0.02, 3.0, 300)
+    starts, ends = rng.uniform(-5, 5, (100, 3)), rng.uniform(-5, 5, (100, 3))
+    for level in (1, 2, 3):
+        coarse = dataclasses.replace(cfg, voxel_size=cfg.voxel_size * 2**level)
+        cells = our_level(vmap, level)
+        result = vmap.raycast(origins, directions, ranges, level=level)
+        expected = [ref.raycast(cells, o, d, r, coarse) for o, d, r in zip(origins, directions, ranges)]
+        hit, distance, unknown, free = (np.array(x) for x in zip(*expected))
+        np.testing.assert_array_equal(result.hit, hit)
+        np.testing.assert_allclose(result.distance, distance, rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(result.num_unknown, unknown)
+        np.testing.assert_array_equal(result.num_free, free)
+        assert 20 < hit.sum() < 300 - 20 * (level == 1), hit.sum()  # both outcomes at level 1
+        values, lengths = vmap.line_query(starts, ends, level=level)
+        for i in range(len(starts)):
+            line = ref.line_values(cells, starts[i], ends[i], coarse)
+            assert lengths[i] == len(line)
+            np.testing.assert_array_equal(values[i, : lengths[i]], np.float32(line))
+
+
+def test_coarse_levels_after_loop_closures_equal_a_fresh_merge():
+    rng = np.random.default_rng(11)
+    vog = random_vog(rng, 4)
+    gmap = vj.GlobalMap(vog.config)
+    gmap.merge(vog)
+    gmap.state(np.zeros((1, 3)), level=4)  # levels 1-4 from here on
+    for step in range(4):
+        ids = rng.choice(vog.num_submaps, 2, replace=False)
+        poses = vog.poses(ids)
+        poses[:, :3, 3] += rng.normal(0, 0.3, (2, 3))  # a loop closure's correction
+        vog.set_poses(ids, poses)
+        if step == 2:
+            i = vog.add_submap(random_pose(rng))
+            vog.submap(i).integrate_scans(*ref.random_scans(rng, 2, 60, spread=2.5))
+            gmap.add(vog, [i])
+        report = gmap.update_poses(vog, eps_rot=0.0, eps_trans=0.0)
+        assert len(report.reapplied) == 2
+    fresh = vj.GlobalMap(vog.config)
+    fresh.merge(vog)
+    origins, directions = rng.uniform(-2, 2, (2000, 3)), rng.normal(size=(2000, 3))
+    for level in range(1, 5):
+        ours, theirs = gmap.voxels(level), fresh.voxels(level)
+        np.testing.assert_array_equal(ours[0], theirs[0])
+        np.testing.assert_array_equal(ours[1], theirs[1])
+        assert gmap.store_at(level).live_blocks == fresh.store_at(level).live_blocks
+        a, b = gmap.raycast(origins, directions, 6.0, level), fresh.raycast(origins, directions, 6.0, level)
+        for name in ("hit", "distance", "num_unknown", "num_free"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # and each level is OctoMap's rule on the map's own voxels: the max of the level below
+    for level in range(1, 5):
+        below = our_level(gmap, level - 1)
+        expected = {}
+        for key, value in below.items():
+            parent = tuple(k >> 1 for k in key)
+            expected[parent] = max(expected.get(parent, -np.inf), value)
+        assert our_level(gmap, level) == expected
+
+
+def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps(monkeypatch):
+    merges = []
+    merge = vj.GlobalMap.merge
+    monkeypatch.setattr(vj.GlobalMap, "merge", lambda self, *a, **k: merges.append(1) or merge(self, *a, **k))
+    rng = np.random.default_rng(4)
+    vog = random_vog(rng, 3)
+    s = vog.config.voxel_size
+    points = (np.floor(rng.uniform(-4, 4, (3000, 3)) / s) + 0.5) * s  # level 0 agrees at voxel centres
+    origins, directions = rng.uniform(-2, 2, (500, 3)), rng.normal(size=(500, 3))
+    expected_merges = {"none": 1, "poses": 0, "integrate old": 1, "add": 0, "fill last": 0, "fill last again": 0}
+    for change, merged in expected_merges.items():
+        merges.clear()
+        if change == "poses":
+            vog.set_poses([1], [random_pose(rng)])
+        elif change == "integrate old":  # a submap written after it was summed, no copy kept: merged
+            vog.submap(0).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
+        elif change == "add":
+            i = vog.add_submap(random_pose(rng))
+            vog.submap(i).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
+        elif change.startswith("fill last"):  # the submap being filled: undone from its copy
+            vog.submap(vog.num_submaps - 1).integrate_scans(*ref.random_scans(rng, 1, 40, spread=2.0))
+            vog.set_poses([0], [random_pose(rng)])
+        vog.coarse_map()
+        assert len(merges) == merged, change
+        fresh = vj.GlobalMap(vog.config)
+        fresh.merge(vog)
+        for level in (0, 2, 3):
+            np.testing.assert_array_equal(vog.log_odds(points, level), fresh.log_odds(points, level))
+            np.testing.assert_array_equal(vog.state(points, level), fresh.state(points, level))
+        a, b = vog.raycast(origins, directions, 5.0, level=2), fresh.raycast(origins, directions, 5.0, level=2)
+        np.testing.assert_array_equal(a.hit, b.hit)
+        np.testing.assert_array_equal(a.distance, b.distance)
+        la, lb = vog.line_query(points[:50], points[50:100], 2), fresh.line_query(points[:50], points[50:100], 2)
+        np.testing.assert_array_equal(la[0], lb[0])
+
+
+def test_bad_levels_are_refused_naming_the_argument():
+    vmap = vj.VoxelMap()
+    for bad in (-1, MAX_LEVEL + 1, 1.0, True, "2"):
+        with pytest.raises(ValueError, match=r"^level must be an integer in \[0, 15\]"):
+            vmap.state(np.zeros((1, 3)), level=bad)
+        with pytest.raises(ValueError, match="^level must"):
+            vmap.raycast(np.zeros((1, 3)), np.ones((1, 3)), 1.0, level=bad)
+    assert vmap.levels_kept == 0
+    assert vmap.state(np.zeros((1, 3)), level=MAX_LEVEL).tolist() == [vj.UNKNOWN]
+
+
+# ------------------------------------------------------------------ conservative ray casts
+def reference_hit(cells, origin, direction, max_range, cfg):
+    """(hit key, entry, exit) of the first OCCUPIED voxel of a float64 Amanatides-Woo walk, or None."""
+    s = cfg.voxel_size
+    o, d = np.asarray(origin, np.float64), np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    key = list(ref.key_of(o, s))
+    step = [int(np.sign(c)) for c in d]
+    with np.errstate(over="ignore", divide="ignore"):  # a subnormal component: its boundaries at inf
+        t_max = [((key[i] + (step[i] > 0)) * s - o[i]) / d[i] if step[i] else math.inf for i in range(3)]
+        t_delta = [s / abs(d[i]) if step[i] else math.inf for i in range(3)]
+    t = 0.0
+    while t < max_range:
+        if ref.state_of(cells.get(tuple(key)), cfg) == 2:
+            return tuple(key), t, min(t_max)
+        dim = ref._octomap_dim(t_max)
+        t = t_max[dim]
+        key[dim] += step[dim]
+        t_max[dim] += t_delta[dim]
+    return None
+
+
+coordinate = st.one_of(st.integers(-12, 12).map(lambda k: k * 0.1), st.floats(-1.2, 1.2, allow_nan=False))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    origin=st.tuples(coordinate, coordinate, coordinate),
+    direction=st.tuples(*[st.one_of(st.sampled_from([0.0, 1.0, -1.0, 0.5]), st.floats(-1, 1))] * 3).filter(
+        lambda d: any(abs(c) > 1e-3 for c in d)
+    ),
+    level=st.integers(1, 4),
+)
+def test_a_coarse_ray_never_passes_where_level_0_is_occupied(seed, origin, direction, level):
+    """Wherever level 0 hits a voxel the ray spends more than a millionth of an edge in, the
+    coarse cast hits at or before it; and every OCCUPIED voxel is OCCUPIED at every level."""
+    rng = np.random.default_rng(seed)
+    cfg = vj.MapConfig()
+    vmap = vj.VoxelMap(cfg)
+    vmap.integrate_scans(*ref.random_scans(rng, 3, 40, spread=1.5))
+    cells = our_level(vmap, 0)
+    # rays from the hypothesis origin fanning out, plus the drawn direction (grid-aligned ones too)
+    directions = np.concatenate([np.array([direction]), rng.normal(size=(63, 3))])
+    origins = np.repeat(np.array([origin]), 64, axis=0)
+    fine = vmap.raycast(origins, directions, 4.0)
+    coarse = vmap.raycast(origins, directions, 4.0, level=level)
+    for i in np.flatnonzero(fine.hit):
+        found = reference_hit(cells, origins[i], directions[i], 4.0, cfg)
+        assert found is not None
+        _, t_in, t_out = found
+        if t_out - t_in > 1e-6 * cfg.voxel_size:
+            assert coarse.hit[i] and coarse.distance[i] <= fine.distance[i] + 1e-5
+    centres, values = vmap.voxels()
+    occupied = centres[values >= cfg.log_occupied]
+    jitter = rng.uniform(-0.5, 0.5, occupied.shape) * cfg.voxel_size * 0.999
+    assert np.all(vmap.state(occupied + jitter, level) == vj.OCCUPIED)
+
+
+# ------------------------------------------------------------------ the planner on a coarse level
+def room(rng, voxel_size=0.1):
+    """Free water observed around the origin with a wall in it."""
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=voxel_size, max_range=6.0))
+    wall = np.c_[np.full(600, 1.9), rng.uniform(-1.5, 0.5, 600), rng.uniform(-1, 1, 600)]
+    vmap.integrate_scans(np.zeros((1, 3)), wall, np.zeros(600, np.int64))
+    origins = rng.uniform(-0.3, 0.3, (20, 3))
+    directions = rng.normal(size=(20 * 500, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    vmap.integrate_scans(origins, np.repeat(origins, 500, axis=0) + directions * 3.0, np.repeat(np.arange(20), 500))
+    return vmap
+
+
+def test_the_planner_on_a_coarse_level_plans_as_on_a_map_of_its_voxels():
+    from vogjax import planner
+    from vogjax.geometry import pose_from_xyz_yaw
+    from vogjax.maps.blocks import BlockStore
+
+    vmap = room(np.random.default_rng(2))
+    sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(beams=24, fov_deg=40.0, min_range_m=0.3))
+    bounds = np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]])
+    config = planner.PlannerConfig(
+        edge_length_m=1.0, max_nodes=6, tolerance_nodes=18, gain_range_m=3.0, gain_step_m=0.2, clearance_m=0.6, seed=3
+    )
+    T = pose_from_xyz_yaw(0.1, -0.2, 0.1, 0.4)
+    for level in (1, 2):
+        # the coarse voxels as a map of their own, planned on at level 0
+        keys, layers = vmap.store_at(level).host_blocks()
+        coarse = vj.VoxelMap(dataclasses.replace(vmap.config, voxel_size=vmap.config.voxel_size * 2**level))
+        coarse._store = BlockStore.from_host(coarse.device, coarse.store.layer_specs, keys, layers)
+        ours = planner.NbvPlanner(config.replace(collision_level=level, gain_level=level), bounds, sonar).plan(vmap, T)
+        theirs = planner.NbvPlanner(config, bounds, sonar).plan(coarse, T)
+        np.testing.assert_array_equal(ours.tree_states, theirs.tree_states)
+        assert ours.gain_m3 == theirs.gain_m3 > 0 and ours.rays == theirs.rays
+    # a virtual map's coarse level is its global map's
+    vog = vj.VogMap(vmap.config)
+    vog.add_submap(np.eye(4))
+    vog.submap(0).integrate_scans(np.zeros((1, 3)), vmap.voxels()[0][::50], np.zeros(len(vmap.voxels()[0][::50]), int))
+    gmap = vj.GlobalMap(vmap.config)
+    gmap.merge(vog)
+    mixed = config.replace(collision_level=2, gain_level=1)
+    a = planner.NbvPlanner(mixed, bounds, sonar).plan(vog, T)
+    b = planner.NbvPlanner(mixed, bounds, sonar).plan(gmap, T)
+    np.testing.assert_array_equal(a.tree_states, b.tree_states)
+    i = vog.add_submap(np.eye(4))
+    vog.submap(i).integrate_scans(np.zeros((1, 3)), np.ones((3, 3)), np.zeros(3, int))
+    overlay = planner.Overlay(gmap, vog, [i])
+    with pytest.raises(ValueError, match="level 1: an Overlay has no coarse levels"):
+        planner.NbvPlanner(mixed, bounds, sonar).plan(overlay, T)

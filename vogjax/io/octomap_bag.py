@@ -1,0 +1,144 @@
+"""octomap_msgs/Octomap messages in ROS bags (ROS 1, ROS 2, MCAP), read with the bag reader of
+`vogjax.io.rosbag` and decoded as OctoMap files are (`vogjax.io.octomap_read`).
+
+    message = read_octomap_message("run.bag", "/octomap_full")          # the last one
+    message = read_octomap_message("run.bag", "/octomap_binary", index=0)
+    message = read_octomap_message("run.bag", "/octomap_full", time_s=1.7e9)
+    vmap = vj.VoxelMap.from_octree(message.tree)
+
+A message carries `binary` (occupied/free only, `writeBinaryData`; what octomap_server
+publishes on /octomap_binary) or a full tree (`writeData`, float log-odds; /octomap_full), its
+tree type `id`, `resolution` and the serialised nodes in `data` (no header, so no node count to
+check: the data must hold one whole tree and nothing after it). The message type is registered
+from its definition, so bags without embedded definitions read too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from vogjax.io.octomap_read import OctreeLeaves, decode
+
+OCTOMAP = "octomap_msgs/msg/Octomap"
+OCTOMAP_DEFINITION = """std_msgs/Header header
+bool binary
+string id
+float64 resolution
+int8[] data
+"""
+
+
+@dataclasses.dataclass(frozen=True)
+class OctomapMessage:
+    """One decoded octomap_msgs/Octomap message: the tree, which message of the topic it was
+    (`index` of `count`, 0 first), its header stamp (ns) and frame."""
+
+    tree: OctreeLeaves
+    index: int
+    count: int
+    stamp_ns: int
+    frame: str
+
+
+def typestore():
+    """The message types bags are read with.
+
+    Returns
+    -------
+    rosbags.typesys.store.Typestore
+        The latest ROS 2 types, with octomap_msgs/msg/Octomap registered from its definition.
+    """
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.LATEST)
+    store.register(get_types_from_msg(OCTOMAP_DEFINITION, OCTOMAP))
+    return store
+
+
+def read_octomap_message(bag, topic: str, index: int | None = None, time_s: float | None = None) -> OctomapMessage:
+    """The octomap_msgs/Octomap message of `topic` in `bag`, decoded and checked.
+
+    Parameters
+    ----------
+    bag : str or os.PathLike
+        A ROS 1 .bag, a ROS 2 bag folder, or an .mcap/.db3 file.
+    topic : str
+        The topic of octomap_msgs/Octomap messages.
+    index : int or None
+        Which message: 0 the first, -1 the last (Python's indexing). None: the last, or the
+        one `time_s` picks.
+    time_s : float or None
+        Pick the last message whose header stamp is at or before this time (seconds, the
+        stamps' clock). Not with `index`.
+
+    Returns
+    -------
+    OctomapMessage
+
+    Raises
+    ------
+    ValueError
+        One line naming the bag, the topic or the argument: an unreadable bag, a missing topic
+        or one of another type, no message to pick, or a malformed tree.
+    """
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    from vogjax.io.rosbag import _Damaged
+
+    bag = Path(bag)
+    if index is not None and time_s is not None:
+        raise ValueError("index and time_s pick a message each: give one of them")
+    if index is not None and (isinstance(index, bool) or not isinstance(index, (int, np.integer))):
+        raise ValueError(f"index must be an integer, got {index!r}")
+    if time_s is not None and not np.isfinite(time_s):
+        raise ValueError(f"time_s must be a finite number of seconds, got {time_s!r}")
+    if not bag.exists():
+        raise ValueError(f"bag {str(bag)!r} does not exist")
+    try:
+        with AnyReader([bag], default_typestore=typestore()) as reader:
+            return _read(reader, bag, topic, index, time_s)
+    except (
+        AnyReaderError,
+        FileNotFoundError,
+        NotADirectoryError,
+        IsADirectoryError,
+        PermissionError,
+        UnicodeError,
+    ) as error:
+        raise ValueError(f"bag {str(bag)!r} cannot be read as a ROS 1, ROS 2 or MCAP bag: {error}") from None
+    except _Damaged as damage:
+        raise ValueError(f"bag {str(bag)!r} is damaged: {damage}") from None
+
+
+def _read(reader, bag: Path, topic: str, index, time_s) -> OctomapMessage:
+    from vogjax.io.rosbag import _messages, _stamp_ns, _topic
+
+    connections, _ = _topic(reader, topic, "--octomap", {OCTOMAP})
+    stamps = [_stamp_ns(message.header) for _, message in _messages(reader, connections)]
+    count = len(stamps)
+    if count == 0:
+        raise ValueError(f"--octomap topic {topic!r} holds no messages")
+    if time_s is not None:
+        before = [k for k, stamp in enumerate(stamps) if stamp * 1e-9 <= time_s]
+        if not before:
+            raise ValueError(
+                f"--time {time_s!r}: the {count} messages on {topic!r} are stamped from "
+                f"{min(stamps) * 1e-9:.9f} s on; none at or before it"
+            )
+        chosen = max(before, key=lambda k: (stamps[k], k))
+    elif index is not None:
+        if not -count <= index < count:
+            raise ValueError(
+                f"--index {index}: topic {topic!r} holds {count} messages (0 to {count - 1}, or -1 the last)"
+            )
+        chosen = int(index) % count
+    else:
+        chosen = count - 1
+    message = next(m for k, (_, m) in enumerate(_messages(reader, connections)) if k == chosen)
+    where = f"bag {str(bag)!r} topic {topic!r} message {chosen}"
+    data = np.asarray(message.data).view(np.uint8)
+    tree = decode(data, bool(message.binary), str(message.id), float(message.resolution), where)
+    return OctomapMessage(tree, chosen, count, stamps[chosen], str(message.header.frame_id).lstrip("/"))
