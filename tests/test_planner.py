@@ -606,3 +606,47 @@ def test_planner_rejects_bad_input():
         nbv.plan(vj.VoxelMap(), np.full((4, 4), np.nan))
     with pytest.raises(ValueError, match="map"):
         nbv.plan("map", np.eye(4))
+
+
+def test_edge_seconds_and_the_drift_margin_follow_their_formulas():
+    config = planner.PlannerConfig(max_speed_mps=0.5, max_yaw_rate_rps=0.2, edge_overhead_s=0.7)
+    rng = np.random.default_rng(11)
+    length, turn = rng.uniform(0, 3, 50), rng.uniform(-np.pi, np.pi, 50)
+    expected = [max(a / 0.5, abs(b) / 0.2) + 0.7 for a, b in zip(length, turn)]  # FUEL's time, plus the stop
+    np.testing.assert_allclose(config.edge_seconds(length, turn), expected, rtol=1e-12)
+    assert config.edge_seconds(1.0, 0.0) == pytest.approx(2.7)
+    margins = planner.PlannerConfig(obstacle_margin_m=0.1, drift_margin_sigmas=2.0, max_drift_margin_m=0.5)
+    assert margins.obstacle_margins_m() == (0.1, 0.1, 0.0)
+    assert margins.obstacle_margins_m(0.2) == pytest.approx((0.5, 0.5, 0.0))
+    assert margins.obstacle_margins_m(3.0) == pytest.approx((0.6, 0.6, 0.0))  # capped at 0.5 m of drift margin
+    with pytest.raises(ValueError, match="drift_m"):
+        planner.NbvPlanner(SMALL, bounds=BOUNDS, sensor=SONAR).plan(room_map(rng), np.eye(4), drift_m=-0.1)
+
+
+def test_a_plan_keeps_occupied_voxels_off_by_the_drift_margin_and_is_regrown_when_it_blocks():
+    rng = np.random.default_rng(7)
+    vmap = room_map(rng)
+    T = pose_from_xyz_yaw(0.1, -0.2, 0.1, 0.4)
+    config = SMALL.replace(**TIME_RULE, drift_margin_sigmas=1.0, max_drift_margin_m=0.4)
+
+    def edges(plan):
+        return [(plan.tree_states[parent], plan.tree_states[n]) for n, parent in enumerate(plan.tree_parents) if n]
+
+    def clear(a, b, margins):
+        return brute_clear(vmap, a[:3], b[:3], np.array(config.checked_box_m), T[:3, 3], 0.6, True, margins)
+
+    # every edge of a plan under 0.4 m of drift clears the wider margin (brute force), while some
+    # edge of the plan without drift would not
+    wide = config.obstacle_margins_m(0.4)
+    drifted = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR).plan(vmap, T, drift_m=0.4)
+    assert drifted.score > 0 and drifted.nodes >= SMALL.max_nodes
+    assert all(clear(a, b, wide) for a, b in edges(drifted))
+    plain = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR).plan(vmap, T)
+    assert not all(clear(a, b, wide) for a, b in edges(plain))
+    # a shortest edge longer than any edge blocks the tree: it is grown again with the base
+    # margins and no shortest edge, and each of its edges clears those
+    blocked = config.replace(min_edge_length_m=2 * config.edge_length_m)
+    regrown = planner.NbvPlanner(blocked, bounds=BOUNDS, sensor=SONAR).plan(vmap, T, drift_m=0.4)
+    assert regrown.nodes >= SMALL.max_nodes and regrown.score > 0
+    assert all(clear(a, b, config.obstacle_margins_m()) for a, b in edges(regrown))
+    assert not all(clear(a, b, wide) for a, b in edges(regrown))

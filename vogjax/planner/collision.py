@@ -23,12 +23,13 @@ does not block (the vehicle may leave a wall it came close to, not approach it).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax.kernels import hashing
 from vogjax.kernels import planner_collision as kernels
 from vogjax.maps import parallel
-from vogjax.planner.source import Source, opened
+from vogjax.planner.source import MapLike, Source, opened
 from vogjax.validation import float_array, within_key_range
 
 # Voxels one edge's swept box may cover, at most (a 1 m box along 2 m at 0.1 m: about 15,000).
@@ -36,8 +37,15 @@ MAX_SWEPT_VOXELS = 1 << 26
 
 
 def edges_clear(
-    map_, starts, ends, box_m, vehicle, clearance_m: float = 0.0, layer_only: bool = False, obstacle_margin_m=0.0
-) -> np.ndarray:
+    map_: MapLike,
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    box_m: npt.ArrayLike,
+    vehicle: npt.ArrayLike,
+    clearance_m: float = 0.0,
+    layer_only: bool = False,
+    obstacle_margin_m: float | npt.ArrayLike = 0.0,
+) -> npt.NDArray[np.bool_]:
     """Whether a box swept along each edge is free.
 
     Parameters
@@ -52,7 +60,9 @@ def edges_clear(
     clearance_m : float
         Unknown voxels within this distance of the vehicle count as free.
     layer_only : bool
-        ... and only those within the height of the box at the vehicle.
+        ... and only those within the height of the box at the vehicle; on an edge that
+        moves, an unknown voxel counts as free when its column's voxel at the height of the
+        edge's centre line is FREE (a climb enters only layers seen free).
     obstacle_margin_m : float or array_like (3,)
         OCCUPIED voxels are kept this much farther off (the box grown by it on each side, per
         axis), except those the grown box already holds at the vehicle's position.
@@ -60,6 +70,13 @@ def edges_clear(
     Returns
     -------
     numpy.ndarray, (E,) bool
+        Whether each edge is clear.
+
+    Raises
+    ------
+    ValueError
+        If an argument is malformed, box_m not positive, clearance_m or obstacle_margin_m
+        negative, or the box would leave the map's key range.
     """
     starts = float_array("starts", starts, (-1, 3), np.float64)
     ends = float_array("ends", ends, (starts.shape[0], 3), np.float64)

@@ -45,8 +45,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
+from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
@@ -55,7 +57,7 @@ from vogjax.maps import VogMap
 from vogjax.planner.collision import clear_edges
 from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.graph import ExploredGraph
-from vogjax.planner.source import check_map, opened
+from vogjax.planner.source import MapLike, check_map, opened
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
 from vogjax.validation import float_array, within_key_range
 
@@ -72,13 +74,18 @@ class Plan:
     gain_m3 : float
         The best branch's gain: discounted (the "discounted" rule) or summed over its edges
         ("gain_rate").
-    nodes, iterations, rays : int
-        Nodes grown (the root excluded), samples drawn (remembered nodes included), gain rays cast.
+    nodes : int
+        Nodes grown, the root excluded (a global step: the trip's vertices).
+    iterations : int
+        Samples drawn, remembered nodes included (a global step: the candidates counted).
+    rays : int
+        Gain rays cast.
     seconds : float
         Wall time of the plan.
     tree_states : numpy.ndarray, (N+1, 4) float
+        The whole tree's states (x, y, z, yaw), the root first, for plots.
     tree_parents : numpy.ndarray, (N+1,) int
-        The whole tree (-1: the root's parent), for plots.
+        Each state's parent (-1: the root's).
     score : float
         The value the rule maximised: gain_m3 for "discounted", m^3 per second for "gain_rate".
     first_edge_m3 : float
@@ -106,19 +113,57 @@ def state_of_pose(T_world_vehicle: np.ndarray) -> np.ndarray:
 
 
 class NbvPlanner:
-    """config: PlannerConfig; bounds (2,3): the exploration box the vehicle's box stays in;
-    sensor: the RangeSensor whose gain counts (default: the papers' profiling sonar);
-    region (2,3): where gain counts (default: everywhere); risk: optional callable(starts (E,3),
-    ends (E,3)) -> (E,) collision risk >= 0 of edges (weighted by config.risk_weight)."""
+    """A receding-horizon next-best-view planner (nbvplanner's RRT with Ho's changes for a
+    profiling sonar, a time-aware rule by default, and a global step over the explored graph).
+
+    Parameters
+    ----------
+    config : PlannerConfig, optional
+        The planner's settings (default: `PlannerConfig()`, the time-aware rule).
+    bounds : array_like, (2, 3) float
+        The exploration box (lower, upper corner, metres) the vehicle's box stays in; required.
+    sensor : RangeSensor, optional
+        The sensor whose views gain (default: the papers' profiling sonar); it must have fixed
+        beams.
+    region : array_like, (2, 3) float, optional
+        Where gain counts (default: everywhere).
+    risk : callable, optional
+        ``risk(starts (E,3), ends (E,3)) -> (E,)`` collision risk >= 0 of edges, weighted by
+        ``config.risk_weight`` (required when that is > 0).
+
+    Attributes
+    ----------
+    config : PlannerConfig
+        The settings.
+    bounds : numpy.ndarray, (2, 3) float
+        The exploration box.
+    sample_box : numpy.ndarray, (2, 3) float
+        Where nodes may lie: the bounds shrunk by half the collision box.
+    sensor : RangeSensor
+        The sensor of the gain.
+    region : numpy.ndarray or None
+        Where gain counts.
+    memory : numpy.ndarray, (K, 4) float
+        The rest of the last best branch, which seeds the next tree.
+    graph : ExploredGraph
+        Every tree so far and the states visited, for global steps.
+
+    Raises
+    ------
+    ValueError
+        If config is not a PlannerConfig, bounds is missing, malformed or smaller than the
+        collision box, the sensor has no fixed beams or its range is below gain_range_m, region
+        is malformed, or risk_weight > 0 without a callable risk.
+    """
 
     def __init__(
         self,
         config: PlannerConfig | None = None,
-        bounds=None,
+        bounds: npt.ArrayLike | None = None,
         sensor: RangeSensor | None = None,
-        region=None,
-        risk=None,
-    ):
+        region: npt.ArrayLike | None = None,
+        risk: Callable[[np.ndarray, np.ndarray], npt.ArrayLike] | None = None,
+    ) -> None:
         self.config = config = config or PlannerConfig()
         if not isinstance(config, PlannerConfig):
             raise ValueError(f"config must be a PlannerConfig, got {type(config).__name__}")
@@ -155,7 +200,7 @@ class NbvPlanner:
         """Forget the last best branch (e.g. after the vehicle was moved by hand)."""
         self.memory = np.zeros((0, 4))
 
-    def reposition(self, map_, T_world_vehicle, candidates: int = 48, tries: int = 8) -> Plan:
+    def reposition(self, map_: MapLike, T_world_vehicle: npt.ArrayLike, candidates: int = 48, tries: int = 8) -> Plan:
         """A global step: a trip over the explored graph to the vertex the trees left behind
         with the most gain per second of the whole trip (GBPlanner's repositioning), for when
         the local tree finds little left to see.
@@ -169,15 +214,24 @@ class NbvPlanner:
         Parameters
         ----------
         map_ : vj.VoxelMap, vj.GlobalMap, vj.VogMap or vogjax.planner.Overlay
+            The map the trip's gains and collision checks read (level 0).
         T_world_vehicle : array_like, (4, 4) float
             Where the vehicle is (a plan from it came just before: it is the graph's last vertex).
-        candidates, tries : int
+        candidates : int
+            Unvisited vertices whose gain is counted again.
+        tries : int
+            Trips checked for collisions, best first.
 
         Returns
         -------
         Plan
             waypoints: the trip's vertices (empty when no trip is clear or has gain); gain_m3:
             the target edge's gain; score: gain per second of the trip; branch_s: its time.
+
+        Raises
+        ------
+        ValueError
+            If the map is not one the planner reads or the pose is not rigid.
         """
         check_map(map_)
         cfg = self.config
@@ -240,9 +294,15 @@ class NbvPlanner:
                 )
         return Plan(empty, 0.0, 0, len(pool), rays, time.perf_counter() - start_s, root[None], np.array([-1]))
 
-    def arrived(self, state) -> None:
-        """The vehicle reached `state` (4,) of a global step's trip: a visited vertex of the
-        explored graph, joined to the last by the motion flown."""
+    def arrived(self, state: npt.ArrayLike) -> None:
+        """Record that the vehicle reached a vertex of a global step's trip.
+
+        Parameters
+        ----------
+        state : array_like, (4,) float
+            x, y, z, yaw of the trip's vertex reached: a visited vertex of the explored graph,
+            joined to the last by the motion flown.
+        """
         self.graph.visit(np.asarray(state, np.float64))
 
     def _visible(self, counts: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
@@ -255,12 +315,38 @@ class NbvPlanner:
         weighted = cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1] + cfg.gain_occupied * counts[:, 2]
         return weighted * voxel_m3, unknown_m3
 
-    def plan(self, map_, T_world_vehicle, drift_m: float = 0.0) -> Plan:
-        """Grow a tree from T_world_vehicle (4,4) in `map_` (a VoxelMap, GlobalMap, VogMap or
-        Overlay) and return the best branch. drift_m: how far (one sigma, x-y, metres) the
-        vehicle's estimate may have drifted from where the map put what it holds: occupied
-        voxels are kept `drift_margin_sigmas` times it farther off (at most
-        max_drift_margin_m)."""
+    def plan(self, map_: MapLike, T_world_vehicle: npt.ArrayLike, drift_m: float = 0.0) -> Plan:
+        """Grow a tree from the vehicle's pose and return its best branch.
+
+        The remembered rest of the last best branch seeds the tree; rounds of samples grow it
+        to N_max nodes once its best branch gains something (else to N_tol). A tree that gains
+        nothing under the drift margin or the shortest edge is grown again without them (both
+        are preferences; the box and its margins stay).
+
+        Parameters
+        ----------
+        map_ : vj.VoxelMap, vj.GlobalMap, vj.VogMap or vogjax.planner.Overlay
+            The map; collision checks and gain rays read its `collision_level` and `gain_level`
+            (coarse levels need a VoxelMap, GlobalMap or VogMap).
+        T_world_vehicle : array_like, (4, 4) float
+            The vehicle's (estimated) pose.
+        drift_m : float, optional
+            How far (one sigma, x-y, metres) the vehicle's estimate may have drifted from where
+            the map put what it holds: occupied voxels are kept `drift_margin_sigmas` times it
+            farther off (at most max_drift_margin_m).
+
+        Returns
+        -------
+        Plan
+            The best branch (waypoints, nearest first), its gain, score and time, and the tree.
+
+        Raises
+        ------
+        ValueError
+            If the map is not one the planner reads (or has no coarse level asked for), the
+            pose is not rigid, drift_m is negative or not finite, or the bounds and range would
+            leave the map's key range.
+        """
         check_map(map_)
         if not (np.isfinite(drift_m) and drift_m >= 0):
             raise ValueError(f"drift_m must be a non-negative number, got {drift_m!r}")

@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax.config import MapConfig
@@ -42,7 +43,7 @@ class Overlay:
         Every submap of this map lies on top as well, at its pose (same MapConfig).
     """
 
-    def __init__(self, base: GlobalMap, vog: VogMap, ids, extra: VogMap | None = None):
+    def __init__(self, base: GlobalMap, vog: VogMap, ids: npt.ArrayLike, extra: VogMap | None = None) -> None:
         if not isinstance(base, GlobalMap):
             raise ValueError(f"base must be a vj.GlobalMap, got {type(base).__name__}")
         if not isinstance(vog, VogMap):
@@ -57,6 +58,10 @@ class Overlay:
             raise ValueError(f"ids: submaps {clash or self.ids} are already in base (or repeated)")
         self.base, self.vog, self.extra = base, vog, extra
         self.config, self.device = base.config, base.device
+
+
+# What the planner's queries read: a map, the virtual map or a global map with submaps on top.
+MapLike = VoxelMap | GlobalMap | VogMap | Overlay
 
 
 @dataclasses.dataclass(frozen=True)
