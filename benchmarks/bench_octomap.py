@@ -12,6 +12,11 @@ Measures, in one run and side by side:
   octomap-python's OcTree.readBinary / OcTree.read (medians of --repeats, kernels compiled).
 
     python benchmarks/bench_octomap.py --out benchmarks/results [--scans 1500] [--rays 100000]
+
+On a loaded machine, `--cpu-time` times the process's CPU seconds instead of wall seconds (a
+job preempted by others is not charged for their turn), and `--sections rays,maintenance` runs
+only those sections (printed as JSON on stdout, no results file written): how the ray-cast and
+level-maintenance figures were compared against the main branch's code, run alternately.
 """
 
 from __future__ import annotations
@@ -37,16 +42,18 @@ from vogjax.pipeline.probes import planner_rays
 from vogjax.scenes import analytic
 
 RAY_LENGTHS_M = (5.0, 11.0)  # the planner's gain range, and the sonar's reach
+SECTIONS = ("maintenance", "rays", "builds", "global", "loading", "exploration")
+CLOCK = time.perf_counter  # the timer of every measurement (--cpu-time: time.process_time)
 
 
 def timed(call, repeats: int = 1):
     """(median seconds, every run's seconds, the last result) of `repeats` calls."""
     runs, result = [], None
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = CLOCK()
         result = call()
         wp.synchronize()
-        runs.append(time.perf_counter() - start)
+        runs.append(CLOCK() - start)
     return statistics.median(runs), runs, result
 
 
@@ -105,12 +112,12 @@ def maintenance(origins, points, scan, device, chunk: int) -> tuple[dict, list]:
         for j in range(len(kinds)):
             m = (j + k) % len(kinds)
             levels, every = kinds[m]
-            start = time.perf_counter()
+            start = CLOCK()
             maps[m].integrate_scans(origins[first : first + part.max() + 1], points[rows], part)
             if levels and (done % every == 0 or hi == len(scan) or every <= chunk):
                 maps[m].store_at(levels)
             wp.synchronize()
-            seconds[m] += time.perf_counter() - start
+            seconds[m] += CLOCK() - start
     scans = int(scan.max() + 1)
     base = seconds[0]
     row = {"scans_per_call": chunk, "calls": len(bounds), "ms_per_scan": {}, "overhead_percent": {}}
@@ -324,10 +331,29 @@ def main():
     parser.add_argument("--bt-voxels", type=int, default=3_000_000)
     parser.add_argument("--explore-submaps", type=int, default=20, help="0: no exploration runs")
     parser.add_argument("--device", default=None)
+    parser.add_argument("--cpu-time", action="store_true", help="time CPU seconds of the process, not wall seconds")
+    parser.add_argument(
+        "--sections", default=",".join(SECTIONS), help=f"comma-separated subset of {','.join(SECTIONS)}"
+    )
     args = parser.parse_args()
+    sections = args.sections.split(",")
+    if unknown := set(sections) - set(SECTIONS):
+        parser.error(f"--sections: unknown {', '.join(sorted(unknown))} (choose from {', '.join(SECTIONS)})")
+    global CLOCK
+    if args.cpu_time:
+        CLOCK = time.process_time
     device = vj.VoxelMap(device=args.device).device
     origins, points, scan = pier_scans(args.scans)
     warm_up(origins, points, scan, device)
+    if set(sections) != set(SECTIONS):  # a partial run: its figures on stdout, no results file
+        per_scan, maps = maintenance(origins, points, scan, device, chunk=1)
+        partial = {"clock": CLOCK.__name__, "load_average": list(os.getloadavg())}
+        if "maintenance" in sections:
+            partial["maintenance"] = [per_scan, maintenance(origins, points, scan, device, chunk=100)[0]]
+        if "rays" in sections:
+            partial["ray_casts"] = rays_by_level(maps[0], args.rays, args.repeats)
+        print(json.dumps(partial, indent=1))
+        return
     per_scan, maps = maintenance(origins, points, scan, device, chunk=1)
     per_batch, _ = maintenance(origins, points, scan, device, chunk=100)
     vmap = maps[0]

@@ -8,7 +8,9 @@ the maximum over the children's maxima is the maximum over all their voxels.
 
 A coarse block (8^3 voxels of level k) covers 2 x 2 x 2 blocks of level k - 1: its octant o
 holds the coarse voxels whose children fill child block 2 B + o, so one thread per (block,
-octant) finds that child block once and writes its 64 coarse voxels.
+octant) finds that child block once and writes its 64 coarse voxels. It also says whether any
+of them changed, bit for bit: a coarse block whose voxels all stayed gives its parent nothing new,
+so the level above need not recompute it (nor the levels above that, when none changed).
 """
 
 import warp as wp
@@ -26,6 +28,20 @@ def larger_observed(best: wp.float32, value: wp.float32) -> wp.float32:
     return best
 
 
+# Bits of fill_coarse_blocks' octant_flags.
+OCTANT_OBSERVED = wp.constant(1)  # the octant holds an observed voxel
+OCTANT_CHANGED = wp.constant(2)  # a voxel of the octant now holds other bits than before
+
+
+@wp.func
+def same_value(a: wp.float32, b: wp.float32) -> bool:
+    """Whether two log-odds are the same bits: both unobserved (NaN), or equal and, if zero, of
+    the same sign (a parent's maximum keeps the sign of the zero it copies)."""
+    if not observed(a):
+        return not observed(b)
+    return a == b and (a != wp.float32(0.0) or wp.sign(wp.float32(1.0) / a) == wp.sign(wp.float32(1.0) / b))
+
+
 @wp.kernel
 def fill_coarse_blocks(
     keys: wp.array(dtype=wp.int64),
@@ -35,11 +51,12 @@ def fill_coarse_blocks(
     child_table_slots: wp.array(dtype=wp.int32),
     child_log_odds: wp.array(dtype=wp.float32),
     log_odds: wp.array(dtype=wp.float32),
-    observed_octants: wp.array(dtype=wp.int32),
+    octant_flags: wp.array(dtype=wp.int32),
 ):
     """Recompute every voxel of the coarse blocks with packed keys `keys` (all in the coarse
     store's table) from the level below (child_*). One thread per (block, octant): tid = 8 b + o;
-    observed_octants[tid] = 1 when the octant holds an observed voxel (0: the block may be empty)."""
+    octant_flags[tid] has OCTANT_OBSERVED when the octant holds an observed voxel (none in all
+    eight: the block is empty) and OCTANT_CHANGED when one of its voxels changed."""
     tid = wp.tid()
     key = keys[tid / 8]
     slot = find_slot(table_keys, table_slots, key)
@@ -53,6 +70,7 @@ def fill_coarse_blocks(
     base = slot * BLOCK_VOXELS
     child_base = child_slot * BLOCK_VOXELS
     seen = int(0)
+    changed = int(0)
     for lx in range(4):
         for ly in range(4):
             for lz in range(4):
@@ -61,8 +79,10 @@ def fill_coarse_blocks(
                     for c in range(8):
                         child = wp.vec3i(2 * lx + ((c >> 2) & 1), 2 * ly + ((c >> 1) & 1), 2 * lz + (c & 1))
                         best = larger_observed(best, child_log_odds[child_base + index_in_block(child)])
-                voxel = wp.vec3i(4 * ox + lx, 4 * oy + ly, 4 * oz + lz)
-                log_odds[base + index_in_block(voxel)] = best
+                index = base + index_in_block(wp.vec3i(4 * ox + lx, 4 * oy + ly, 4 * oz + lz))
+                if not same_value(log_odds[index], best):
+                    changed = OCTANT_CHANGED
+                log_odds[index] = best
                 if observed(best):
-                    seen = 1
-    observed_octants[tid] = seen
+                    seen = OCTANT_OBSERVED
+    octant_flags[tid] = seen | changed

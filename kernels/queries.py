@@ -8,6 +8,7 @@ import warp as wp
 from .hashing import (
     BLOCK_VOXELS,
     EMPTY_KEY,
+    VOXEL_KEY_LIMIT,
     VOXEL_KEY_LIMIT_C,
     find_voxel_slot,
     grid_slot,
@@ -132,6 +133,8 @@ def check_rays(
         wp.atomic_min(first_bad, BAD_RANGE, tid)
 
 
+# The key range's half-width in voxels, as a float64 (ray_cast_start).
+KEY_LIMIT_VOXELS = wp.constant(wp.float64(VOXEL_KEY_LIMIT))
 # A stretch of unknown voxels longer than this is counted in closed form, not walked.
 SKIP_VOXELS = wp.constant(64)
 
@@ -164,23 +167,53 @@ def ray_cast_start(
 ) -> RayCastStart:
     """The start of a ray cast along unit `direction` over a map whose blocks lie in
     [grid_lo, grid_hi] (block coordinates; hi < lo: no blocks). Every voxel outside that box is
-    unknown, so a stretch of more than SKIP_VOXELS voxels before it is skipped and counted."""
+    unknown, so a stretch of more than SKIP_VOXELS voxels before it is skipped and counted.
+
+    Every ray pays this once, whatever it walks after, so the common cases take a shorter way
+    to the same bits: a ray that cannot leave the key range within its range has its range as
+    its end (no distance to the key range's faces), and a ray starting in the map's box has no
+    stretch before it, so only its distance to the box's exit faces is needed."""
     w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
     lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))
     hi = wp.vec3d(wp.float64(grid_hi[0] * 8 + 9), wp.float64(grid_hi[1] * 8 + 9), wp.float64(grid_hi[2] * 8 + 9))
-    span = ray_box_span(origin, direction, lo * resolution, hi * resolution)
-    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
-        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
+    lo = lo * resolution
+    hi = hi * resolution
     s = RayCastStart()
     s.voxel = w.voxel
     s.t_max = w.t_max
     s.t_delta = w.t_delta
     s.step = w.step
     s.t_entry = wp.float64(0.0)
-    s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
-    s.t_after = span[1]
     s.max_steps = w.max_steps
     s.skipped = 0
+    # Every face of the key range lies more than twice the range beyond |origin| + range, so
+    # each distance to one exceeds the range (a unit direction's components are at most 1 + a
+    # few ulps): ray_key_range could only give a larger end, and the minimum is the range.
+    reach = wp.max(wp.max(wp.abs(origin[0]), wp.abs(origin[1])), wp.abs(origin[2])) + max_range
+    if reach + reach < KEY_LIMIT_VOXELS * resolution:
+        s.t_end = max_range
+    else:
+        s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
+    inside = (
+        grid_hi[0] >= grid_lo[0]
+        and origin[0] >= lo[0]
+        and origin[0] <= hi[0]
+        and origin[1] >= lo[1]
+        and origin[1] <= hi[1]
+        and origin[2] >= lo[2]
+        and origin[2] <= hi[2]
+    )
+    if inside:  # ray_box_span's t_out: per axis the larger of its two distances, the exit face's
+        t_out = FAR
+        for i in range(3):
+            face = wp.where(direction[i] > wp.float64(0.0), hi[i], lo[i])
+            t_out = wp.where(direction[i] != wp.float64(0.0), wp.min(t_out, (face - origin[i]) / direction[i]), t_out)
+        s.t_after = t_out
+        return s
+    span = ray_box_span(origin, direction, lo, hi)
+    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
+        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
+    s.t_after = span[1]
     if span[0] > wp.float64(0.0) and span[0] < s.t_end:  # a long unknown stretch before the map: skip it
         target = ray_voxel_at(origin, direction, w.voxel, w.step, inv_resolution, span[0])
         skipped = l1_distance(w.voxel, target)

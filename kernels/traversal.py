@@ -125,22 +125,27 @@ def segment_walk_begin(
 def ray_walk_begin(
     origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64, inv_resolution: wp.float64, max_range: wp.float64
 ) -> VoxelWalk:
+    # Branch-free: a direction's signs are random from ray to ray, so a branch on each
+    # mispredicts about half the time (a few of them cost more than the rest of the set-up).
+    # Each axis computes both sides and selects one: the same operations, the same bits.
     w = VoxelWalk()
-    w.voxel = voxel_key_d(origin, inv_resolution)
-    w.last = w.voxel
+    voxel = voxel_key_d(origin, inv_resolution)
+    w.voxel = voxel
+    w.last = voxel
     w.length = max_range
-    w.step = wp.vec3i(0, 0, 0)
-    w.t_max = wp.vec3d(FAR, FAR, FAR)
-    w.t_delta = wp.vec3d(FAR, FAR, FAR)
+    step = wp.vec3i(0, 0, 0)
+    t_max = wp.vec3d(FAR, FAR, FAR)
+    t_delta = wp.vec3d(FAR, FAR, FAR)
     for i in range(3):
-        if direction[i] > wp.float64(0.0):
-            w.step[i] = 1
-            w.t_max[i] = (wp.float64(w.voxel[i] + 1) * resolution - origin[i]) / direction[i]
-        elif direction[i] < wp.float64(0.0):
-            w.step[i] = -1
-            w.t_max[i] = (wp.float64(w.voxel[i]) * resolution - origin[i]) / direction[i]
-        if w.step[i] != 0:
-            w.t_delta[i] = resolution / wp.abs(direction[i])
+        up = direction[i] > wp.float64(0.0)
+        moves = direction[i] != wp.float64(0.0)
+        step[i] = wp.where(up, 1, wp.where(moves, -1, 0))
+        face = wp.float64(voxel[i] + wp.where(up, 1, 0)) * resolution  # the far face: above, or below
+        t_max[i] = wp.where(moves, (face - origin[i]) / direction[i], FAR)
+        t_delta[i] = wp.where(moves, resolution / wp.abs(direction[i]), FAR)
+    w.step = step
+    w.t_max = t_max
+    w.t_delta = t_delta
     # in float64 and capped: 3 * int(range / s) overflows int32 for ranges above ~7e7 voxels
     w.max_steps = 3 * int(wp.min(max_range * inv_resolution, KEY_SPAN)) + 6
     w.active = max_range > wp.float64(0.0)
@@ -224,12 +229,11 @@ def ray_voxels_until(
 @wp.func
 def ray_key_range(origin: wp.vec3d, direction: wp.vec3d, resolution: wp.float64, limit: int) -> wp.float64:
     """Distance at which the ray leaves the key range [-limit, limit) voxels per axis."""
+    bound = wp.float64(limit) * resolution  # float64(-limit) * resolution is exactly -bound
     t = FAR
-    for i in range(3):
-        if direction[i] > wp.float64(0.0):
-            t = wp.min(t, (wp.float64(limit) * resolution - origin[i]) / direction[i])
-        elif direction[i] < wp.float64(0.0):
-            t = wp.min(t, (wp.float64(-limit) * resolution - origin[i]) / direction[i])
+    for i in range(3):  # branch-free, as in ray_walk_begin
+        face = wp.where(direction[i] > wp.float64(0.0), bound, -bound)
+        t = wp.where(direction[i] != wp.float64(0.0), wp.min(t, (face - origin[i]) / direction[i]), t)
     return t
 
 
@@ -239,15 +243,14 @@ def ray_box_span(origin: wp.vec3d, direction: wp.vec3d, lo: wp.vec3d, hi: wp.vec
     (t_in > t_out) when it misses."""
     t_in = -FAR
     t_out = FAR
-    for i in range(3):
-        if direction[i] == wp.float64(0.0):
-            if origin[i] < lo[i] or origin[i] > hi[i]:
-                return wp.vec2d(FAR, -FAR)
-        else:
-            a = (lo[i] - origin[i]) / direction[i]
-            b = (hi[i] - origin[i]) / direction[i]
-            t_in = wp.max(t_in, wp.min(a, b))
-            t_out = wp.min(t_out, wp.max(a, b))
+    for i in range(3):  # branch-free, as in ray_walk_begin
+        a = (lo[i] - origin[i]) / direction[i]
+        b = (hi[i] - origin[i]) / direction[i]
+        # parallel to the slab: every t inside it, none outside
+        inside = origin[i] >= lo[i] and origin[i] <= hi[i]
+        moves = direction[i] != wp.float64(0.0)
+        t_in = wp.where(moves, wp.max(t_in, wp.min(a, b)), wp.where(inside, t_in, FAR))
+        t_out = wp.where(moves, wp.min(t_out, wp.max(a, b)), wp.where(inside, t_out, -FAR))
     return wp.vec2d(t_in, t_out)
 
 

@@ -16,10 +16,14 @@ from __future__ import annotations
 import functools
 
 from . import analytic
-from .builtin import BUILDERS
+from .builtin import BUILDERS as _SONAR_SCENES
 from .scene import FREE, INSIDE, OCCUPIED, GroundTruth, Scene
+from .warehouse import warehouse
 
+BUILDERS = {**_SONAR_SCENES, "warehouse": warehouse}
 NAMES = tuple(BUILDERS)
+# scenes a ground vehicle drives (a floor at z = 0, a route on it): mapped with a spinning lidar
+GROUND_SCENES = ("warehouse",)
 
 
 def load(name: str) -> Scene:
@@ -28,7 +32,8 @@ def load(name: str) -> Scene:
     Parameters
     ----------
     name : str
-        One of NAMES: "propeller", "pilings", "tank", "boxes".
+        One of NAMES: "propeller", "pilings", "tank", "boxes" (sonar scenes of the papers'
+        experiments) or "warehouse" (a ground scene for a spinning lidar: GROUND_SCENES).
 
     Returns
     -------
@@ -54,4 +59,4 @@ def _load(name: str) -> Scene:
     return scene
 
 
-__all__ = ["FREE", "INSIDE", "NAMES", "OCCUPIED", "GroundTruth", "Scene", "analytic", "load"]
+__all__ = ["FREE", "GROUND_SCENES", "INSIDE", "NAMES", "OCCUPIED", "GroundTruth", "Scene", "analytic", "load"]

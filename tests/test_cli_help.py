@@ -115,8 +115,9 @@ def test_every_subcommand_has_a_description_defaults_and_examples_that_parse(cap
 
 def test_help_shows_defaults_and_lists_choices_in_the_usage(capsys):
     simulate = help_of(capsys, "simulate")
-    assert "--scene {propeller,pilings,tank,boxes}" in " ".join(simulate.split())
-    assert "sonar range noise (Gaussian), metres (default: 0.02)" in " ".join(simulate.split())
+    assert "--scene {propeller,pilings,tank,boxes,warehouse}" in " ".join(simulate.split())
+    assert "--sensor {sonar,lidar}" in " ".join(simulate.split())
+    assert "range noise (Gaussian), metres (default: 0.02)" in " ".join(simulate.split())
     assert "(default: 0)" in simulate  # --seed
     demo = " ".join(help_of(capsys, "demo").split())
     assert "(default: demo_out)" in demo and "(default: 2)" in demo and "(default: propeller)" in demo

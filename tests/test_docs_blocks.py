@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,29 +80,85 @@ def run_python(block: Block, namespace: dict) -> None:
     exec(compile(block.code, where(block), "exec"), namespace)
 
 
-def run_bash(block: Block, folder: Path, survey=None) -> None:
-    """Run a bash block in `folder`; with `survey` (a callable giving the session's survey
-    folder), the survey's own commands copy their outputs from it instead of running again."""
-    lines = []
-    for line in block.code.split("\n"):
+# A line that is one `vogjax` command (optionally `> file`) runs in this process, through the same
+# entry point as the console script: each subprocess would pay the imports and the JIT again
+# (seconds each on 2 cores). Anything else (pipes, `||`, heredocs, other programs) runs in bash.
+IN_PROCESS = re.compile(r"^vogjax(?P<args>(?: [^|&;<>$`\\(){}]*)?)(?: > (?P<out>[\w./-]+))?$")
+
+
+def run_vogjax(argv: list[str], out: str | None, where_: str) -> None:
+    import contextlib
+    import io
+
+    from vogjax.cli import main
+
+    stdout, stderr = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            code = main(argv)
+    except SystemExit as done:
+        code = done.code or 0
+    assert code == 0, f"{where_}: vogjax {' '.join(argv)} exited {code}:\n{stdout.getvalue()}\n{stderr.getvalue()}"
+    if out is not None:
+        Path(out).write_text(stdout.getvalue())
+
+
+def segments(code: str) -> list[tuple[str, str]]:
+    """The block as ("vogjax", line) and ("bash", lines) pieces, in order; heredocs stay whole."""
+    pieces: list[tuple[str, str]] = []
+    lines = code.replace("\\\n", " ").split("\n")
+    heredoc = None
+    for line in lines:
         command = line.split(" #", 1)[0].strip()
-        if survey is not None and command in SURVEY:
-            for output in SURVEY[command]:
+        if heredoc is None and IN_PROCESS.match(command):
+            pieces.append(("vogjax", command))
+            continue
+        if heredoc is None:
+            opened = re.search(r"<<-?\s*'?(\w+)'?", command)
+            heredoc = opened.group(1) if opened else None
+        elif line.strip() == heredoc:
+            heredoc = None
+        if pieces and pieces[-1][0] == "bash":
+            pieces[-1] = ("bash", pieces[-1][1] + "\n" + line)
+        else:
+            pieces.append(("bash", line))
+    return [(kind, text.rstrip()) for kind, text in pieces if text.strip()]
+
+
+def run_bash(block: Block, folder: Path, survey=None) -> None:
+    """Run a bash block in `folder` (the working folder); with `survey` (a callable giving the
+    session's survey folder), the survey's own commands copy their outputs from it instead."""
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    for kind, text in segments(block.code):
+        if survey is not None and text in SURVEY:
+            for output in SURVEY[text]:
                 source = survey() / output
                 copy = shutil.copytree if source.is_dir() else shutil.copy
                 copy(source, folder / output)
-            continue
-        lines.append(line)
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    done = subprocess.run(
-        ["bash", "-euo", "pipefail", "-c", "\n".join(lines)],
-        cwd=folder,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert done.returncode == 0, f"{where(block)} exited {done.returncode}:\n{done.stdout}\n{done.stderr}"
+        elif kind == "vogjax":
+            match = IN_PROCESS.match(text)
+            with _working_folder(folder):
+                run_vogjax(shlex.split(match.group("args")), match.group("out"), where(block))
+        else:
+            done = subprocess.run(
+                ["bash", "-euo", "pipefail", "-c", text],
+                cwd=folder,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=600,
+            )
+            assert done.returncode == 0, f"{where(block)} exited {done.returncode}:\n{done.stdout}\n{done.stderr}"
+
+
+@contextmanager
+def _working_folder(folder: Path):
+    before = Path.cwd()
+    os.chdir(folder)
+    try:
+        yield
+    finally:
+        os.chdir(before)
 
 
 def check_toml(block: Block) -> None:
@@ -176,4 +234,20 @@ def test_the_collector_finds_what_it_should(tmp_path):
         ("python", "x = 1", None),
         ("bash", "nvidia-smi", "needs a GPU"),
         ("python", "y = x + 1", None),
+    ]
+
+
+def test_a_block_splits_into_vogjax_commands_and_bash_in_order():
+    code = (
+        "vogjax --version   # which one\n"
+        "cat > quick.toml <<'EOF'\n[pipeline]\nvogjax = 1\nEOF\n"
+        "vogjax config --defaults > settings.toml\n"
+        'vogjax map boxes.h5 --out maps || echo "exit status $?"\n'
+        "ls maps\n"
+    )
+    assert segments(code) == [
+        ("vogjax", "vogjax --version"),
+        ("bash", "cat > quick.toml <<'EOF'\n[pipeline]\nvogjax = 1\nEOF"),
+        ("vogjax", "vogjax config --defaults > settings.toml"),
+        ("bash", 'vogjax map boxes.h5 --out maps || echo "exit status $?"\nls maps'),
     ]

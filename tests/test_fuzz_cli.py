@@ -98,7 +98,8 @@ def workspace_factory(template, tmp_path_factory):
 
 def run_cli(argv, capsys):
     """(exit code, stdout, stderr) of `vogjax argv`; any exception but SystemExit escapes."""
-    with bounded("vogjax " + " ".join(map(str, argv))):
+    # a command may compile the vehicle or a kernel first: seconds alone, a minute on a loaded machine
+    with bounded("vogjax " + " ".join(map(str, argv)), limit_s=120.0):
         try:
             code = cli.main([str(a) for a in argv])
         except SystemExit as exit:

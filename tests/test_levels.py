@@ -170,6 +170,65 @@ def test_coarse_levels_after_loop_closures_equal_a_fresh_merge():
         assert our_level(gmap, level) == expected
 
 
+def _levels_equal(ours, theirs, levels):
+    for level in levels:
+        a, b = ours.voxels(level), theirs.voxels(level)
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1].view(np.int32), b[1].view(np.int32))  # bit for bit
+
+
+def test_levels_updated_after_every_scan_equal_a_fresh_build_at_every_step(monkeypatch):
+    """A level recomputes only the blocks whose children changed (a block that kept its bits
+    gives its parent nothing new), so an update after each scan often stops after a level or
+    two: after every scan, every level equals one built from scratch, and propagation stopped
+    early at least once (the pruned path ran)."""
+    from vogjax.maps import levels as levels_module
+
+    stopped = []
+    recompute = levels_module.Levels._recompute
+
+    def counting(self, level, below, keys):
+        changed = recompute(self, level, below, keys)
+        stopped.append(len(changed) < len(keys))
+        return changed
+
+    monkeypatch.setattr(levels_module.Levels, "_recompute", counting)
+    cfg = vj.MapConfig()
+    rng = np.random.default_rng(3)
+    origins, points, scan = ref.random_scans(rng, 24, 120, spread=4.0)
+    kept = vj.VoxelMap(cfg)
+    kept.store_at(6)
+    for k in range(len(origins)):
+        kept.integrate_scans(origins[k : k + 1], points[scan == k], np.zeros((scan == k).sum(), int))
+        kept.store_at(6)
+        fresh = vj.VoxelMap(cfg)
+        fresh.integrate_scans(origins[: k + 1], points[scan <= k], scan[scan <= k])
+        _levels_equal(kept, fresh, range(1, 7))
+    assert any(stopped) and not all(stopped)
+
+
+def test_global_map_levels_updated_after_every_undo_equal_a_fresh_merge():
+    """The same with releases: a global map's voxels go back to unknown when a submap moves
+    away, coarse blocks empty and are released; queried after every update_poses."""
+    rng = np.random.default_rng(12)
+    vog = random_vog(rng, 4)
+    gmap = vj.GlobalMap(vog.config)
+    gmap.merge(vog)
+    gmap.store_at(5)
+    for step in range(6):
+        ids = rng.choice(vog.num_submaps, 1 + step % 2, replace=False)
+        poses = vog.poses(ids)
+        poses[:, :3, 3] += rng.normal(0, 0.2 if step % 3 else 3.0, (len(ids), 3))
+        vog.set_poses(ids, poses)
+        gmap.update_poses(vog, eps_rot=0.0, eps_trans=0.0)
+        gmap.store_at(5)
+        fresh = vj.GlobalMap(vog.config)
+        fresh.merge(vog)
+        _levels_equal(gmap, fresh, range(1, 6))
+        for level in range(1, 6):
+            assert gmap.store_at(level).live_blocks == fresh.store_at(level).live_blocks
+
+
 def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps(monkeypatch):
     merges = []
     merge = vj.GlobalMap.merge

@@ -73,6 +73,25 @@ def test_unknown_space_beyond_the_map_is_counted_up_to_the_key_range(cls):
     assert r.num_unknown.tolist() == [hashing.VOXEL_KEY_LIMIT, 10001]
 
 
+@pytest.mark.parametrize("level", [0, 2])
+def test_ranges_either_side_of_the_key_range_shortcut_count_the_same_walk(level):
+    # A ray's end is its range without the key range's distances when 2 (|origin| + range) stays
+    # under the key range's half-width (queries.ray_cast_start): ranges just under and just
+    # over that bound, and past the key range's face, against the count of voxels -1, -2, ...
+    # along -x entered before the range (voxel -k at 0.05 + s (k - 1) m, s the level's edge).
+    size = 0.1 * 2**level
+    bound = hashing.VOXEL_KEY_LIMIT * size  # the key range's half-width, metres
+    under, over = bound / 2 - 0.05 - 0.5 * size, bound / 2 - 0.05 + 0.5 * size
+    vmap = wall_map(vj.VoxelMap)
+    ranges = [under, over, bound + 1.0]
+    origins, directions = [[0.05, 0.05, 0.05]] * 3, [[-1.0, 0.0, 0.0]] * 3
+    r = vmap.raycast(origins, directions, ranges, level=level)
+    # voxel 0 of every level holds the origin and starts at x = 0, so voxel -1 is entered at 0.05
+    expected = [int(np.ceil((x - 0.05) / size)) for x in ranges[:2]] + [hashing.VOXEL_KEY_LIMIT]
+    assert r.hit.tolist() == [False] * 3
+    assert (r.num_free + r.num_unknown).tolist() == [e + 1 for e in expected]
+
+
 def scattered_map():
     rng = np.random.default_rng(7)
     cfg = vj.MapConfig(voxel_size=0.2, max_range=30.0)

@@ -40,7 +40,7 @@ def add_parser(commands) -> None:
         epilog=EPILOG,
     )
     demo.add_argument("--out", type=Path, default=Path("demo_out"), metavar="DIR", help="output folder")
-    demo.add_argument("--scene", default="propeller", choices=scene_names(), help=scene_help())
+    demo.add_argument("--scene", default="propeller", choices=scene_names(ground=False), help=scene_help(ground=False))
     demo.add_argument(
         "--laps", type=ruled("integer", 1, MAX_LAPS), default=2, metavar="N", help="times the survey is flown"
     )

@@ -36,7 +36,7 @@ def add_parser(commands) -> None:
         description=DESCRIPTION,
         epilog=EPILOG,
     )
-    explore.add_argument("--scene", required=True, choices=scene_names(), help=scene_help())
+    explore.add_argument("--scene", required=True, choices=scene_names(ground=False), help=scene_help(ground=False))
     explore.add_argument(
         "--submaps",
         type=ruled("integer", 1),

@@ -35,6 +35,7 @@ def add_parser(commands) -> None:
         The subcommands of `vogjax`.
     """
     from vogjax.config.pipeline import PRESETS
+    from vogjax.config.presets import CHOICES
 
     mapping = commands.add_parser(
         "map",
@@ -66,6 +67,16 @@ def add_parser(commands) -> None:
         default="default",
         help="settings to start from: default, or paper (Sodhi et al. IV-C: 200 scans per submap, no "
         "clamping); --config overrides them",
+    )
+    mapping.add_argument(
+        "--sensor-preset",
+        choices=CHOICES,
+        default="auto",
+        help="each run's sensor and platform preset: auto (from the run's metadata: its sensor and "
+        "odometry pick the map's reach and voxels, the submaps' length, the closure search and "
+        "navigation noise; a sonar run's is the papers' defaults), none (the settings as given), or "
+        "one of sonar, lidar, depth_camera, laser_scan; settings in --config or --preset win over it. "
+        "What it derives is printed (on stderr) and recorded in report.json",
     )
     mapping.add_argument(
         "--workers",
@@ -100,17 +111,37 @@ def run(args: argparse.Namespace) -> None:
         The parsed arguments of `vogjax map`.
     """
     from vogjax import report
-    from vogjax.config import JobConfig
+    from vogjax.config import JobConfig, presets
+    from vogjax.io.atomic import check_writable
 
     for path in args.runs:
         refuse_existing(args.out / path.stem, args.overwrite, flag="--out", folder=True)
     base = JobConfig.preset(args.preset)
     config = JobConfig.from_toml(args.config, base) if args.config else base
+    given = presets.changed_settings(base) | (_file_settings(args.config) if args.config else set())
     if args.crm:
         config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))
     progress = not args.quiet
+    for path in args.runs:  # outputs checked before anything is printed or mapped
+        check_writable(args.out / path.stem, folder=True)
+    for path in args.runs:  # what each run's preset derives, before any work
+        try:
+            derived = report.derive_settings(path, config, args.sensor_preset, given)
+        except ValueError:  # an unreadable run: its error comes from mapping it (alone, with --workers)
+            continue
+        if not args.quiet:
+            print(f"{path}: " + "\n".join(derived.lines()), file=sys.stderr)
     if args.workers is None and args.address is None:
-        reports = report.map_runs(args.runs, args.out, config, progress=progress, overwrite=args.overwrite)
+        reports = report.map_runs(
+            args.runs,
+            args.out,
+            config,
+            progress=progress,
+            overwrite=args.overwrite,
+            sensor_preset=args.sensor_preset,
+            given=given,
+        )
+        _warn(reports, args.quiet)
         print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
         return
@@ -118,9 +149,18 @@ def run(args: argparse.Namespace) -> None:
 
     workers = len(args.runs) if args.workers is None else args.workers
     outcomes = map_runs_parallel(
-        args.runs, args.out, config, workers, args.address, progress=progress, overwrite=args.overwrite
+        args.runs,
+        args.out,
+        config,
+        workers,
+        args.address,
+        progress=progress,
+        overwrite=args.overwrite,
+        sensor_preset=args.sensor_preset,
+        given=given,
     )
     reports = [o.report for o in outcomes if o.report is not None]
+    _warn(reports, args.quiet)
     if reports:
         print(report.summary_table(reports))
         print(f"wrote {', '.join(str(args.out / Path(r['run']).stem) for r in reports)}")
@@ -129,3 +169,33 @@ def run(args: argparse.Namespace) -> None:
         print(f"vogjax map: error: {outcome.path}: {outcome.error}", file=sys.stderr)
     if failed:
         raise SystemExit(2)
+
+
+def _file_settings(path: Path) -> set[str]:
+    """The settings a settings file sets (it was read and checked by `JobConfig.from_toml`)."""
+    import tomllib
+
+    from vogjax.config.presets import given_settings
+
+    with open(path, "rb") as file:
+        return given_settings(tomllib.load(file))
+
+
+def _warn(reports: list[dict], quiet: bool) -> None:
+    """On stderr, per run: the share of returns past the map's reach, and (unless quiet) a hint
+    when most closure candidates failed one gate."""
+    from vogjax.report.summary import closure_hint
+
+    for r in reports:
+        name = Path(r["run"]).stem
+        returns = r.get("returns", {})
+        if returns.get("beyond_reach"):
+            print(
+                f"vogjax map: warning: {name}: {returns['beyond_reach_share']:.1%} of the returns reach past the map's "
+                f"range ({returns['reach_m']:g} m): they cleared free space up to it and marked nothing "
+                "([map] max_range)",
+                file=sys.stderr,
+            )
+        hint = None if quiet else closure_hint(r)
+        if hint:
+            print(f"vogjax map: hint: {name}: {hint}", file=sys.stderr)

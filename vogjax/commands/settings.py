@@ -60,9 +60,9 @@ def add_parser(commands) -> None:
     )
     config.add_argument(
         "--scene",
-        choices=scene_names(),
+        choices=scene_names(ground=False),
         default=None,
-        help=f"with --for explore: the scene whose planner settings to print ({scene_help()}); without it "
+        help=f"with --for explore: the scene whose planner settings to print ({scene_help(ground=False)}); without it "
         "[planner] is printed commented out, since its defaults are the scene's",
     )
     add_output_flags(config)

@@ -5,6 +5,7 @@ vj.config.JobConfig.from_toml("settings.toml")
 """
 
 from vogjax.config.crm import CrmConfig
+from vogjax.config.lidar import LidarConfig
 from vogjax.config.maps import MapConfig, logodds
 from vogjax.config.pipeline import PRESETS, JobConfig, PipelineConfig, ReportConfig, TimingConfig
 from vogjax.config.point_cloud import PointCloudConfig
@@ -20,6 +21,7 @@ __all__ = [
     "CrmConfig",
     "IcpConfig",
     "JobConfig",
+    "LidarConfig",
     "LoopClosureConfig",
     "MapConfig",
     "NavNoise",

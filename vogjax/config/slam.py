@@ -42,8 +42,10 @@ class IcpConfig(Config):
     min_inliers : int
         An alignment with fewer inliers stops, unconverged.
     free : str
-        The directions point-to-plane ICP solves for: "all" six, or only the "translation" (the
-        rotation held where it starts: when navigation knows it better than the clouds do).
+        The directions point-to-plane ICP solves for: "all" six, "yaw" (the translation and the
+        rotation about the source's z axis, pitch and roll held: where they are measured
+        absolutely but the heading drifts), or only the "translation" (the rotation held where
+        it starts: when navigation knows it better than the clouds do).
 
     Raises
     ------
@@ -57,7 +59,7 @@ class IcpConfig(Config):
     normal_neighbours: int = integer(10, low=3, high=1000)
     lambda_min: float = positive(0.01)
     min_inliers: int = integer(10, low=3)
-    free: str = text("all", ("all", "translation"))
+    free: str = text("all", ("all", "yaw", "translation"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,8 +145,14 @@ class LoopClosureConfig(Config):
     max_fitness_m2 : float
         Most ICP fitness (mean squared inlier distance) accepted, m^2.
     drift_sigmas : float
-        Accept results within this many drift sigmas of odometry in x-y (also the search's
-        radius in x-y, and in yaw when ICP solves for the rotation).
+        Accept results within this many drift sigmas of odometry (also the search's radius in
+        x-y, and in yaw when ICP solves for the yaw): in x-y the x and y drift over the time
+        between the two submaps and, when ICP solves the yaw, the x-y error a drifting yaw
+        leaves over the path between them ("drift"); in yaw, when ICP solves it, the yaw drift
+        ("yaw drift").
+    registration_voxel_m : float
+        The submap clouds registered are the returns' means per voxel of this size, metres (0:
+        the map's voxel size; a lidar's clouds are registered coarser than they are mapped).
     registration_sigma_m : float
         The closure's sigma along a direction of information lambda per inlier is
         registration_sigma_m / sqrt(lambda), metres (0.025 m: measured on propeller surveys;
@@ -179,6 +187,7 @@ class LoopClosureConfig(Config):
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)
+    registration_voxel_m: float = number(0.0, low=0, high=1e3)
     registration_sigma_m: float = number(0.025, low=0, high=1e3)
     min_information: float = number(0.05, low=0, high=1)
     # at most 1e5 (m or rad): a sigma floor squared must stay a variance the pose graph takes (<= 1e12)

@@ -13,6 +13,14 @@ grown past FLUSH_KEYS keys is flushed by the write itself. A coarse block with n
 voxel left is released, so a level holds the blocks a fresh build would, whatever happened
 before.
 
+A level passes up only the blocks whose voxels changed (fill_coarse_blocks reports it, bit for
+bit): a block whose maximum stayed gives its parent nothing new, so the next level recomputes
+fewer blocks, and once none changed the levels above are left as they are, launches and all. A
+scan mostly lowers free voxels or raises occupied ones already at the maximum, so an update
+after every scan usually stops after a level or two. (On a GPU, where reading the flags back
+waits for the launch, a map that never releases blocks recomputes every level above the noted
+blocks, as it would without them.)
+
 Measured in benchmarks/bench_octomap.py (docs/benchmarks/octomap.md).
 """
 
@@ -158,46 +166,58 @@ class Levels:
         for level, store in enumerate(self.stores, start=1):
             if len(changed) == 0:
                 return
-            changed = parent_keys(changed)
-            self._recompute(level, below, changed)
+            changed = self._recompute(level, below, parent_keys(changed))
             below = store
 
-    def _recompute(self, level: int, below: BlockStore, keys: np.ndarray) -> None:
+    def _recompute(self, level: int, below: BlockStore, keys: np.ndarray) -> np.ndarray:
         """Recompute the coarse blocks `keys` (distinct, sorted) of `level` from `below`;
-        release those left empty."""
+        release those left empty. Returns the keys of the blocks whose voxels changed (all of
+        `keys` where the flags are not read back)."""
         if len(keys) == 0:
-            return
+            return keys
         device, store = self.device, self.store(level)
-        d_keys = wp.array(keys, dtype=wp.int64, device=device)
+        # an update after every scan recomputes a few blocks a level, where the host's fixed
+        # costs (arrays made, a launch's arguments) outweigh the kernel: on a CPU the kernel reads
+        # the host's keys in place (it has finished when the launch returns), the launch is one
+        # call unless the blocks are many, and the host mirror is searched, not set-compared
+        d_keys = wp.array(keys, dtype=wp.int64, device=device, copy=device.is_cuda)
         kept = self._keys[level - 1]
-        new = keys[~np.isin(keys, kept, assume_unique=True)]
-        if len(new):  # the host mirror spares a launch and a read-back when every block exists
+        known = np.zeros(len(keys), bool)
+        if len(kept):
+            known = kept[np.minimum(np.searchsorted(kept, keys), len(kept) - 1)] == keys
+        if not known.all():  # the host mirror spares a launch and a read-back when every block exists
+            new = keys[~known]
             store.ensure_blocks(wp.array(new, dtype=wp.int64, device=device))
             self._keys[level - 1] = kept = np.union1d(kept, new)
-        observed = wp.empty(len(keys) * 8, dtype=wp.int32, device=device)
-        parallel.split_launch(
-            lambda part, lo, hi: wp.launch(
+        flags = wp.empty(len(keys) * 8, dtype=wp.int32, device=device)
+
+        def fill(part: int, lo: int, hi: int) -> None:
+            whole = hi - lo == len(keys)
+            wp.launch(
                 levels.fill_coarse_blocks,
                 dim=(hi - lo) * 8,
                 inputs=[
-                    d_keys[lo:hi],
+                    d_keys if whole else d_keys[lo:hi],
                     store.table_keys,
                     store.table_slots,
                     below.table_keys,
                     below.table_slots,
                     below.layers["log_odds"],
                 ],
-                outputs=[store.layers["log_odds"], observed[lo * 8 : hi * 8]],
+                outputs=[store.layers["log_odds"], flags if whole else flags[lo * 8 : hi * 8]],
                 device=device,
-            ),
-            len(keys),
-            parallel.num_parts(device, len(keys) * 64),
-        )
+            )
+
+        parallel.split_launch(fill, len(keys), parallel.num_parts(device, len(keys) * 64))
+        if not (self.releases or not device.is_cuda):
+            return keys
+        octants = flags.numpy().reshape(-1, 8)
         if self.releases:
-            empty = ~observed.numpy().reshape(-1, 8).any(axis=1)
+            empty = ~(octants & levels.OCTANT_OBSERVED).any(axis=1)
             if np.any(empty):
                 store.release(store.find(d_keys).numpy()[empty])
                 self._keys[level - 1] = np.setdiff1d(kept, keys[empty], assume_unique=True)
+        return keys[(octants & levels.OCTANT_CHANGED).any(axis=1)]
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:

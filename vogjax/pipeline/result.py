@@ -21,7 +21,25 @@ class SubmapRecord:
     true rotation with the translation that puts the submap's returns, as navigation placed
     them in it, closest to where they truly are (least squares). Drift inside a submap bends
     it; the rigid truth is where a registration of the whole bent submap belongs, and differs
-    from the base's true pose by the bend."""
+    from the base's true pose by the bend.
+
+    Attributes
+    ----------
+    first_scan : int
+        Index of its first scan in the run.
+    scans : int
+        Scans it holds.
+    base_scan : int
+        Index of its base scan (the middle one).
+    time_s : float
+        Time of the base scan, seconds.
+    T_world_base_nav : (4, 4) ndarray of float64
+        The base pose by navigation.
+    T_world_base_truth : (4, 4) ndarray of float64 or None
+        The base pose by ground truth (None without it).
+    T_world_base_rigid : (4, 4) ndarray of float64 or None
+        Its rigid truth (None without ground truth).
+    """
 
     first_scan: int
     scans: int
@@ -39,8 +57,48 @@ class Result:
     confidence-rich map or None), one `SubmapRecord` per submap, the optimised
     base poses (N,4,4), loop closures by verdict, per-step `timings` (step -> seconds per
     submap or per batch; "reapplied" and "closures" count per submap), every scan's time (S,),
-    navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None) and the
-    timing `probes` (dicts: submaps, full_merge_s, query_global_s, query_virtual_s)."""
+    navigation and true pose (S,4,4), `truth_vog` (the submaps from true poses, or None), the
+    timing `probes` (dicts: submaps, full_merge_s, query_global_s, query_virtual_s) and `returns`
+    (total: returns read; beyond_reach: those past reach_m, the map's range or the sensor's,
+    which became free space up to it).
+
+    Attributes
+    ----------
+    config : PipelineConfig
+        The settings it was mapped with.
+    global_map : GlobalMap
+        The online global map (Algorithm 1).
+    vog : VogMap
+        The submaps at the optimised poses (the virtual map).
+    standard_map : VoxelMap or None
+        Every scan at its navigation pose, without SLAM (None when off).
+    confidence_map : ConfidenceMap or None
+        The confidence-rich map of the same scans (None when off).
+    submaps : tuple of SubmapRecord
+        One per submap.
+    optimized : (N, 4, 4) ndarray of float64
+        The optimised base poses.
+    loop_closures : tuple of LoopClosure
+        The closures accepted.
+    rejected : tuple of Rejection
+        The candidates rejected, with their reasons.
+    timings : dict
+        Step -> seconds per submap or per batch ("reapplied" and "closures": counts per submap).
+    metadata : dict
+        The run's metadata.
+    scan_time_s : (S,) ndarray of float64
+        Every scan's time.
+    scan_navigation : (S, 4, 4) ndarray of float64
+        Every scan's navigation pose.
+    scan_truth : (S, 4, 4) ndarray of float64 or None
+        Every scan's true pose (None without ground truth).
+    truth_vog : VogMap or None
+        The submaps built from true poses (None without ground truth).
+    probes : tuple of dict
+        The timing probes.
+    returns : dict
+        ``total``, ``beyond_reach`` and ``reach_m``.
+    """
 
     config: PipelineConfig
     global_map: GlobalMap
@@ -58,9 +116,11 @@ class Result:
     scan_truth: np.ndarray | None
     truth_vog: VogMap | None = None
     probes: tuple = ()
+    returns: dict = dataclasses.field(default_factory=dict)
 
     @property
     def scans(self) -> int:
+        """Scans mapped."""
         return len(self.scan_navigation)
 
     @property
@@ -90,10 +150,12 @@ class Result:
 
     @property
     def submap_first_scan(self) -> np.ndarray:
+        """(N,) int64: each submap's first scan."""
         return np.array([s.first_scan for s in self.submaps], dtype=np.int64)
 
     @property
     def submap_base_scan(self) -> np.ndarray:
+        """(N,) int64: each submap's base scan."""
         return np.array([s.base_scan for s in self.submaps], dtype=np.int64)
 
     @property
@@ -158,7 +220,18 @@ class Result:
         "navigation" base positions to the true ones (least squares; z untouched), or None
         without ground truth. Loop closures and odometry are relative, so where the whole
         solution sits in x, y and yaw is set by the graph's anchor (the first base pose as
-        navigation gives it, already drifted): this fit takes that out and leaves the shape."""
+        navigation gives it, already drifted): this fit takes that out and leaves the shape.
+
+        Parameters
+        ----------
+        which : str, optional
+            "optimized" or "navigation".
+
+        Returns
+        -------
+        (4, 4) ndarray of float64 or None
+            The fit, or None without ground truth.
+        """
         truth = self.truth
         if truth is None:
             return None
@@ -173,7 +246,21 @@ class Result:
         the registration's own error, the bends drift put inside the two submaps taken out.
         And `precision_ceiling`, what a registration that recovered each pair's rigid truths
         exactly would score: the share of the accepted pairs whose rigid truths relate within
-        the same bounds of the true relative pose (`*_bend` per closure)."""
+        the same bounds of the true relative pose (`*_bend` per closure).
+
+        Parameters
+        ----------
+        max_translation_m : float, optional
+            Translation error a correct closure stays within, metres.
+        max_rotation_deg : float, optional
+            Rotation error a correct closure stays within, degrees.
+
+        Returns
+        -------
+        dict
+            ``precision``, ``precision_rigid``, ``precision_ceiling`` and ``errors`` (one entry
+            per closure).
+        """
         errors = []
         truth, rigid = self.truth, self.rigid_truth
 
@@ -253,8 +340,24 @@ class Result:
         return merged
 
     def scan_poses(self, which: str) -> np.ndarray | None:
-        """(S,4,4) per-scan poses: "navigation", "truth" (None without ground truth) or
-        "optimized" (each scan moved rigidly with its submap's base pose, as the maps place it)."""
+        """Per-scan poses.
+
+        Parameters
+        ----------
+        which : str
+            "navigation", "truth" or "optimized" (each scan moved rigidly with its submap's
+            base pose, as the maps place it).
+
+        Returns
+        -------
+        (S, 4, 4) ndarray of float64 or None
+            The poses; None for "truth" without ground truth.
+
+        Raises
+        ------
+        ValueError
+            If `which` is none of those.
+        """
         if which == "navigation":
             return self.scan_navigation
         if which == "truth":

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from os import PathLike
+
 from tqdm import tqdm
 
 from vogjax import devices
@@ -11,10 +13,30 @@ from vogjax.pipeline.mapper import Mapper
 from vogjax.pipeline.result import Result
 
 
-def run(dataset, config: PipelineConfig | None = None, progress: bool = True) -> Result:
-    """Reprocess a run (a path or an open vogjax.io.dataset.Dataset) into maps; with
-    `config.slam_thread` on (or "auto" with the maps on a CUDA GPU) each submap's SLAM runs on
-    a second thread beside the map work (the same results, bit for bit)."""
+def run(dataset: str | PathLike | Dataset, config: PipelineConfig | None = None, progress: bool = True) -> Result:
+    """Reprocess a run into maps; with `config.slam_thread` on (or "auto" with the maps on a CUDA
+    GPU) each submap's SLAM runs on a second thread beside the map work (the same results, bit
+    for bit).
+
+    Parameters
+    ----------
+    dataset : str or os.PathLike or Dataset
+        The run file, or an open `vogjax.io.dataset.Dataset`.
+    config : PipelineConfig or None, optional
+        The pipeline's settings (default: the papers').
+    progress : bool, optional
+        Show a progress bar (on stderr).
+
+    Returns
+    -------
+    Result
+        The maps, poses, loop closures and timings.
+
+    Raises
+    ------
+    ValueError
+        If the run is missing, damaged or holds no scans.
+    """
     config = config or PipelineConfig()
     own = not isinstance(dataset, Dataset)
     ds = Dataset(dataset) if own else dataset

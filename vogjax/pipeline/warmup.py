@@ -7,14 +7,29 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import warp as wp
 
 from vogjax.config import PipelineConfig
 from vogjax.geometry import pose_from_xyz_yaw
 from vogjax.maps import GlobalMap, VogMap, VoxelMap
 
 
-def warm_up(config: PipelineConfig | None = None, device=None) -> float:
-    """Launch integration, merges, undo/redo and every query once on tiny maps; the seconds it took."""
+def warm_up(config: PipelineConfig | None = None, device: str | wp.Device | None = None) -> float:
+    """Launch integration, merges, undo/redo and every query once on tiny maps, so kernel
+    compilation stays out of the timings.
+
+    Parameters
+    ----------
+    config : PipelineConfig or None, optional
+        The settings whose kernels to compile (default: the papers').
+    device : str or warp.Device or None, optional
+        The Warp device (None: the default).
+
+    Returns
+    -------
+    float
+        The seconds it took.
+    """
     config = config or PipelineConfig()
     start = time.perf_counter()
     rng = np.random.default_rng(0)

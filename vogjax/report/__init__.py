@@ -16,12 +16,13 @@ Map a recorded run into ``out/run/`` and read its headline figures:
 """
 
 from vogjax.report.evaluate import evaluate_run
-from vogjax.report.job import map_run, map_runs
+from vogjax.report.job import derive_settings, map_run, map_runs
 from vogjax.report.metrics import Roc, misclassified, reconstruction_rmse, register_to_surface, roc
 from vogjax.report.summary import summary_table
 
 __all__ = [
     "Roc",
+    "derive_settings",
     "evaluate_run",
     "map_run",
     "map_runs",

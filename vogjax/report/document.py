@@ -59,12 +59,21 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         "rmse_m": metrics.get("rmse_m", dict.fromkeys(("standard", "without_loop_closures", "with_loop_closures"))),
         "agreement": metrics.get("agreement"),
         **result.metrics,
+        "returns": _returns(result),
         "timing_s": timing_s,
         "fig9": curves.fig9() if curves is not None else None,
         "config": dataclasses.asdict(config),
         "versions": versions(),
         "device": str(result.global_map.device),
     }
+
+
+def _returns(result) -> dict:
+    """The returns read, those past the map's reach (they cleared free space up to it and marked
+    nothing), and their share."""
+    counts = dict(getattr(result, "returns", {}) or {})
+    total, beyond = counts.get("total", 0), counts.get("beyond_reach", 0)
+    return {**counts, "beyond_reach_share": beyond / total if total else 0.0}
 
 
 def versions() -> dict:

@@ -62,7 +62,8 @@ FIELDS: dict[str, str] = {
     "loop_closures.rejected": "Candidates rejected.",
     "loop_closures.rejected_by_reason": "Rejections counted by the gate that refused them.",
     "loop_closures.rejected_by_reason.*": "Rejections for one reason (`overlap`, `not converged`, `fitness`, "
-    "`refinement`, `drift`, `inconsistent` (refused by the pose graph's screen), ...).",
+    "`refinement`, `drift`, `yaw drift` (the yaw, when closures solve it), `inconsistent` (refused by the "
+    "pose graph's screen), ...).",
     "loop_closures.precision": "Share of accepted closures within 0.2 m and 1 degree of the truth, in the "
     "directions they constrain.",
     "loop_closures.precision_rigid": "The same against the rigid truths (the bends taken out).",
@@ -100,6 +101,22 @@ FIELDS: dict[str, str] = {
     "fig9": "Sodhi et al.'s Fig. 9: per new submap, the cumulative averages `online_s`, `virtual_s`, "
     "`full_merge_s`, and `reapplied`.",
     "fig9.*": "One series of Fig. 9.",
+    "returns": "The returns (beams that hit something) the run's scans held, and those past the map's reach.",
+    "returns.total": "Returns read.",
+    "returns.beyond_reach": "Returns farther than `reach_m`: each cleared free space up to it and marked nothing "
+    "occupied (`vogjax map` warns when there are any).",
+    "returns.beyond_reach_share": "`beyond_reach` over `total` (0 without returns).",
+    "returns.reach_m": "The map's reach: `[map] max_range`, or the sensor's range if shorter.",
+    "preset": "The sensor and platform preset the run was mapped with (`vogjax map --sensor-preset`), chosen "
+    "from its metadata; `name` null when presets were off.",
+    "preset.name": "The preset's name: `sonar` (the papers' settings), or e.g. `lidar + wheel odometry`.",
+    "preset.sensor": "The sensor preset: `sonar`, `lidar`, `depth_camera` or `laser_scan`.",
+    "preset.odometry": "The odometry's kind: `hauv`, `wheel` or `unknown`.",
+    "preset.reason": "What in the run's metadata picked them, in words.",
+    "preset.settings": "Every setting the preset or the navigation noise derived, or you kept over them: "
+    "`table.key` -> `value` (as TOML) and `from` (`preset`, `navigation noise: why`, or `your settings: "
+    "preset VALUE`).",
+    "preset.notes": "What you should know before the run is mapped (a sensor reaching past the map's range).",
     "config": "Every setting the run used (see the settings reference).",
     "versions": "Installed versions of vogjax and its core dependencies, and the platform.",
     "versions.*": "One version string.",
@@ -107,7 +124,14 @@ FIELDS: dict[str, str] = {
 }
 
 # Fields below these are described as a whole (settings, lists of series).
-OPAQUE = ("config", "loop_closures.errors", "loop_closures.rejections", "timing_s.curves.*", "fig9.*")
+OPAQUE = (
+    "config",
+    "preset.settings",
+    "loop_closures.errors",
+    "loop_closures.rejections",
+    "timing_s.curves.*",
+    "fig9.*",
+)
 
 
 def describe(path: str) -> str | None:

@@ -17,7 +17,7 @@ from os import PathLike
 from pathlib import Path
 
 from vogjax import pipeline, scenes
-from vogjax.config import JobConfig
+from vogjax.config import JobConfig, presets
 from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import Dataset
 from vogjax.report import document, files, plots, timing
@@ -30,12 +30,16 @@ def map_runs(
     config: JobConfig | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    sensor_preset: str = "auto",
+    given: Iterable[str] | None = None,
 ) -> list[dict]:
     """Map, evaluate and report each run: the `vogjax map` job.
 
     Every input is read and checked (scans, ground truth at the map's voxel size) and every
     output folder checked writable before any run is mapped; each run's folder appears only once
-    every file in it is written. Kernel compilation is kept out of the timings.
+    every file in it is written. Kernel compilation is kept out of the timings. Each run is
+    mapped with its sensor preset (`vogjax.config.presets.derive`: from its metadata, under the
+    settings given), recorded in its report's ``preset``.
 
     Parameters
     ----------
@@ -51,6 +55,12 @@ def map_runs(
     overwrite : bool, optional
         Replace a run's existing output folder; without it an existing one is an error, raised
         before any work.
+    sensor_preset : str, optional
+        "auto" (each run's preset from its metadata; a sonar run's is the defaults), "none"
+        (`config` as it is) or a preset of `vogjax.config.presets.SENSORS`.
+    given : iterable of str or None, optional
+        The settings the caller set ("table.key"), kept over the preset's; None: those in
+        `config` that differ from the defaults.
 
     Returns
     -------
@@ -60,7 +70,8 @@ def map_runs(
     Raises
     ------
     ValueError
-        If `config` is not a JobConfig, `paths` is empty or two runs share a name, a run's output
+        If `config` is not a JobConfig, `sensor_preset` is not one of
+        `vogjax.config.presets.CHOICES`, `paths` is empty or two runs share a name, a run's output
         folder exists and `overwrite` is not set, a run file is missing, damaged or empty, its
         scene's ground truth is refused at this voxel size, or an output folder cannot be
         written.
@@ -69,15 +80,52 @@ def map_runs(
     out = Path(out)
     for path in paths:
         refuse_existing(out / path.stem, overwrite)
+    derived = []
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
             if len(ds) == 0:
                 raise ValueError(f"dataset {str(path)!r} holds no scans")
             ds.validate()
-            _check_ground_truth(ds, config)
+            derived.append(presets.derive(ds.metadata, config, given, sensor_preset))
+            _check_ground_truth(ds, derived[-1].config)
     for path in paths:
         check_writable(out / path.stem, folder=True)
-    return [_map_into(path, out / path.stem, config, progress) for path in paths]
+    return [_map_into(path, out / path.stem, d, progress) for path, d in zip(paths, derived)]
+
+
+def derive_settings(
+    path: str | PathLike,
+    config: JobConfig | None = None,
+    sensor_preset: str = "auto",
+    given: Iterable[str] | None = None,
+) -> presets.Derived:
+    """The settings a run is mapped with: `config` and its sensor preset (what `map_runs` uses).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The run file (.h5); only its metadata is read.
+    config : JobConfig or None, optional
+        The job's settings (default: ``JobConfig()``).
+    sensor_preset : str, optional
+        As `map_runs`'s.
+    given : iterable of str or None, optional
+        As `map_runs`'s.
+
+    Returns
+    -------
+    vogjax.config.presets.Derived
+        The settings, the preset, where each derived setting came from, and notes.
+
+    Raises
+    ------
+    ValueError
+        If the run file is missing or not a run file, `config` is not a JobConfig or
+        `sensor_preset` is not one of `vogjax.config.presets.CHOICES`.
+    """
+    config, (path,) = check_job([path], config)
+    with Dataset(path) as ds:
+        return presets.derive(ds.metadata, config, given, sensor_preset)
 
 
 def refuse_existing(out_dir: Path, overwrite: bool) -> None:
@@ -123,6 +171,8 @@ def map_run(
     config: JobConfig | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    sensor_preset: str = "auto",
+    given: Iterable[str] | None = None,
 ) -> dict:
     """Map, evaluate and report one run into a folder of its own.
 
@@ -139,6 +189,10 @@ def map_run(
         Show progress bars (on stderr).
     overwrite : bool, optional
         Replace an existing `out_dir`; without it that is an error, raised before any work.
+    sensor_preset : str, optional
+        As `map_runs`'s.
+    given : iterable of str or None, optional
+        As `map_runs`'s.
 
     Returns
     -------
@@ -156,12 +210,14 @@ def map_run(
     config, (path,) = check_job([path], config)
     refuse_existing(Path(out_dir), overwrite)
     with Dataset(path) as ds:
-        _check_ground_truth(ds, config)
+        derived = presets.derive(ds.metadata, config, given, sensor_preset)
+        _check_ground_truth(ds, derived.config)
     check_writable(out_dir, folder=True)
-    return _map_into(path, Path(out_dir), config, progress)
+    return _map_into(path, Path(out_dir), derived, progress)
 
 
-def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> dict:
+def _map_into(path: Path, out_dir: Path, derived: presets.Derived, progress: bool) -> dict:
+    config = derived.config
     warm_up_s = pipeline.warm_up(config.pipeline)  # compilation kept out of the timings
     with Dataset(path) as ds:
         start = time.perf_counter()
@@ -169,18 +225,20 @@ def _map_into(path: Path, out_dir: Path, config: JobConfig, progress: bool) -> d
         pipeline_s = time.perf_counter() - start
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with AtomicPath(out_dir, folder=True) as folder:
-        return _evaluate_and_write(result, path, pipeline_s, warm_up_s, config, folder, progress)
+        return _evaluate_and_write(result, path, pipeline_s, warm_up_s, derived, folder, progress)
 
 
 def _evaluate_and_write(
-    result, path: Path, pipeline_s: float, warm_up_s: float, config: JobConfig, folder: Path, progress: bool
+    result, path: Path, pipeline_s: float, warm_up_s: float, derived: presets.Derived, folder: Path, progress: bool
 ) -> dict:
+    config = derived.config
     name = result.metadata.get("scene")
     scene = scenes.load(name) if name in scenes.NAMES else None
     metrics, roc = evaluate_run(result, scene, config.report.surface_points) if scene else ({}, {})
     curves = timing.curves(result)
     report = document.build(result, path, metrics, curves, pipeline_s, config)
     report["timing_s"]["warm_up"] = warm_up_s
+    report["preset"] = derived.to_dict()
     # 1. the map and the trajectories
     result.global_map.save(folder / "global_map.vog")
     if result.confidence_map is not None:

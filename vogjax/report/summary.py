@@ -6,6 +6,47 @@ from __future__ import annotations
 from pathlib import Path
 
 WIDTH = 100
+# The settings behind each closure gate (`vogjax.slam.loop_closure.REASONS`).
+GATE_SETTINGS = {
+    "overlap": "[loop_closure] min_overlap_score, or the search: [loop_closure.correlative] resolution_m "
+    "and yaw_step_rad, [nav_noise] (the search's radius)",
+    "ambiguous": "[loop_closure] max_ambiguity",
+    "not converged": "[loop_closure.icp] max_iterations and max_correspondence_m",
+    "fitness": "[loop_closure] max_fitness_m2 (and registration_voxel_m)",
+    "inliers": "[loop_closure] min_inlier_fraction",
+    "refinement": "[loop_closure] max_refinement_m, or a finer [loop_closure.correlative] resolution_m",
+    "drift": "[nav_noise] sigma2_x and sigma2_y (the gate is drift_sigmas of their drift)",
+    "yaw drift": "[nav_noise] sigma2_yaw (the gate is drift_sigmas of its drift)",
+    "inconsistent": "[pose_graph] screen and its threshold",
+}
+
+
+def closure_hint(report: dict) -> str | None:
+    """A one-line hint when most of a run's closure candidates failed one gate.
+
+    Parameters
+    ----------
+    report : dict
+        The run's report (report.json).
+
+    Returns
+    -------
+    str or None
+        The gate, how many it refused, and the settings behind it; None when no gate refused
+        more than half the candidates.
+    """
+    closures = report.get("loop_closures") or {}
+    reasons = closures.get("rejected_by_reason") or {}
+    candidates = closures.get("accepted", 0) + closures.get("rejected", 0)
+    if not reasons or candidates == 0:
+        return None
+    reason, count = max(reasons.items(), key=lambda item: item[1])
+    if 2 * count <= candidates:
+        return None
+    return (
+        f'{count} of {candidates} closure candidates failed the "{reason}" gate; '
+        f"see loop_closures.csv, and {GATE_SETTINGS.get(reason, 'the [loop_closure] settings')}"
+    )
 
 
 def _ms(value: float | None) -> float | None:

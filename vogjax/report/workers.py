@@ -82,6 +82,8 @@ def map_runs_parallel(
     address: str | None = None,
     progress: bool = False,
     overwrite: bool = False,
+    sensor_preset: str = "auto",
+    given: Iterable[str] | None = None,
 ) -> list[Outcome]:
     """Map every run with Ray tasks, each run in its own worker process (`map_run`).
 
@@ -106,6 +108,11 @@ def map_runs_parallel(
     overwrite : bool, optional
         Replace a run's existing folder; without it an existing one is an error, raised before
         any work.
+    sensor_preset : str, optional
+        As `vogjax.report.map_runs`'s: each run's preset ("auto": from its metadata).
+    given : iterable of str or None, optional
+        The settings the caller set, kept over the presets' (None: those differing from the
+        defaults).
 
     Returns
     -------
@@ -133,7 +140,8 @@ def map_runs_parallel(
     out.mkdir(parents=True, exist_ok=True)
     started = _start(ray, address, workers)
     try:
-        return _run_all(ray, paths, out, config, workers, progress)
+        settings = (config, sensor_preset, None if given is None else set(given))
+        return _run_all(ray, paths, out, settings, workers, progress)
     finally:
         if started:
             ray.shutdown()
@@ -162,7 +170,7 @@ def _start(ray, address: str | None, workers: int) -> bool:
     return True
 
 
-def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: bool) -> list[Outcome]:
+def _run_all(ray, paths, out: Path, settings: tuple, workers: int, progress: bool) -> list[Outcome]:
     from tqdm import tqdm
 
     gpus = float(ray.cluster_resources().get("GPU", 0.0))
@@ -173,7 +181,7 @@ def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: b
         while waiting or pending:
             while waiting and len(pending) < workers:  # at most `workers` in flight
                 index, path = waiting.pop(0)
-                pending[task.remote(str(path), str(out / path.stem), config, os.getcwd())] = index
+                pending[task.remote(str(path), str(out / path.stem), settings, os.getcwd())] = index
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
                 index = pending.pop(ref)
@@ -185,14 +193,15 @@ def _run_all(ray, paths, out: Path, config: JobConfig, workers: int, progress: b
     return [outcomes[i] for i in range(len(paths))]
 
 
-def _map_one(path: str, out_dir: str, config: JobConfig, cwd: str) -> dict:
+def _map_one(path: str, out_dir: str, settings: tuple, cwd: str) -> dict:
     """The task: one run mapped in a worker (quiet: no progress bars), from the caller's
     working folder, so relative paths and the report's `run` read as they would one by one
     (an existing folder was refused, or its replacement asked for, before the tasks began)."""
     from vogjax.report.job import map_run
 
     os.chdir(cwd)
-    return map_run(path, out_dir, config, progress=False, overwrite=True)
+    config, sensor_preset, given = settings
+    return map_run(path, out_dir, config, progress=False, overwrite=True, sensor_preset=sensor_preset, given=given)
 
 
 def _one_line(error: BaseException) -> str:

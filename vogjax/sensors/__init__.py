@@ -10,19 +10,38 @@ from __future__ import annotations
 import numpy as np
 
 from vogjax.config import PointCloudConfig, SonarConfig
+from vogjax.config.lidar import LidarConfig
 from vogjax.sensors.base import RangeSensor, mapped_beams, world_rays
+from vogjax.sensors.lidar import T_VEHICLE_LIDAR, SpinningLidar
 from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
 
 KINDS = {
     ProfilingSonar.kind: (ProfilingSonar, SonarConfig),
     PointCloudSensor.kind: (PointCloudSensor, PointCloudConfig),
+    SpinningLidar.kind: (SpinningLidar, LidarConfig),
 }
 
 
 def from_metadata(metadata: dict) -> RangeSensor:
     """The sensor a run's metadata describes (runs that predate the `sensor` key carry a
-    profiling sonar under `sonar`). ValueError when it names no known sensor."""
+    profiling sonar under `sonar`).
+
+    Parameters
+    ----------
+    metadata : dict
+        The run's metadata (`RangeSensor.metadata` wrote it).
+
+    Returns
+    -------
+    RangeSensor
+        The sensor, with its settings and mount.
+
+    Raises
+    ------
+    ValueError
+        If it names no known sensor or describes it wrongly.
+    """
     kind = metadata.get("sensor", ProfilingSonar.kind)
     if kind not in KINDS:
         raise ValueError(f"metadata names an unknown sensor {kind!r} (known: {', '.join(KINDS)})")
@@ -36,8 +55,24 @@ def from_metadata(metadata: dict) -> RangeSensor:
         raise ValueError(f"metadata describes its sensor wrongly: {error}") from None
 
 
-def as_sensor(sensor) -> RangeSensor:
-    """A RangeSensor as given, or a ProfilingSonar for a SonarConfig."""
+def as_sensor(sensor: RangeSensor | SonarConfig) -> RangeSensor:
+    """A RangeSensor as given, or a ProfilingSonar for a SonarConfig.
+
+    Parameters
+    ----------
+    sensor : RangeSensor or SonarConfig
+        The sensor, or a sonar's settings.
+
+    Returns
+    -------
+    RangeSensor
+        The sensor.
+
+    Raises
+    ------
+    ValueError
+        If `sensor` is neither.
+    """
     if isinstance(sensor, RangeSensor):
         return sensor
     if isinstance(sensor, SonarConfig):
@@ -47,10 +82,12 @@ def as_sensor(sensor) -> RangeSensor:
 
 __all__ = [
     "KINDS",
+    "T_VEHICLE_LIDAR",
     "T_VEHICLE_SONAR",
     "PointCloudSensor",
     "ProfilingSonar",
     "RangeSensor",
+    "SpinningLidar",
     "as_sensor",
     "from_metadata",
     "mapped_beams",

@@ -23,11 +23,33 @@ from vogjax.geometry import rigid_pose
 
 
 class RangeSensor(abc.ABC):
-    """config: the sensor's settings; T_vehicle_sensor (4,4): where it is mounted."""
+    """A range sensor: its beams, rate, ranges and mount.
+
+    Parameters
+    ----------
+    config : Config
+        The sensor's settings.
+    T_vehicle_sensor : (4, 4) array_like of float or None, optional
+        Where it is mounted on the vehicle (default: the vehicle's origin).
+
+    Attributes
+    ----------
+    kind : str
+        The sensor's name in run files and `vogjax.sensors.KINDS`.
+    config : Config
+        The sensor's settings.
+    T_vehicle_sensor : (4, 4) ndarray of float64
+        Its mount.
+
+    Raises
+    ------
+    ValueError
+        If `T_vehicle_sensor` is not a rigid pose.
+    """
 
     kind: str = ""
 
-    def __init__(self, config: Config, T_vehicle_sensor=None):
+    def __init__(self, config: Config, T_vehicle_sensor: npt.ArrayLike | None = None):
         self.config = config
         self.T_vehicle_sensor = rigid_pose(
             "T_vehicle_sensor", np.eye(4) if T_vehicle_sensor is None else T_vehicle_sensor
@@ -35,28 +57,39 @@ class RangeSensor(abc.ABC):
 
     @property
     @abc.abstractmethod
-    def beams(self) -> int: ...
+    def beams(self) -> int:
+        """Beams a scan, B."""
 
     @property
     @abc.abstractmethod
-    def rate_hz(self) -> float: ...
+    def rate_hz(self) -> float:
+        """Scans a second."""
 
     @property
     @abc.abstractmethod
-    def min_range_m(self) -> float: ...
+    def min_range_m(self) -> float:
+        """Nearest range it measures, metres."""
 
     @property
     @abc.abstractmethod
-    def max_range_m(self) -> float: ...
+    def max_range_m(self) -> float:
+        """Farthest range it measures, metres."""
 
     @property
     def range_noise_m(self) -> float:
+        """Standard deviation of its simulated range noise, metres (0: none)."""
         return 0.0
 
     @abc.abstractmethod
     def beam_directions(self) -> np.ndarray:
-        """(B, U, 3) unit directions in the sensor frame: B beams of U sub-rays each (the
-        beam's aperture; a simulated beam returns its nearest sub-ray's range)."""
+        """The beams' directions: B beams of U sub-rays each (the beam's aperture; a simulated
+        beam returns its nearest sub-ray's range).
+
+        Returns
+        -------
+        (B, U, 3) ndarray of float64
+            Unit directions in the sensor frame.
+        """
 
     def dataset_fields(
         self, ranges: npt.ArrayLike, no_return: npt.ArrayLike, invalid: npt.ArrayLike | None = None
@@ -65,11 +98,11 @@ class RangeSensor(abc.ABC):
 
         Parameters
         ----------
-        ranges : array_like, (S, B) float
-            Metres per beam (ignored where `no_return` or `invalid`).
-        no_return : array_like, (S, B) bool
+        ranges : (S, B) array_like of float
+            Measured ranges, metres (ignored where `no_return` or `invalid`).
+        no_return : (S, B) array_like of bool
             Beams without a return.
-        invalid : array_like, (S, B) bool, optional
+        invalid : (S, B) array_like of bool, optional
             Beams whose surface lies within the blind distance (default: none).
 
         Returns
@@ -93,7 +126,13 @@ class RangeSensor(abc.ABC):
         }
 
     def metadata(self) -> dict:
-        """What a run file records of the sensor (read back by `vogjax.sensors.from_metadata`)."""
+        """What a run file records of the sensor (read back by `vogjax.sensors.from_metadata`).
+
+        Returns
+        -------
+        dict
+            ``sensor`` (its kind), ``sensor_config`` (its settings) and ``T_vehicle_sensor``.
+        """
         return {
             "sensor": self.kind,
             "sensor_config": self.config.to_dict(),

@@ -8,28 +8,70 @@ to simulate; it tells the mapper its reach (`max_range_m`) and its mount.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.sensors.base import RangeSensor
 
 
 class PointCloudSensor(RangeSensor):
-    """Settings in a PointCloudConfig; mounted at T_vehicle_sensor (from TF, or the vehicle frame)."""
+    """A recorded point-cloud sensor (an imported lidar, depth camera or laser scan): its beams
+    are stored per scan.
+
+    Parameters
+    ----------
+    config : PointCloudConfig or None, optional
+        Its settings.
+    T_vehicle_sensor : (4, 4) array_like of float or None, optional
+        Its mount (from TF; default: the vehicle frame).
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a PointCloudConfig or the mount is not rigid.
+    """
 
     kind = "point_cloud"
 
-    def __init__(self, config: PointCloudConfig | None = None, T_vehicle_sensor=None):
+    def __init__(self, config: PointCloudConfig | None = None, T_vehicle_sensor: npt.ArrayLike | None = None):
         config = config or PointCloudConfig()
         if not isinstance(config, PointCloudConfig):
             raise ValueError(f"config must be a PointCloudConfig, got {type(config).__name__}")
         super().__init__(config, T_vehicle_sensor)
 
-    beams = property(lambda self: self.config.beams)
-    rate_hz = property(lambda self: self.config.rate_hz)
-    min_range_m = property(lambda self: self.config.min_range_m)
-    max_range_m = property(lambda self: self.config.max_range_m)
+    @property
+    def beams(self) -> int:
+        """Beams a scan."""
+        return self.config.beams
+
+    @property
+    def rate_hz(self) -> float:
+        """Scans a second."""
+        return self.config.rate_hz
+
+    @property
+    def min_range_m(self) -> float:
+        """Nearest range it measures, metres."""
+        return self.config.min_range_m
+
+    @property
+    def max_range_m(self) -> float:
+        """Farthest range it measures, metres."""
+        return self.config.max_range_m
 
     def beam_directions(self) -> np.ndarray:
+        """None: a recorded sensor's beams are in its run file.
+
+        Returns
+        -------
+        ndarray
+            Never.
+
+        Raises
+        ------
+        ValueError
+            Always: it cannot be simulated.
+        """
         raise ValueError(
             "a recorded point-cloud sensor has no fixed beams: its run file stores each scan's "
             "beam directions (it cannot be simulated)"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config import SonarConfig
 from vogjax.sensors.base import RangeSensor
@@ -14,23 +15,62 @@ T_VEHICLE_SONAR[0, 3] = 0.9
 
 class ProfilingSonar(RangeSensor):
     """SonarConfig's beams over fov_deg in the sensor's x-z plane, each with `subrays` rays
-    across the elevation aperture; mounted at T_vehicle_sensor (default: at the bow)."""
+    across the elevation aperture.
+
+    Parameters
+    ----------
+    config : SonarConfig or None, optional
+        The sonar's settings (default: the papers' 96 beams over 29 degrees at 5 Hz).
+    T_vehicle_sensor : (4, 4) array_like of float or None, optional
+        Its mount (default `T_VEHICLE_SONAR`: at the bow).
+
+    Raises
+    ------
+    ValueError
+        If `config` is not a SonarConfig or the mount is not rigid.
+    """
 
     kind = "profiling_sonar"
 
-    def __init__(self, config: SonarConfig | None = None, T_vehicle_sensor=None):
+    def __init__(self, config: SonarConfig | None = None, T_vehicle_sensor: npt.ArrayLike | None = None):
         config = config or SonarConfig()
         if not isinstance(config, SonarConfig):
             raise ValueError(f"config must be a SonarConfig, got {type(config).__name__}")
         super().__init__(config, T_VEHICLE_SONAR if T_vehicle_sensor is None else T_vehicle_sensor)
 
-    beams = property(lambda self: self.config.beams)
-    rate_hz = property(lambda self: self.config.rate_hz)
-    min_range_m = property(lambda self: self.config.min_range_m)
-    max_range_m = property(lambda self: self.config.max_range_m)
-    range_noise_m = property(lambda self: self.config.range_noise_m)
+    @property
+    def beams(self) -> int:
+        """Beams a scan."""
+        return self.config.beams
+
+    @property
+    def rate_hz(self) -> float:
+        """Scans a second."""
+        return self.config.rate_hz
+
+    @property
+    def min_range_m(self) -> float:
+        """Nearest range it measures, metres."""
+        return self.config.min_range_m
+
+    @property
+    def max_range_m(self) -> float:
+        """Farthest range it measures, metres."""
+        return self.config.max_range_m
+
+    @property
+    def range_noise_m(self) -> float:
+        """Standard deviation of its simulated range noise, metres."""
+        return self.config.range_noise_m
 
     def beam_directions(self) -> np.ndarray:
+        """The fan's beams, each `subrays` rays across the aperture.
+
+        Returns
+        -------
+        (beams, subrays, 3) ndarray of float64
+            Unit directions in the sensor frame (x ahead, z up).
+        """
         cfg = self.config
         elevation = np.deg2rad(cfg.tilt_deg + np.linspace(-cfg.fov_deg / 2, cfg.fov_deg / 2, cfg.beams))
         if cfg.subrays == 1:
@@ -41,5 +81,12 @@ class ProfilingSonar(RangeSensor):
         return np.stack([np.cos(e) * np.cos(a), np.sin(a), np.sin(e) * np.cos(a)], axis=-1)
 
     def metadata(self) -> dict:
-        # the keys runs have always carried, so older readers and files agree
+        """What a run file records of the sonar, with the keys runs have always carried.
+
+        Returns
+        -------
+        dict
+            `RangeSensor.metadata`'s, and ``sonar`` and ``T_vehicle_sonar`` (so older readers
+            and files agree).
+        """
         return {**super().metadata(), "sonar": self.config.to_dict(), "T_vehicle_sonar": self.T_vehicle_sensor.tolist()}

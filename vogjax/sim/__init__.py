@@ -10,12 +10,22 @@ _HOMES = {
     "simulate_run": "mission",
     "drifting_navigation": "navigation",
     "SimulatedScans": "ranging",
+    "simulate_lidar_run": "lidar_mission",
     "scan": "ranging",
     "simulate": "vehicle",
     "simulate_batch": "vehicle",
 }
 
-__all__ = ["RunSummary", "SimulatedScans", "drifting_navigation", "scan", "simulate", "simulate_batch", "simulate_run"]
+__all__ = [
+    "RunSummary",
+    "SimulatedScans",
+    "drifting_navigation",
+    "scan",
+    "simulate",
+    "simulate_batch",
+    "simulate_lidar_run",
+    "simulate_run",
+]
 
 
 def __getattr__(name):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from os import PathLike
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,20 @@ MAX_LAPS = scenes.scene.MAX_LAPS
 
 @dataclasses.dataclass(frozen=True)
 class RunSummary:
+    """What `simulate_run` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The run file.
+    scans : int
+        Scans recorded.
+    duration_s : float
+        Time from the first scan to the last, seconds.
+    returns : float
+        Share of the beams that returned.
+    """
+
     path: Path
     scans: int
     duration_s: float
@@ -57,7 +72,7 @@ def mission_scans(
 
 def simulate_run(
     scene_name: str,
-    out,
+    out: str | PathLike,
     laps: int | None = None,
     seed: int = 0,
     num_scans: int | None = None,
@@ -68,12 +83,41 @@ def simulate_run(
 ) -> RunSummary:
     """Simulate the default survey of a built-in scene and write it to `out` (HDF5).
 
-    laps: times the survey is flown (default 2, or with `num_scans` as many as fill them);
-    num_scans: scans recorded (default: enough for the laps; the run ends 5 s after the last
-    waypoint); sensor: a RangeSensor (or a SonarConfig), default the papers' profiling sonar,
-    at a rate of 20/n Hz (a whole number of physics steps between scans, so the recorded scan
-    times k / rate_hz are the simulated ones: `vehicle.steps_per_scan`); overwrite: replace an
-    existing `out` (else that is an error, raised before any work)."""
+    Parameters
+    ----------
+    scene_name : str
+        A built-in underwater scene (`vogjax.scenes.NAMES`; the warehouse is
+        `simulate_lidar_run`'s).
+    out : str or os.PathLike
+        The run file to write.
+    laps : int or None, optional
+        Times the survey is flown (default 2, or with `num_scans` as many as fill them).
+    seed : int, optional
+        Seed of the navigation's drift and the range noise.
+    num_scans : int or None, optional
+        Scans recorded (default: enough for the laps; the run ends 5 s after the last waypoint).
+    sensor : RangeSensor or SonarConfig or None, optional
+        The sensor (default the papers' profiling sonar), at a rate of 20/n Hz (a whole number
+        of physics steps between scans, so the recorded scan times k / rate_hz are the
+        simulated ones: `vehicle.steps_per_scan`).
+    noise : NavNoise or None, optional
+        The navigation's drift (default: the papers').
+    progress : bool, optional
+        Show a progress bar (on stderr).
+    overwrite : bool, optional
+        Replace an existing `out`; without it that is an error, raised before any work.
+
+    Returns
+    -------
+    RunSummary
+        The file, its scans, duration and share of returns.
+
+    Raises
+    ------
+    ValueError
+        If `out` exists (without `overwrite`) or cannot be written, the scene is unknown, or
+        `laps`, `seed`, `num_scans`, `sensor` or `noise` is out of range.
+    """
     out = Path(out)
     if out.exists() and not overwrite:
         raise ValueError(f"out {str(out)!r} exists (pass overwrite=True, or --overwrite, to replace it)")

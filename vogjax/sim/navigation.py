@@ -14,12 +14,35 @@ from vogjax.validation import real_array
 def drifting_navigation(
     truth: np.ndarray, times_s: np.ndarray, noise: NavNoise | None = None, seed: int = 0
 ) -> np.ndarray:
-    """Navigation poses (N,4,4) for ground-truth poses (N,4,4) at times (N,), seeded.
+    """Navigation poses drifting from the ground truth as in Sodhi et al. (Eq. 10), seeded.
 
     Each step's true motion is perturbed in x, y (its own frame) and yaw with variances
     sigma^2 * dt and chained onto the previous navigation pose; z, pitch and roll are then
-    replaced by the truth's plus noise of variance sigma^2 * dt. truth: rigid poses; times_s:
-    finite and non-decreasing (a step back in time would be a negative variance)."""
+    replaced by the truth's plus noise of variance sigma^2 * dt.
+
+    Parameters
+    ----------
+    truth : (N, 4, 4) ndarray of float64
+        Rigid ground-truth poses.
+    times_s : (N,) ndarray of float64
+        Their times: finite and non-decreasing (a step back in time would be a negative
+        variance).
+    noise : NavNoise or None, optional
+        The variances per second (default: the papers').
+    seed : int, optional
+        Seed of the noise.
+
+    Returns
+    -------
+    (N, 4, 4) ndarray of float64
+        The navigation poses; the first is the truth's.
+
+    Raises
+    ------
+    ValueError
+        If the poses are not rigid, the times are not finite, of shape (N,) and
+        non-decreasing, or `noise` is not a NavNoise.
+    """
     truth = rigid_poses("truth", truth)
     times_s = real_array("times_s", times_s)
     if times_s.shape != (len(truth),):

@@ -8,9 +8,10 @@ import numpy as np
 import warp as wp
 
 from vogjax import devices
+from vogjax.config import SonarConfig
 from vogjax.geometry import rigid_poses
 from vogjax.kernels import ranging
-from vogjax.sensors import as_sensor
+from vogjax.sensors import RangeSensor, as_sensor
 
 # Beams cast in one call: their ranges and directions take ~40 bytes each (670 MB).
 MAX_CAST_BEAMS = 1 << 24
@@ -18,10 +19,22 @@ MAX_CAST_BEAMS = 1 << 24
 
 @dataclasses.dataclass(frozen=True)
 class SimulatedScans:
-    """S scans of B beams, world frame: origins (S,3); directions (S,B,3) unit vectors;
-    ranges (S,B) metres (NaN where no return or invalid); no_return (S,B) bool, no surface
-    within the sensor's range; invalid (S,B) bool, a surface within its blind distance
-    (`min_range_m`), so the beam measured nothing."""
+    """S scans of B beams, world frame.
+
+    Attributes
+    ----------
+    origins : (S, 3) ndarray of float64
+        The sensor's origin at each scan.
+    directions : (S, B, 3) ndarray of float64
+        Unit beam directions.
+    ranges : (S, B) ndarray of float64
+        Ranges, metres (NaN where no return or invalid).
+    no_return : (S, B) ndarray of bool
+        Beams without a return: no surface within the sensor's range.
+    invalid : (S, B) ndarray of bool
+        Beams whose surface lies within the sensor's blind distance (`min_range_m`): they
+        measured nothing.
+    """
 
     origins: np.ndarray
     directions: np.ndarray
@@ -30,10 +43,36 @@ class SimulatedScans:
     invalid: np.ndarray
 
 
-def scan(mesh: wp.Mesh, T_world_sensor: np.ndarray, sensor, rng: np.random.Generator | None = None) -> SimulatedScans:
-    """Scans from sensor poses (S,4,4), one per pose, all in one launch. `sensor`: a
-    vogjax.sensors.RangeSensor (or a SonarConfig, for the papers' profiling sonar). The poses
-    must be rigid (a scaled rotation would scale every range) and finite."""
+def scan(
+    mesh: wp.Mesh,
+    T_world_sensor: np.ndarray,
+    sensor: RangeSensor | SonarConfig,
+    rng: np.random.Generator | None = None,
+) -> SimulatedScans:
+    """Scans from sensor poses, one per pose, all in one launch.
+
+    Parameters
+    ----------
+    mesh : warp.Mesh
+        The scene (`Scene.warp_mesh`).
+    T_world_sensor : (S, 4, 4) ndarray of float64
+        The sensor's poses: rigid (a scaled rotation would scale every range) and finite.
+    sensor : RangeSensor or SonarConfig
+        The sensor (a SonarConfig: the papers' profiling sonar with it).
+    rng : numpy.random.Generator or None, optional
+        Source of the range noise (None: no noise).
+
+    Returns
+    -------
+    SimulatedScans
+        The scans, world frame.
+
+    Raises
+    ------
+    ValueError
+        If `mesh` is not a warp.Mesh, the poses are not rigid and finite, `rng` is not a
+        Generator, `sensor` is not a sensor, or the scans hold more than MAX_CAST_BEAMS beams.
+    """
     if not isinstance(mesh, wp.Mesh):
         raise ValueError(f"mesh must be a warp.Mesh (a Scene's warp_mesh), got {type(mesh).__name__}")
     poses = rigid_poses("T_world_sensor", T_world_sensor)

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import numpy.typing as npt
 from mujoco import mjx
 
 from vogjax.config import ControllerConfig
@@ -165,11 +166,41 @@ def _start_poses(name: str, value) -> np.ndarray:
 
 
 def simulate(
-    start_pose, waypoints, num_scans: int, scan_rate_hz: float = 5.0, config: ControllerConfig = ControllerConfig()
+    start_pose: npt.ArrayLike,
+    waypoints: npt.ArrayLike,
+    num_scans: int,
+    scan_rate_hz: float = 5.0,
+    config: ControllerConfig = ControllerConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fly from start_pose (4,4) through waypoints (W,4: x, y, z, yaw; W >= 1); the pose at each
-    scan (num_scans,4,4) and the index of the waypoint being flown to. scan_rate_hz must give a
-    whole number of physics steps between scans (`steps_per_scan`), so scan k is at k / rate."""
+    """Fly the vehicle in MJX from a start pose through waypoints, recording its pose at each scan.
+
+    Parameters
+    ----------
+    start_pose : (4, 4) array_like of float
+        The vehicle's rigid start pose, world frame.
+    waypoints : (W, 4) array_like of float
+        x, y, z (m) and yaw (rad) of each waypoint, W >= 1, flown in order.
+    num_scans : int
+        Scans to record.
+    scan_rate_hz : float, optional
+        Scans a second; it must give a whole number of physics steps between scans
+        (`steps_per_scan`), so scan k is at k / rate.
+    config : ControllerConfig, optional
+        The waypoint controller's settings.
+
+    Returns
+    -------
+    poses : (num_scans, 4, 4) ndarray of float64
+        The vehicle's pose at each scan.
+    index : (num_scans,) ndarray of int
+        The waypoint being flown to at each scan.
+
+    Raises
+    ------
+    ValueError
+        If the start pose is not rigid, the waypoints are not finite (W, 4), or `num_scans` or
+        `scan_rate_hz` is out of range.
+    """
     start_pose = _start_poses("start_pose", rigid_pose("start_pose", start_pose))[0]  # (4,4) only
     waypoints = _waypoints(waypoints, (-1, 4))
     steps = _flight_args(num_scans, scan_rate_hz, config)
@@ -181,9 +212,39 @@ def simulate(
 
 
 def simulate_batch(
-    start_poses, waypoints, num_scans: int, scan_rate_hz: float = 5.0, config: ControllerConfig = ControllerConfig()
+    start_poses: npt.ArrayLike,
+    waypoints: npt.ArrayLike,
+    num_scans: int,
+    scan_rate_hz: float = 5.0,
+    config: ControllerConfig = ControllerConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """`simulate` for V vehicles at once (vmap): start_poses (V,4,4), waypoints (V,W,4)."""
+    """`simulate` for V vehicles at once (vmap).
+
+    Parameters
+    ----------
+    start_poses : (V, 4, 4) array_like of float
+        Each vehicle's rigid start pose.
+    waypoints : (V, W, 4) array_like of float
+        Each vehicle's waypoints: x, y, z (m), yaw (rad).
+    num_scans : int
+        Scans to record per vehicle.
+    scan_rate_hz : float, optional
+        Scans a second (a whole number of physics steps between scans).
+    config : ControllerConfig, optional
+        The waypoint controller's settings.
+
+    Returns
+    -------
+    poses : (V, num_scans, 4, 4) ndarray of float64
+        Each vehicle's pose at each scan.
+    index : (V, num_scans) ndarray of int
+        The waypoint each is flying to.
+
+    Raises
+    ------
+    ValueError
+        As `simulate`'s, or if V times `num_scans` exceeds MAX_SCANS.
+    """
     start_poses = _start_poses("start_poses", start_poses)
     waypoints = _waypoints(waypoints, (len(start_poses), -1, 4))
     steps = _flight_args(num_scans, scan_rate_hz, config)

@@ -300,7 +300,7 @@ def icp_batch(
     # is a fixed point), it goes round the same cycle (none of its steps below the tolerance,
     # or it would have stopped) and never converges: it stops there instead of at
     # max_iterations (a third of ICP's work on a propeller survey).
-    cycles = [{} for _ in range(count)] if method == "point_to_plane" and config.free != "all" else None
+    cycles = [{} for _ in range(count)] if method == "point_to_plane" and config.free == "translation" else None
     for _ in range(config.max_iterations):
         ids = np.flatnonzero(active)
         if len(ids) == 0:
@@ -473,8 +473,11 @@ def _result(source, target, tree, normals, T, converged, iterations, config) -> 
 
 def _free_columns(config: IcpConfig) -> np.ndarray:
     """Mask of the tangent directions (rotation, translation) ICP may move: a held direction
-    contributes nothing to J^T J, so it is never updated and never reported as constrained."""
-    return np.array([config.free == "all"] * 3 + [True] * 3, dtype=np.float64)
+    contributes nothing to J^T J, so it is never updated and never reported as constrained.
+    "yaw" frees the rotation about the source's z axis (the vehicle's vertical when it is about
+    level) with the translation."""
+    rotation = [config.free == "all"] * 2 + [config.free in ("all", "yaw")]
+    return np.array(rotation + [True] * 3, dtype=np.float64)
 
 
 def _cloud(name: str, value) -> np.ndarray:

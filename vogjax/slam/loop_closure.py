@@ -82,7 +82,17 @@ class LoopClosure:
     distance: float = np.nan
 
 
-REASONS = ("overlap", "ambiguous", "not converged", "fitness", "inliers", "refinement", "drift", "inconsistent")
+REASONS = (
+    "overlap",
+    "ambiguous",
+    "not converged",
+    "fitness",
+    "inliers",
+    "refinement",
+    "drift",
+    "yaw drift",
+    "inconsistent",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,13 +109,14 @@ class Rejection:
         The first test it failed (`REASONS`): "overlap" (correlative peak score), "ambiguous"
         (runner-up over peak), "not converged" (ICP), "fitness" (mean squared inlier distance),
         "inliers" (share of the source matched), "refinement" (how far ICP moved the peak),
-        "drift" (offset from the navigation), "inconsistent" (the pose graph's screen).
+        "drift" (x-y offset from the navigation), "yaw drift" (yaw offset from the navigation,
+        when ICP solves the yaw), "inconsistent" (the pose graph's screen).
     fitness : float
         ICP's mean squared inlier distance, m^2; NaN when ICP did not run.
     deviation_m : float
         x-y offset of ICP's result from the navigation's relative pose; NaN without ICP.
     value : float
-        The figure that failed, in the test's units (score, ratio, m^2, share, m, or the
+        The figure that failed, in the test's units (score, ratio, m^2, share, m, rad, or the
         screen's Mahalanobis distance); NaN for "not converged".
     limit : float
         The bound it failed against.
@@ -329,28 +340,32 @@ class LoopClosureDetector:
         if not found:
             return accepted, rejected
         cfg = self.config
-        pairs = []
+        solves_yaw = cfg.icp.free != "translation"
+        pairs, bounds_m = [], []
         for i in found:
             elapsed = abs(times_s[k] - times_s[i])
             # with ICP holding the rotation, the search takes the yaw from the estimate too
-            yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if cfg.icp.free == "all" else 0.0
+            yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if solves_yaw else 0.0
+            lever = _yaw_lever_m2(i, k, nav_poses, times_s) if solves_yaw else None
+            bounds_m.append(self._drift_bound(elapsed, lever))
             pairs.append(
                 (
                     clouds[k],
                     self._target(i, clouds[i]),
                     inverse(poses[i]) @ poses[k],
-                    min(self._drift_bound(elapsed), cfg.max_search_m),
+                    min(bounds_m[-1], cfg.max_search_m),
                     yaw_radius,
                 )
             )
         alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device)
-        for i, alignment in zip(found, alignments):
+        for i, alignment, bound in zip(found, alignments, bounds_m):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             result = alignment.icp
-            deviation = (
-                np.nan if result is None else float(np.linalg.norm((inverse(odometry) @ result.T_target_source)[:2, 3]))
-            )
-            failed = self._rejection(alignment, len(clouds[k]), deviation, abs(times_s[k] - times_s[i]))
+            offset = None if result is None else inverse(odometry) @ result.T_target_source
+            deviation = np.nan if offset is None else float(np.linalg.norm(offset[:2, 3]))
+            yaw_bound = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * abs(times_s[k] - times_s[i]))
+            yaw = (np.nan, yaw_bound) if offset is None or not solves_yaw else (abs(_yaw_of(offset)), yaw_bound)
+            failed = self._rejection(alignment, len(clouds[k]), deviation, bound, yaw)
             if failed:
                 reason, value, limit = failed
                 fitness, found_T = (np.nan, None) if result is None else (result.fitness, result.T_target_source)
@@ -359,14 +374,25 @@ class LoopClosureDetector:
                 accepted.append(self._closure(i, k, alignment))
         return accepted, rejected
 
-    def _drift_bound(self, elapsed_s: float) -> float:
-        """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma."""
-        return self.config.drift_sigmas * np.sqrt((self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s)
+    def _drift_bound(self, elapsed_s: float, lever_m2: float | None = None) -> float:
+        """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma of
+        the x and y drift, and with `lever_m2` (when ICP solves the yaw, so the yaw is taken
+        to drift) of the x-y error the yaw drift leaves: sigma2_yaw times `lever_m2`."""
+        variance = (self.noise.sigma2_x + self.noise.sigma2_y) * elapsed_s
+        if lever_m2 is not None:
+            variance = variance + self.noise.sigma2_yaw * lever_m2
+        return self.config.drift_sigmas * np.sqrt(variance)
 
     def _rejection(
-        self, alignment: Alignment, source_points: int, deviation: float, elapsed_s: float
+        self,
+        alignment: Alignment,
+        source_points: int,
+        deviation: float,
+        bound_m: float,
+        yaw: tuple[float, float] = (np.nan, np.nan),
     ) -> tuple[str, float, float] | None:
-        """(reason, the figure that failed, its bound) of the first test failed, or None."""
+        """(reason, the figure that failed, its bound) of the first test failed, or None; `yaw`:
+        the result's yaw offset from the navigation and its bound (NaN: not tested)."""
         cfg, result = self.config, alignment.icp
         if alignment.overlap < cfg.min_overlap_score:
             return "overlap", alignment.overlap, cfg.min_overlap_score
@@ -381,9 +407,10 @@ class LoopClosureDetector:
         refinement = float(np.linalg.norm((inverse(alignment.T_seed) @ result.T_target_source)[:2, 3]))
         if refinement > cfg.max_refinement_m:
             return "refinement", refinement, cfg.max_refinement_m
-        bound = self._drift_bound(elapsed_s)
-        if deviation > bound:
-            return "drift", deviation, bound
+        if deviation > bound_m:
+            return "drift", deviation, bound_m
+        if yaw[0] > yaw[1]:
+            return "yaw drift", yaw[0], yaw[1]
         return None
 
     def _closure(self, i: int, k: int, alignment: Alignment) -> LoopClosure:
@@ -418,3 +445,18 @@ class LoopClosureDetector:
             alignment.overlap,
             alignment.ambiguity,
         )
+
+
+def _yaw_of(T: np.ndarray) -> float:
+    """Yaw of a rigid transform's rotation, radians."""
+    return float(np.arctan2(T[1, 0], T[0, 0]))
+
+
+def _yaw_lever_m2(i: int, k: int, nav_poses: np.ndarray, times_s: np.ndarray) -> float:
+    """sum_j dt_j |p_k - p_j|^2 over the base poses j = i..k-1 between submaps i < k (their
+    navigation positions p, base times t; dt_j = t_j+1 - t_j): the yaw drift of step j turns
+    the path after it about p_j, so it moves submap k by its angle times |p_k - p_j|, and the
+    x-y variance it leaves at k is sigma2_yaw times this sum (m^2 s)."""
+    positions = nav_poses[i : k + 1, :2, 3]
+    arms = np.sum((positions[-1] - positions[:-1]) ** 2, axis=1)
+    return float(np.sum(np.diff(times_s[i : k + 1]) * arms))
