@@ -519,7 +519,13 @@ def sonar_rays(scene, noise_m: float, laps: int, seed: int):
     length = np.where(scans.no_return, config.max_range_m * 1.05 + 0.1, scans.ranges)
     points = scans.origins[:, None] + scans.directions * length[..., None]
     count, beams = scans.ranges.shape
-    return scans.origins, points.reshape(-1, 3), np.repeat(np.arange(count), beams), float(scans.no_return.mean())
+    valid = ~scans.invalid.reshape(-1)  # a surface within the blind distance: the beam clears nothing
+    return (
+        scans.origins,
+        points.reshape(-1, 3)[valid],
+        np.repeat(np.arange(count), beams)[valid],
+        float(scans.no_return.mean()),
+    )
 
 
 def labelled(truth, centres: np.ndarray):

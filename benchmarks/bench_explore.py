@@ -35,6 +35,7 @@ Writes explore_<device>.json and explore_rmse.png, explore_timing.png, explore_v
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import json
 import platform
@@ -47,17 +48,21 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import warp as wp  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 import vogjax as vj  # noqa: E402
 from vogjax import planner, scenes  # noqa: E402
-from vogjax.config.planner import PlannerConfig  # noqa: E402
+from vogjax.config.planner import (
+    PAPERS,  # noqa: E402
+    PlannerConfig,  # noqa: E402
+)
 from vogjax.geometry import inverse  # noqa: E402
 from vogjax.io.dataset import Dataset  # noqa: E402
 from vogjax.pipeline import Mapper  # noqa: E402
 from vogjax.report.metrics import register_to_surface  # noqa: E402
 from vogjax.sim import simulate_run  # noqa: E402
-from vogjax.sim.explore import PIECE_SCANS, csv_path_of, explore  # noqa: E402
+from vogjax.sim.explore import PIECE_SCANS, csv_path_of, explore, scene_planner  # noqa: E402
 
 BOX_M = np.array(PlannerConfig().box_m)
 
@@ -66,8 +71,8 @@ SCAN_PERIOD_S = 0.2  # Table 4.2: the sonar's 5 frames per second
 
 
 def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
-    """Ho's propeller parameters (thesis Table 4.2): the planner's defaults, OctoMap resolution
-    0.095 m, 100 scans per submap, and the thesis's drift (Eq. 4.1)."""
+    """Ho's propeller parameters (thesis Table 4.2): the planner's defaults with the papers' rule
+    (`PAPERS`), OctoMap resolution 0.095 m, 100 scans per submap, and the thesis's drift (Eq. 4.1)."""
     # Eq. 4.1 adds dt * N(0, Sigma) to each step (Sigma in m^2/s, Sodhi's values): a variance of
     # dt * Sigma per second, a fifth of what Sodhi's Eq. 10 (NavNoise's reading) accrues at 5 Hz
     sodhi = vj.NavNoise()
@@ -77,7 +82,7 @@ def table_4_2(seed: int) -> tuple[PlannerConfig, vj.PipelineConfig]:
         sigma2_y=sodhi.sigma2_y * SCAN_PERIOD_S,
         sigma2_yaw=sodhi.sigma2_yaw * SCAN_PERIOD_S,
     )
-    return PlannerConfig(seed=seed), vj.PipelineConfig(
+    return PlannerConfig(seed=seed, **PAPERS), vj.PipelineConfig(
         map=vj.MapConfig(voxel_size=0.095), scans_per_submap=100, nav_noise=thesis
     )
 
@@ -129,8 +134,7 @@ def explored_curve(path: Path, scene, voxel_size: float, every: int = 100) -> di
     path_m, last = 0.0, None
     with Dataset(path) as run:
         for batch in run.batches(every):
-            origins, ends = batch.world(batch.pose_truth, vmap.config.max_range)
-            vmap.integrate_scans(origins, ends.reshape(-1, 3), np.repeat(np.arange(len(batch)), ends.shape[1]))
+            vmap.integrate_scans(*batch.beams(batch.pose_truth, vmap.config.max_range))
             positions = batch.pose_truth[:, :3, 3] if last is None else np.vstack([last, batch.pose_truth[:, :3, 3]])
             path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
             last = batch.pose_truth[-1, :3, 3]
@@ -350,11 +354,268 @@ def table_4_3(runs: list[dict]) -> list[dict]:
     return rows
 
 
+# ------------------------------------------------------------------ planner vs scripted survey
+TURN_IN_PLACE_SPEED_MPS = 0.05  # a fifth of the speed limit: the vehicle is not translating
+TURNING_RATE_RPS = 0.03  # a fifth of the yaw-rate limit: the vehicle is turning
+MEASURE_VOXEL_M = 0.1
+
+
+def motion_shares(truth: np.ndarray, rate_hz: float) -> dict:
+    """Shares of the scan intervals of a true path (S,4,4) spent turning (yaw rate above
+    TURNING_RATE_RPS) and turning in place (that, translating slower than
+    TURN_IN_PLACE_SPEED_MPS), with the yaw and path totals."""
+    yaw = np.unwrap(np.arctan2(truth[:, 1, 0], truth[:, 0, 0]))
+    rate = np.abs(np.diff(yaw)) * rate_hz
+    speed = np.linalg.norm(np.diff(truth[:, :3, 3], axis=0), axis=1) * rate_hz
+    turning = rate > TURNING_RATE_RPS
+    return {
+        "turning": float(turning.mean()) if len(rate) else 0.0,
+        "turning_in_place": float((turning & (speed < TURN_IN_PLACE_SPEED_MPS)).mean()) if len(rate) else 0.0,
+        "yaw_rad": float(np.abs(np.diff(yaw)).sum()),
+        "path_m": float(speed.sum() / rate_hz),
+    }
+
+
+def volume_curve(path: Path, scene, every: int = 50, last: int | None = None) -> dict:
+    """Known (free or occupied) volume of the scene's region in a 0.1 m map built from the
+    run's beams at their true poses, after every `every` scans (and at the last, or at `last`)."""
+    vmap = vj.VoxelMap(vj.MapConfig(voxel_size=MEASURE_VOXEL_M))
+    lo, hi = scene.region()
+    out = {"scans": [], "m3": []}
+    with Dataset(path) as run:
+        end = len(run) if last is None else min(last, len(run))
+        for first in range(0, end, every):
+            batch = run.read(first, min(first + every, end))
+            vmap.integrate_scans(*batch.beams(batch.pose_truth, vmap.config.max_range))
+            out["scans"].append(first + len(batch))
+            out["m3"].append(known_m3(vmap, lo, hi))
+    return out
+
+
+@wp.kernel
+def distance_to_surface(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), distance: wp.array(dtype=float)):
+    tid = wp.tid()
+    query = wp.mesh_query_point_no_sign(mesh, points[tid], 1.0e6)
+    distance[tid] = 1.0e6
+    if query.result:
+        distance[tid] = wp.length(points[tid] - wp.mesh_eval_position(mesh, query.face, query.u, query.v))
+
+
+def hidden_centres(scene, truth, depth_m: float) -> np.ndarray:
+    """Centres of ground-truth voxels inside a solid (INSIDE) deeper than depth_m below its
+    surface (tests/test_blind_distance.py holds the same reference)."""
+    centres = truth.centres(scenes.INSIDE)
+    if not len(centres):
+        return centres
+    distance = wp.empty(len(centres), dtype=float, device="cpu")
+    wp.launch(
+        distance_to_surface,
+        dim=len(centres),
+        inputs=[scene.warp_mesh.id, wp.array(centres, dtype=wp.vec3, device="cpu")],
+        outputs=[distance],
+        device="cpu",
+    )
+    return centres[distance.numpy() > depth_m]
+
+
+def free_behind(scene, maps: dict, truth) -> dict:
+    """FREE voxels behind a surface per map (wholly inside a solid; for the tank also outside its
+    wall below its rim): maps on the world grid read at INSIDE centres deeper than half a
+    voxel's diagonal, maps of submaps deeper than a whole diagonal (their voxels are pulled
+    from the submaps' own grids)."""
+    diagonal = np.sqrt(3) * truth.voxel_size
+    # and three sigmas of the runs' 2 cm range noise: a return that far beyond the surface is
+    # the sensor's, and the voxels before it are cleared
+    noise = 0.06
+    hidden = {reach: hidden_centres(scene, truth, reach + noise) for reach in (diagonal / 2, diagonal)}
+    out = {}
+    for name, m in maps.items():
+        reach = diagonal / 2 if name in ("standard", "true_pose_map") else diagonal
+        count = int(np.count_nonzero(m.state(hidden[reach]) == vj.FREE)) if len(hidden[reach]) else 0
+        if scene.name == "tank" and hasattr(m, "voxels"):
+            centres = m.voxels()[0]
+            free = centres[m.state(centres) == vj.FREE]
+            radius = np.linalg.norm(free[:, :2], axis=1)
+            count += int(np.count_nonzero((radius > 3.7 + reach + noise) & (free[:, 2] < 3.1 - reach)))
+        out[name] = count
+    return out
+
+
+def compare_run(scene_name: str, seed: int, submaps: int, folder: Path, config: PlannerConfig, label: str) -> dict:
+    """One `explore` run (`config`; the pipeline's defaults) of `submaps` submaps, measured: its
+    volume curve from true poses, collisions of the true box with the true mesh, motion, planning
+    times, predicted and realised gain (its CSV), free voxels behind surfaces in every map."""
+    scene = scenes.load(scene_name)
+    out = folder / f"{scene_name}_{label}_{seed}.h5"
+    kept = {}
+    start = time.perf_counter()
+    summary = explore(
+        scene_name,
+        out,
+        submaps,
+        seed=seed,
+        planner_config=config,
+        on_iteration=lambda mapper, plan, row: kept.update(mapper=mapper),
+        overwrite=True,
+        progress=False,
+    )
+    wall_s = time.perf_counter() - start
+    with open(summary.csv_path) as f:
+        rows = list(csv.DictReader(f))
+    with Dataset(out) as run:
+        truth_poses = run.read(0, len(run)).pose_truth
+        rate_hz = vj.sensors.from_metadata(run.metadata).rate_hz
+    result = kept["mapper"].result()
+    true_map = vj.VoxelMap(vj.MapConfig(voxel_size=MEASURE_VOXEL_M))
+    with Dataset(out) as run:
+        for batch in run.batches(500):
+            true_map.integrate_scans(*batch.beams(batch.pose_truth, 11.0))
+    behind = free_behind(
+        scene,
+        {
+            "true_pose_map": true_map,
+            "truth_merge": result.truth_merge,
+            "standard": result.standard_map,
+            "global": result.global_map,
+        },
+        scene.occupancy(MEASURE_VOXEL_M),
+    )
+    names = list(rows[0]) if rows else []
+    column = lambda name: np.array([float(r[name]) for r in rows]) if name in names else np.zeros(0)  # noqa: E731
+    return {
+        "scene": scene_name,
+        "seed": seed,
+        "rule": label,
+        "scans": summary.scans,
+        "submaps": summary.submaps,
+        "iterations": summary.iterations,
+        "stopped": summary.stopped,
+        "wall_s": wall_s,
+        "volume": volume_curve(out, scene),
+        "motion": motion_shares(truth_poses, rate_hz),
+        "collisions": box_hits(scene, truth_poses),
+        "free_behind_surfaces": behind,
+        "plan_s": column("plan_s").tolist(),
+        "predicted_m3": column("predicted_m3").tolist(),
+        "realised_m3": column("realised_m3").tolist(),
+        "step": [str(r["step"]) for r in rows] if "step" in names else [],
+        "run": str(out),
+    }
+
+
+def machine() -> dict:
+    """Where it ran: CPU, cores, load when it started, Python, device."""
+    import os
+
+    return {
+        "cpu": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "load_1min_at_start": os.getloadavg()[0],
+        "python": platform.python_version(),
+        "device": str(vj.devices.resolve(None)),
+        "date": time.strftime("%Y-%m-%d"),
+    }
+
+
+def plot_compare(report: dict, path: Path) -> None:
+    """Known volume over scans, planner (one line per seed) against the scripted survey, per scene."""
+    names = list(dict.fromkeys(r["scene"] for r in report["runs"]))
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        runs = [r for r in report["runs"] if r["scene"] == name]
+        longest = max(runs, key=lambda r: r["scans"])
+        ax.plot(longest["survey_curve"]["scans"], longest["survey_curve"]["m3"], "k-", lw=2, label="scripted survey")
+        for r in runs:
+            label = f"planner, seed {r['seed']} ({r['ratio']:.2f}x)"
+            ax.plot(r["volume"]["scans"], r["volume"]["m3"], "-", label=label)
+        ax.set_title(f"{name}")
+        ax.set_xlabel("scans")
+        ax.set_ylabel("known volume of the scene [m^3]")
+        ax.legend(fontsize=7)
+    fig.suptitle(
+        f"Exploration ({report['rule']} rule) vs the scripted survey at equal scans, {report['submaps']} submaps"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def settings(pairs: list[str]) -> dict:
+    """PlannerConfig changes from KEY=VALUE strings (TOML values: 1.5, true, "frontier")."""
+    import tomllib
+
+    return {key: value for pair in pairs for key, value in tomllib.loads(pair).items()}
+
+
+def compare_scenes(args) -> dict:
+    """Per scene and seed: the planner (time-aware rule, or `--rule papers`) against the
+    scripted survey of `vogjax simulate` at the planner's scan count."""
+    folder = args.keep or Path(tempfile.mkdtemp())
+    folder.mkdir(parents=True, exist_ok=True)
+    runs, surveys = [], {}
+    for scene_name in args.scenes.split(","):
+        for seed in [int(x) for x in args.seeds.split(",")]:
+            config = scene_planner(scene_name, seed, args.rule).replace(**settings(args.set))
+            r = compare_run(scene_name, seed, args.submaps, folder, config, args.label or args.rule)
+            if scene_name not in surveys:
+                survey_path = folder / f"{scene_name}_survey.h5"
+                if survey_path.exists():  # kept from an earlier comparison: the same survey
+                    with Dataset(survey_path) as ds:
+                        if len(ds) >= r["scans"]:
+                            surveys[scene_name] = survey_path
+            if scene_name not in surveys:
+                simulate_run(
+                    scene_name,
+                    survey_path,
+                    num_scans=max(3 * r["scans"], 2000),
+                    sensor=vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.02)),
+                    progress=False,
+                    overwrite=True,
+                )
+                surveys[scene_name] = survey_path
+            scene = scenes.load(scene_name)
+            equal = volume_curve(surveys[scene_name], scene, every=50, last=r["scans"])
+            r["survey_m3_at_equal_scans"] = equal["m3"][-1]
+            r["survey_curve"] = equal
+            r["planner_m3"] = r["volume"]["m3"][-1]
+            r["ratio"] = r["planner_m3"] / r["survey_m3_at_equal_scans"]
+            runs.append(r)
+            print(
+                f"{scene_name} seed {seed} [{args.rule}]: {r['scans']} scans, {r['planner_m3']:.1f} m^3 vs survey "
+                f"{r['survey_m3_at_equal_scans']:.1f} m^3 = {r['ratio']:.2f}x; turning in place "
+                f"{r['motion']['turning_in_place']:.0%} (turning {r['motion']['turning']:.0%}); collisions "
+                f"{r['collisions']}; behind surfaces {r['free_behind_surfaces']}; plan median "
+                f"{np.median(r['plan_s']):.3f} s; predicted/realised "
+                f"{np.sum(r['predicted_m3']):.0f}/{np.sum(r['realised_m3']):.0f} m^3",
+                flush=True,
+            )
+    return {"runs": runs, "surveys": {k: str(v) for k, v in surveys.items()}}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     parser.add_argument("--scene", default="propeller")
-    parser.add_argument("--submaps", type=int, default=156, help="submaps per run (Table 4.2: 156)")
+    parser.add_argument(
+        "--submaps", type=int, default=None, help="submaps per run (default: Table 4.2's 156; with --compare 12)"
+    )
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="planner vs scripted survey per scene and seed (--scenes, --seeds, --rule) instead of the papers' figures",
+    )
+    parser.add_argument("--scenes", default="propeller,pilings,tank,boxes", help="with --compare: scenes")
+    parser.add_argument("--seeds", default="3,4,5", help="with --compare: seeds")
+    parser.add_argument("--rule", default="time", choices=("time", "papers"), help="with --compare: planner rule")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        help='with --compare: a PlannerConfig change, KEY=VALUE (TOML: gain="frontier")',
+    )
+    parser.add_argument(
+        "--label", default=None, help="with --compare: the name of the runs and outputs (default: the rule)"
+    )
     parser.add_argument("--runs", type=int, default=2, help="runs per arm")
     parser.add_argument("--arms", default="standard,global", help="maps the planner plans on")
     parser.add_argument("--timing-every", type=int, default=15, help="submaps between timing probes (0: none)")
@@ -367,8 +628,24 @@ def main() -> None:
     )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    scene = scenes.load(args.scene)
     device = vj.devices.resolve(None)
+    if args.compare:
+        args.submaps = args.submaps or 12
+        report = {
+            "machine": machine(),
+            "submaps": args.submaps,
+            "rule": args.rule,
+            **compare_scenes(args),
+        }
+        label = args.label or args.rule
+        report["settings"] = settings(args.set)
+        path = args.out / f"explore_compare_{label}_{'cuda' if device.is_cuda else 'cpu'}.json"
+        path.write_text(json.dumps(report, indent=1))
+        plot_compare(report, args.out / f"explore_compare_{label}.png")
+        print(f"wrote {path}")
+        return
+    args.submaps = args.submaps or 156
+    scene = scenes.load(args.scene)
     sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.02))
     with tempfile.TemporaryDirectory() as scratch:
         folder = args.keep or Path(scratch)
@@ -406,7 +683,7 @@ def main() -> None:
         "survey": survey,
         "table_4_3": table_4_3(runs),
         "timing": probe.rows if probe else [],
-        "planner": PlannerConfig().to_dict(),
+        "planner": table_4_2(0)[0].to_dict(),
     }
     for row in report["table_4_3"]:
         print(

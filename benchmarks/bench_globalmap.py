@@ -88,7 +88,8 @@ def build_dense_vog(num_submaps: int, device, yaw_sweep_rad: float = 0.1 * np.pi
         sim = scan(mesh, poses, sonar)
         ranges = np.where(sim.no_return, sonar.max_range_m * 1.05 + 0.1, sim.ranges)
         points = (sim.origins[:, None] + sim.directions * ranges[..., None]).reshape(-1, 3)
-        _add_submap(vog, poses[0], sim.origins, points, np.repeat(s, sonar.beams))
+        valid = ~sim.invalid.reshape(-1)  # a surface within the blind distance: the beam clears nothing
+        _add_submap(vog, poses[0], sim.origins, points[valid], np.repeat(s, sonar.beams)[valid])
     return vog
 
 

@@ -235,6 +235,7 @@ def _prefix(path: Path, out: Path, scans: int) -> Path:
                         "sonar_directions",
                         "ranges",
                         "no_return",
+                        "invalid",
                     )
                 }
             )

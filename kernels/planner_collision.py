@@ -5,10 +5,13 @@ the segment meets the voxel's cube grown by the box's half extents (closed inter
 counts). Threads run over (edge, voxel column in x-y); a column walks z through the edge's
 bounding box. Voxels that meet the box at the vehicle's position are free (it is there).
 OCCUPIED voxels are unsafe. UNKNOWN ones are unsafe unless their centre lies within the
-clearance radius of the vehicle's position or (on an edge
-that moves in x-y) the voxel of their column at the height of the edge's centre line there is
-FREE: a sonar fan sees along the layer it travels in, and the box's thin top and bottom slabs
-take that layer's state.
+clearance radius of the vehicle's position (with `layer_only`, and meets the height of the
+vehicle's own box: the water above and below it was never seen, so no climb or descent enters
+it on the clearance's word) or (on an edge
+that moves in x-y; with `layer_only`, on any edge that moves) the voxel of their column at the
+height of the edge's centre line there is FREE (with `layer_only`, or lies in the vehicle's
+box, which is water): a sonar fan sees along the layer it travels in, and the box's thin top
+and bottom slabs take that layer's state; a climb straight up enters only layers seen free.
 """
 
 import warp as wp
@@ -60,19 +63,37 @@ def centre_layer_free(
     candidates: wp.array(dtype=wp.int32),
     first: int,
     last: int,
+    vehicle_lo: wp.vec3d,
+    vehicle_hi: wp.vec3d,
+    seen_layers: int,
 ) -> bool:
     """Is the voxel of `voxel`'s column at the height of the edge's centre line FREE? The
-    height is the line's where it passes nearest the voxel's centre in x-y (none for an edge
-    without x-y motion, nor when that voxel is `voxel` itself)."""
+    height is the line's where it passes nearest the voxel's centre in x-y; none for an edge
+    without x-y motion, nor when that voxel is `voxel` itself. With seen_layers, also: an edge
+    straight up or down takes the line's height nearest the voxel's (the layer at the top of a
+    climb for the slab above it: a climb may enter only layers seen free), and on an edge that
+    moves in x-y a layer voxel in the vehicle's box is water (the vehicle is there)."""
     dx = end[0] - start[0]
     dy = end[1] - start[1]
+    dz = end[2] - start[2]
     flat = dx * dx + dy * dy
+    t = wp.float64(0.0)
     if flat == wp.float64(0.0):
-        return False
-    t = wp.clamp(((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0), wp.float64(1.0))
-    layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * (end[2] - start[2])) * m.inv_resolution)))
+        if seen_layers == 0 or dz == wp.float64(0.0):
+            return False
+        t = wp.clamp((centre[2] - start[2]) / dz, wp.float64(0.0), wp.float64(1.0))
+    else:
+        t = wp.clamp(
+            ((centre[0] - start[0]) * dx + (centre[1] - start[1]) * dy) / flat, wp.float64(0.0), wp.float64(1.0)
+        )
+    layer = wp.vec3i(voxel[0], voxel[1], int(wp.floor((start[2] + t * dz) * m.inv_resolution)))
     if layer[2] == voxel[2]:
         return False
+    if seen_layers != 0 and flat > wp.float64(0.0):  # a climb's layers must be seen, not assumed
+        s = m.resolution
+        lo = wp.vec3d(wp.float64(layer[0]) * s, wp.float64(layer[1]) * s, wp.float64(layer[2]) * s)
+        if boxes_meet(lo, lo + wp.vec3d(s, s, s), vehicle_lo, vehicle_hi):
+            return True
     value = voxel_value(m, layer, store_slot(m, layer), candidates, first, last)
     return state_of(m, value) == FREE
 
@@ -83,6 +104,7 @@ def count_unsafe_voxels(
     starts: wp.array(dtype=wp.vec3d),
     ends: wp.array(dtype=wp.vec3d),
     half: wp.vec3d,
+    half_obstacle: wp.vec3d,
     first_voxels: wp.array(dtype=wp.vec3i),
     sizes: wp.array(dtype=wp.vec3i),
     m: MapAccess,
@@ -90,10 +112,15 @@ def count_unsafe_voxels(
     candidates: wp.array(dtype=wp.int32),
     vehicle: wp.vec3d,
     clearance: wp.float64,
+    layer_only: int,
     unsafe: wp.array(dtype=wp.int32),
 ):
-    """unsafe[edge] > 0 when the box swept along the edge holds an unsafe voxel. sizes[edge]:
-    voxels per axis of the edge's bounding box, from first_voxels[edge]."""
+    """unsafe[edge] > 0 when the box swept along the edge holds an unsafe voxel, or the larger
+    box of half extents half_obstacle (>= half) holds an OCCUPIED one that it does not already
+    hold at the vehicle's position (known obstacles are kept farther off, as the vehicle's
+    estimate drifts from where they were mapped; an edge may still leave a wall it is near).
+    sizes[edge]: voxels per axis of the edge's bounding box (grown by half_obstacle), from
+    first_voxels[edge]."""
     e, column = wp.tid()
     e = e + first_edge
     size = sizes[e]
@@ -114,8 +141,11 @@ def count_unsafe_voxels(
         voxel = wp.vec3i(voxel[0], voxel[1], first_voxels[e][2] + k)
         lo = wp.vec3d(wp.float64(voxel[0]) * s, wp.float64(voxel[1]) * s, wp.float64(voxel[2]) * s)
         hi = wp.vec3d(lo[0] + s, lo[1] + s, lo[2] + s)
-        if not segment_meets_box(start, end, lo - half, hi + half) or boxes_meet(lo, hi, vehicle_lo, vehicle_hi):
-            continue  # outside the swept box, or where the vehicle is (water, whatever the map says)
+        if not segment_meets_box(start, end, lo - half_obstacle, hi + half_obstacle):
+            continue
+        in_box = segment_meets_box(start, end, lo - half, hi + half)
+        if in_box and boxes_meet(lo, hi, vehicle_lo, vehicle_hi):
+            continue  # where the vehicle is: water, whatever the map says
         here = block_of(voxel)
         if not looked_up or here[2] != block[2]:
             slot = store_slot(m, voxel)
@@ -123,13 +153,20 @@ def count_unsafe_voxels(
             looked_up = True
         state = state_of(m, voxel_value(m, voxel, slot, candidates, first, last))
         if state == OCCUPIED:
-            wp.atomic_add(unsafe, e, 1)
-            return
-        if state == UNKNOWN:
+            if in_box or not boxes_meet(lo, hi, vehicle - half_obstacle, vehicle + half_obstacle):
+                wp.atomic_add(unsafe, e, 1)
+                return
+            continue
+        if state == UNKNOWN and in_box:
             centre = voxel_centre(voxel, s)
+            near = wp.length(centre - vehicle) <= clearance
+            if near and layer_only != 0:  # its cube meets the height of the vehicle's box
+                near = wp.abs(centre[2] - vehicle[2]) <= half[2] + wp.float64(0.5) * s
             if not (
-                wp.length(centre - vehicle) <= clearance
-                or centre_layer_free(m, start, end, voxel, centre, candidates, first, last)
+                near
+                or centre_layer_free(
+                    m, start, end, voxel, centre, candidates, first, last, vehicle_lo, vehicle_hi, layer_only
+                )
             ):
                 wp.atomic_add(unsafe, e, 1)
                 return

@@ -4,6 +4,10 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
+NO_RETURN = wp.constant(-1.0)
+# the beam's surface lies within the blind distance: the echo is lost, the beam is invalid
+INVALID = wp.constant(-2.0)
+
 
 @wp.kernel
 def cast_sensor_beams(
@@ -16,14 +20,22 @@ def cast_sensor_beams(
     ranges: wp.array2d(dtype=float),
 ):
     """ranges[scan, beam]: nearest return over the beam's sub-rays (its elevation aperture);
-    -1 where none lies within [min_range, max_range]."""
+    NO_RETURN where none lies within max_range; INVALID where a sub-ray meets the surface
+    within min_range (the sensor's blind distance hides that surface, so the beam says nothing
+    about the water along it) or meets a face from behind (the sensor is inside a solid: a
+    survey that runs the bow into an obstacle)."""
     scan, beam = wp.tid()
     origin = origins[scan]
-    nearest = float(-1.0)
+    nearest = float(NO_RETURN)
+    blind = bool(False)
     for sub in range(beam_directions.shape[1]):
         direction = rotations[scan] * beam_directions[beam, sub]
         query = wp.mesh_query_ray(mesh, origin, direction, max_range)
-        if query.result and query.t >= min_range:
-            if nearest < 0.0 or query.t < nearest:
+        if query.result:
+            if query.t < min_range or query.sign < 0.0:
+                blind = True
+            elif nearest < 0.0 or query.t < nearest:
                 nearest = query.t
+    if blind:
+        nearest = INVALID
     ranges[scan, beam] = nearest

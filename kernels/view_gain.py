@@ -6,12 +6,17 @@ the first OCCUPIED one. Views are grouped (one view, or the views sampled along 
 group owns a segment of an open-addressing hash set of voxel keys, and a voxel counts toward
 its group's unknown / free / occupied totals only when it is first inserted. The set is exact
 and the state is a property of the voxel, so the totals never depend on thread order.
+
+With count_frontier, an UNKNOWN voxel first seen is also counted in a fourth total when one of
+its six face neighbours is FREE: a frontier voxel, on the boundary of the water already seen
+(FUEL's frontier cells). Frontier voxels lie where free space was measured, so none lies behind
+a surface no beam has crossed.
 """
 
 import warp as wp
 
 from .hashing import hash_key, pack_block
-from .planner_maps import OCCUPIED, MapAccess, state_of, store_slot, voxel_value
+from .planner_maps import FREE, OCCUPIED, UNKNOWN, MapAccess, state_of, store_slot, voxel_value
 from .submap_view import voxel_centre
 from .traversal import ray_walk_begin, walk_step
 
@@ -49,6 +54,19 @@ def inside(p: wp.vec3d, lo: wp.vec3d, hi: wp.vec3d) -> bool:
     return p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]
 
 
+@wp.func
+def on_frontier(m: MapAccess, voxel: wp.vec3i, candidates: wp.array(dtype=wp.int32), first: int, last: int) -> bool:
+    """Is one of the voxel's six face neighbours FREE?"""
+    for k in range(6):
+        axis = k / 2
+        neighbour = wp.vec3i(voxel[0], voxel[1], voxel[2])
+        neighbour[axis] = neighbour[axis] + 2 * (k % 2) - 1
+        value = voxel_value(m, neighbour, store_slot(m, neighbour), candidates, first, last)
+        if state_of(m, value) == FREE:
+            return True
+    return False
+
+
 @wp.kernel
 def count_seen_voxels(
     first_view: int,
@@ -68,10 +86,12 @@ def count_seen_voxels(
     anchors: wp.array(dtype=wp.vec3i),
     tables: wp.array(dtype=wp.int64),
     max_probes: int,
+    count_frontier: int,
     counts: wp.array2d(dtype=wp.int32),
     overflow: wp.array(dtype=wp.int32),
 ):
-    """counts[group, state] += the voxels of each state first seen by the group's rays.
+    """counts[group, state] += the voxels of each state first seen by the group's rays;
+    counts[group, 3] += the unknown ones on the frontier, when count_frontier.
 
     A voxel is seen if the ray enters it before max_range and leaves it beyond min_range (the
     sensor's blind distance); with use_region, only voxels whose centre lies in [region_lo,
@@ -103,6 +123,9 @@ def count_seen_voxels(
             added = insert_voxel(tables, base, capacity, pack_block(offset), max_probes)
             if added == 1:
                 wp.atomic_add(counts, group, state, 1)
+                if count_frontier != 0 and state == UNKNOWN:
+                    if on_frontier(m, voxel, candidates, first, last):
+                        wp.atomic_add(counts, group, 3, 1)
             elif added < 0:
                 wp.atomic_add(overflow, group, 1)
         if state == OCCUPIED:

@@ -114,9 +114,14 @@ def tank() -> Scene:
         parts.append(cylinder_between([-3.35, y, 0.0], [-3.35, y, 3.0], 0.03, sections=8))
     for z in np.arange(0.3, 3.0, 0.3):
         parts.append(cylinder_between([-3.35, -0.25, z], [-3.35, 0.25, z], 0.02, sections=8))
-    bounds = np.array([[-6.0, -6.0, 0.25], [6.0, 6.0, 2.75]])
+    # the thesis's box was 12 x 12 x 2.5 m around the 7 m tank; the exploration box is the
+    # tank's inside (x-y within its wall, 2.5 m deep): no view sees past the wall, and gain
+    # counted out there drew the planner to views that could never see it
+    bounds = np.array([[-3.5, -3.5, 0.25], [3.5, 3.5, 2.75]])
     survey = orbit((0.0, 0.0), 2.4, _survey_depths(bounds))  # circle the middle
-    return _scene("tank", parts, bounds, pose(-1.5, 1.5, 1.5, 0.0), survey)
+    # 1.4 m from the centre: turning in place there, the sonar (0.9 m ahead) stays over 1 m from
+    # the wall, out of its 0.5 m blind distance (at 2.1 m it came within 0.44 m)
+    return _scene("tank", parts, bounds, pose(-1.0, 1.0, 1.5, 0.0), survey)
 
 
 def boxes() -> Scene:

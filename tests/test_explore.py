@@ -84,6 +84,10 @@ def test_explore_boxes_never_hits_the_scene_and_reprocesses_to_the_same_map(tmp_
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == list(CSV_FIELDS) and len(rows) >= 3
     assert all(float(r["plan_s"]) > 0 and int(r["rays"]) > 0 for r in rows)
+    # predicted and realised gain per iteration: what the flown edge's views would see, and the
+    # volume the flight added to the gain region
+    assert all(float(r["predicted_m3"]) >= 0 and np.isfinite(float(r["realised_m3"])) for r in rows)
+    assert sum(float(r["realised_m3"]) for r in rows) > 0 and {r["step"] for r in rows} <= {"local", "global"}
     scene = scenes.load("boxes")
     with Dataset(out) as run:
         assert run.metadata["mission"] == "explore" and run.metadata["planner"]["max_nodes"] == 10
@@ -105,6 +109,49 @@ def test_explore_boxes_never_hits_the_scene_and_reprocesses_to_the_same_map(tmp_
     known = (values <= cfg.log_free) | (values >= cfg.log_occupied)
     explored = np.count_nonzero(inside & known) * cfg.voxel_size**3
     assert f"{explored:.1f} m^3 explored" in printed
+
+
+class _Discard:
+    def append(self, **fields):
+        pass
+
+
+def test_the_planner_sees_the_scans_the_mapper_still_holds():
+    """The mapper holds a submap's scans until it is complete; the planning map lays them over
+    the global map at the poses the planner estimates, so a plan sees every scan so far: before
+    the first submap, gains on it equal those on the standard map (the same scans, the same
+    frame), and after one, the held scans are exactly those the mapper has not put in a submap."""
+    from vogjax.config import PipelineConfig
+    from vogjax.sim.explore import _Loop
+
+    scene = scenes.load("boxes")
+    sonar = vj.sensors.ProfilingSonar(vj.SonarConfig(range_noise_m=0.0))
+    loop = _Loop(scene, sonar, vj.NavNoise(), 0, PipelineConfig(scans_per_submap=40), sonar.metadata())
+    loop.writer = _Discard()
+    x, y, z, yaw = loop.true_state()
+    loop.fly([[x, y, z, yaw + 0.9]], timeout_s=5.0)  # 30 scans (pieces of 10): no submap finished
+    assert loop.scans == 30 and loop.mapper.num_submaps == 0
+    views = np.array([pose_from_xyz_yaw(x, y, z, yaw + a) for a in np.linspace(0, 1, 6)]) @ sonar.T_vehicle_sensor
+    planned = vj.planner.view_gain(loop.planning_map("global"), views, sonar, max_range_m=5.0)
+    standard = vj.planner.view_gain(loop.mapper.standard_map, views, sonar, max_range_m=5.0)
+    np.testing.assert_array_equal(planned.unknown, standard.unknown)
+    np.testing.assert_array_equal(planned.occupied, standard.occupied)
+    assert planned.occupied.sum() > 0
+    without = vj.planner.view_gain(loop.mapper.global_map, views, sonar, max_range_m=5.0)
+    assert without.occupied.sum() == 0  # what the planner saw before: nothing
+    loop.fly([[x, y, z, yaw + 2.0]], timeout_s=10.0)  # on, past the first submap's 40 scans
+    assert loop.mapper.num_submaps == 1
+    held = loop.held_scans_map()
+    first = loop.mapper.submaps[0].scans
+    reference = vj.VoxelMap(loop.mapper.config.map)
+    correction = loop.correction("global")
+    for batch in loop._batches:
+        part = batch.rows(max(first - batch.first, 0), len(batch))
+        if len(part):
+            reference.integrate_scans(*part.beams(correction @ part.pose_nav, loop.mapper.reach_m))
+    centres, _ = reference.voxels()
+    np.testing.assert_array_equal(held.state(centres), reference.state(centres))
+    assert len(held.submap(0).voxels()[0]) == len(centres)
 
 
 def test_explore_rejects_bad_input(tmp_path, capsys):

@@ -101,6 +101,32 @@ def test_controller_reaches_waypoints_within_the_limits():
     assert np.abs([yaw_pitch_roll(p[:3, :3])[1:] for p in poses]).max() < 1e-3  # stays level
 
 
+def test_yaw_along_path_turns_while_translating_and_arrives_together():
+    """With yaw_along_path the heading advances with the position along the straight line (the
+    share of the turn done equals the share of the distance flown, up to the thrusters' lag),
+    and both arrive at once; without it the translation ends early and the rest of the turn
+    is flown in place."""
+    from vogjax.config import ControllerConfig
+
+    start, waypoint = pose(0.0, 0.0, 1.0, 0.0), np.array([[1.0, 0.5, 1.0, 2.0]])  # 1.1 m, 2 rad
+    shares = {}
+    for along in (True, False):
+        poses, index = simulate(start, waypoint, 120, config=ControllerConfig(yaw_along_path=along))
+        flown = np.linalg.norm(poses[:, :2, 3], axis=1) / np.linalg.norm(waypoint[0, :2])
+        turned = np.unwrap([yaw_pitch_roll(p[:3, :3])[0] for p in poses]) / 2.0
+        shares[along] = flown, turned
+        np.testing.assert_allclose(poses[-1, :2, 3], waypoint[0, :2], atol=0.15)
+        assert abs(turned[-1] - 1.0) < 0.05
+    flown, turned = shares[True]
+    moving = (flown > 0.05) & (flown < 0.9)
+    assert np.abs(flown[moving] - turned[moving]).max() < 0.08
+    # the translation alone takes 4.5 s at 0.25 m/s, the turn 13 s at 0.15 rad/s: without the
+    # coupling the vehicle is there long before its heading
+    flown, turned = shares[False]
+    there = np.argmax(flown > 0.9)
+    assert turned[there] < 0.5
+
+
 def test_batched_vehicles_equal_one_at_a_time():
     starts = np.stack([pose(0, 0, 1, 0), pose(1, -1, 2, 1.0)])
     waypoints = np.stack([[[1.0, 1.0, 1.0, 0.5], [0.0, 1.0, 1.5, 1.0]], [[2.0, -1.0, 2.0, 0.0], [2.0, 0.0, 1.0, -1.0]]])
@@ -151,12 +177,27 @@ def test_run_round_trip_cli_and_damaged_files(tmp_path, capsys):
         assert [len(b) for b in batches] == [128, 128, 44]
         whole = ds.read(0, 300)
     np.testing.assert_array_equal(np.concatenate([b.ranges for b in batches]), whole.ranges)
-    assert np.array_equal(np.isnan(whole.ranges), whole.no_return) and 0.1 < (~whole.no_return).mean()
+    assert np.array_equal(np.isnan(whole.ranges), whole.no_return | whole.invalid) and 0.1 < whole.returned.mean()
+    assert not np.any(whole.no_return & whole.invalid)
     # beams re-cast from the recorded truth poses land on the scene surface
     origins, ends = whole.world(whole.pose_truth, 11.0)
-    hit = ~whole.no_return
-    _, distance, _ = trimesh.proximity.closest_point(scenes.load("boxes").mesh, ends[hit][::50])
+    hit = whole.returned
+    mesh = scenes.load("boxes").mesh
+    _, distance, _ = trimesh.proximity.closest_point(mesh, ends[hit][::50])
     assert distance.max() < 1e-3
+    # the survey passes within the sonar's 0.5 m blind distance of a box: those beams are
+    # invalid, not "no return"; trimesh's own ray cast (an independent reference) finds their
+    # surface within 0.5 m, and none for the beams without a return
+    assert whole.invalid.sum() > 100
+    starts = np.broadcast_to(origins[:, None], ends.shape)
+    directions = np.einsum("sij,sbj->sbi", whole.pose_truth[:, :3, :3], whole.sonar_directions)
+    for flags, low, high in ((whole.invalid, 0.0, 0.5), (whole.no_return, np.inf, np.inf)):
+        o, d = starts[flags][::7], directions[flags][::7]
+        where, ray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
+        nearest = np.full(len(o), np.inf)
+        np.minimum.at(nearest, ray, np.linalg.norm(where - o[ray], axis=1))
+        nearest[nearest > 11.0] = np.inf
+        assert np.all((nearest >= low - 1e-4) & (nearest <= high + 1e-4)), (low, high, nearest.min(), nearest.max())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.h5"]  # no temporary left
 
     data = out.read_bytes()

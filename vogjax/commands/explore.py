@@ -64,11 +64,18 @@ def add_parser(commands) -> None:
         help="seed of the planner, navigation and range noise",
     )
     explore.add_argument(
+        "--rule",
+        default="time",
+        choices=("time", "papers"),
+        help="how the planner chooses: time-aware (gain per second of flight, yaw along the path; "
+        "default) or the papers' rule (discounted gain, with their settings for the scene)",
+    )
+    explore.add_argument(
         "--config",
         type=Path,
         default=None,
-        help="TOML settings: [planner] (PlannerConfig; default the papers' settings for "
-        "the scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
+        help="TOML settings: [planner] (PlannerConfig, over the --rule's settings for the "
+        "scene) and the pipeline's tables of `vogjax map`: [map], [nav_noise], "
         "[loop_closure] (with [loop_closure.icp], [loop_closure.correlative]), [pose_graph], [timing], "
         "[pipeline]; not [report] (`vogjax config --defaults --for explore` prints them all)",
     )
@@ -88,7 +95,7 @@ def run(args) -> None:
 
     for path in (args.out, csv_path_of(args.out)):
         refuse_existing(path, args.overwrite, "--out" if path == args.out else "--out's CSV")
-    planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed)
+    planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed, args.rule)
     if args.map == "standard" and not pipeline_config.standard_map:
         raise ValueError(
             "--map standard plans on the standard map: --config must not set [pipeline] standard_map = false"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from vogjax.config.schema import Config, positive
+from vogjax.config.schema import Config, flag, positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,6 +29,12 @@ class ControllerConfig(Config):
         A waypoint is reached within this distance, metres (and `tolerance_rad`).
     tolerance_rad : float
         A waypoint is reached within this heading error, radians (and `tolerance_m`).
+    yaw_along_path : bool
+        Fly a waypoint as one motion: position and heading are slowed so that both arrive
+        together, the vehicle turning at a steady rate while it translates along the straight
+        line (the motion the planner's gain assumes, `vogjax.planner.edge_views`). Off (the
+        default, and the papers' surveys): each axis runs at its own limit, so a turn that
+        takes longer than the translation ends as a turn in place.
     """
 
     max_speed_mps: float = positive(0.25)
@@ -39,3 +45,4 @@ class ControllerConfig(Config):
     yaw_rate_gain: float = positive(120.0)
     tolerance_m: float = positive(0.15)
     tolerance_rad: float = positive(0.05)
+    yaw_along_path: bool = flag(False)

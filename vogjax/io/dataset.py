@@ -2,20 +2,24 @@
 
 Per scan: time_s, pose_nav and (when the run has ground truth) pose_truth (4,4,
 T_world_vehicle), sonar_origin (3,) and sonar_directions (B,3) in the vehicle frame (any range
-sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return) and
-no_return (B,). Optional per-beam fields, written by sources that have them (`vogjax import`
-of a lidar): intensity (B,) float32 (the driver's units) and ring (B,) uint16 (the laser that
-fired); a run without them reads them as None, and readers that predate them ignore them (no
-format version of their own). File attributes: format, format_version, has_truth, metadata
-(JSON: scene, seed, sensor, navigation noise, vogjax version, ...).
+sensor's origin and beams, see `vogjax.sensors`), ranges (B,) metres (NaN: no return or an
+invalid beam), no_return (B,) and invalid (B,): a beam without a return saw water up to the
+sensor's range; an invalid one (its surface within the sensor's blind distance) saw nothing,
+and no map clears free space along it. Optional per-beam fields, written by sources that have
+them (`vogjax import` of a lidar): intensity (B,) float32 (the driver's units) and ring (B,)
+uint16 (the laser that fired); a run without them reads them as None, and readers that predate
+them ignore them (no format version of their own). File attributes: format, format_version,
+has_truth, metadata (JSON: scene, seed, sensor, navigation noise, vogjax version, ...).
 
-Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2; a damaged chunk cannot be
-read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata carries its
-SHA-256, and every batch is checked for physical sense as it is written and as it is read
-(finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km] with NaN
-exactly where no_return is set; intensity finite, ring an integer). Runs of format 1 (no
-checksums, always with ground truth) still load and are checked the same way. A file is
-published atomically on close (`vogjax.io.atomic`): a run is whole or absent.
+Integrity: every chunk carries HDF5's Fletcher-32 checksum (format 2 on; a damaged chunk
+cannot be read back), a chunk HDF5 cannot find reads as NaN (the fill value), the metadata
+carries its SHA-256, and every batch is checked for physical sense as it is written and as it
+is read (finite times that increase, rigid poses, unit beam directions, ranges in [0, 10 km]
+with NaN exactly where no_return or invalid is set, never both; intensity finite, ring an
+integer). Runs of format 1 (no checksums, always with ground truth) and format 2 (no `invalid`
+field: simulators then reported a beam within the blind distance as "no return") still load,
+with no beam invalid, and are checked the same way. A file is published atomically on close
+(`vogjax.io.atomic`): a run is whole or absent.
 """
 
 from __future__ import annotations
@@ -36,10 +40,11 @@ import numpy.typing as npt
 from vogjax.config.sensing import MAX_BEAMS
 from vogjax.geometry import RIGID_TOLERANCE
 from vogjax.io.atomic import AtomicPath
-from vogjax.sensors.base import world_rays
+from vogjax.sensors.base import mapped_beams, world_rays
 
 FORMAT = "vogjax-run"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+INVALID_SINCE = 3  # the first format with the `invalid` field
 MAX_RANGE_M = 10_000.0  # no range sensor reaches farther; larger values are damage
 _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "time_s": (lambda b: (), np.float64),
@@ -49,6 +54,7 @@ _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "sonar_directions": (lambda b: (b, 3), np.float32),
     "ranges": (lambda b: (b,), np.float32),
     "no_return": (lambda b: (b,), np.bool_),
+    "invalid": (lambda b: (b,), np.bool_),
 }
 # per-beam fields a run may hold besides those: name -> (shape after the scan axis, dtype)
 OPTIONAL_FIELDS = {
@@ -79,9 +85,12 @@ class ScanBatch:
     sonar_directions : (S, B, 3) ndarray of float32
         Unit beam directions in the vehicle frame.
     ranges : (S, B) ndarray of float32
-        Ranges, metres; NaN where there was no return.
+        Ranges, metres; NaN where there was no return or the beam is invalid.
     no_return : (S, B) ndarray of bool
         Where a beam had no return.
+    invalid : (S, B) ndarray of bool
+        Where a beam is invalid (its surface within the sensor's blind distance: it saw
+        nothing); when not given, no beam is.
     intensity : (S, B) ndarray of float32 or None
         Each beam's intensity (the driver's units), where the run holds it.
     ring : (S, B) ndarray of uint16 or None
@@ -96,8 +105,13 @@ class ScanBatch:
     sonar_directions: npt.NDArray[np.float32]
     ranges: npt.NDArray[np.float32]
     no_return: npt.NDArray[np.bool_]
+    invalid: npt.NDArray[np.bool_] | None = None
     intensity: npt.NDArray[np.float32] | None = None
     ring: npt.NDArray[np.uint16] | None = None
+
+    def __post_init__(self) -> None:
+        if self.invalid is None and np.ndim(self.no_return) == 2:  # else check_scans refuses the batch
+            object.__setattr__(self, "invalid", np.zeros(np.shape(self.no_return), np.bool_))
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -157,9 +171,39 @@ class ScanBatch:
         origins : (S, 3) ndarray of float64
             Sensor origins in the world, metres.
         endpoints : (S, B, 3) ndarray of float64
-            Beam endpoints in the world, metres.
+            Beam endpoints in the world, metres; NaN for invalid beams (`vogjax.sensors.world_rays`).
         """
-        return world_rays(poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m)
+        return world_rays(
+            poses, self.sonar_origin, self.sonar_directions, self.ranges, self.no_return, max_range_m, self.invalid
+        )
+
+    def beams(
+        self, poses: npt.NDArray[np.floating], max_range_m: float
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """What a map integrates of these scans at `poses`.
+
+        Parameters
+        ----------
+        poses : (S, 4, 4) ndarray of float
+            ``T_world_vehicle`` of each scan.
+        max_range_m : float
+            The reach beams without a return clear free space to, metres.
+
+        Returns
+        -------
+        origins : (S, 3) ndarray of float64
+            Sensor origins in the world, metres.
+        points : (N, 3) ndarray of float64
+            Endpoints of every beam but the invalid ones.
+        scan_index : (N,) ndarray of int64
+            The scan of each point (``integrate_scans``'s third argument).
+        """
+        return mapped_beams(*self.world(poses, max_range_m), self.invalid)
+
+    @property
+    def returned(self) -> npt.NDArray[np.bool_]:
+        """(S, B) ndarray of bool: the beams with a return (neither without one nor invalid)."""
+        return ~self.no_return & ~self.invalid
 
 
 def check_scans(
@@ -228,12 +272,16 @@ def check_scans(
     if not np.all(np.abs(norms - 1.0) < 1e-3):
         raise ValueError(f"{where}: sonar_directions must be unit vectors")
     ranges = np.asarray(fields["ranges"], dtype=np.float64)
-    no_return = np.asarray(fields["no_return"])
-    if no_return.dtype != np.bool_:
-        raise ValueError(f"{where}: no_return must be boolean")
-    returned = ranges[~no_return]
-    if not np.all(np.isnan(ranges[no_return])) or not np.all(np.isfinite(returned)):
-        raise ValueError(f"{where}: ranges must be NaN exactly where no_return is set")
+    no_return, invalid = np.asarray(fields["no_return"]), np.asarray(fields["invalid"])
+    for name, flags in (("no_return", no_return), ("invalid", invalid)):
+        if flags.dtype != np.bool_:
+            raise ValueError(f"{where}: {name} must be boolean")
+    if np.any(no_return & invalid):
+        raise ValueError(f"{where}: a beam is both no_return and invalid")
+    missing = no_return | invalid
+    returned = ranges[~missing]
+    if not np.all(np.isnan(ranges[missing])) or not np.all(np.isfinite(returned)):
+        raise ValueError(f"{where}: ranges must be NaN exactly where no_return or invalid is set")
     if returned.size and (returned.min() < 0 or returned.max() > MAX_RANGE_M):
         raise ValueError(
             f"{where}: ranges must lie in [0, {MAX_RANGE_M:g}] m, found [{returned.min():.3g}, {returned.max():.3g}]"
@@ -395,13 +443,16 @@ class DatasetWriter:
         **fields
             Every field of the format by name (`ScanBatch`'s, pose_truth only when `truth`,
             the optional ones named by `optional`), each with a leading scan axis; times after
-            those already written.
+            those already written. ``invalid`` may be left out when no beam is invalid (a
+            source that drops its invalid beams).
 
         Raises
         ------
         ValueError
             If a field is missing or unexpected, or the scans do not make physical sense.
         """
+        if "invalid" not in fields and np.ndim(fields.get("no_return")) == 2:
+            fields["invalid"] = np.zeros(np.shape(fields["no_return"]), np.bool_)
         expected = set(self._fields())
         if set(fields) != expected:
             missing, extra = expected - set(fields), set(fields) - expected
@@ -511,8 +562,15 @@ class Dataset:
             self.metadata = json.loads(encoded)
             if not isinstance(self.metadata, dict):
                 raise ValueError(f"{where} is damaged: its metadata is not a JSON object")
+            self.format_version = int(version)
+            # runs before format 3 hold no `invalid` field: no beam of theirs is invalid
+            self._stored = [
+                n
+                for n in _FIELDS
+                if (self.has_truth or n != "pose_truth") and (n != "invalid" or version >= INVALID_SINCE)
+            ]
             self.optional = tuple(n for n in OPTIONAL_FIELDS if n in self._file)
-            names = [n for n in _FIELDS if self.has_truth or n != "pose_truth"] + list(self.optional)
+            names = self._stored + list(self.optional)
             lengths = {name: self._file[name].shape[0] for name in names}
             self.beams = int(self._file["ranges"].shape[1])
             if not 1 <= self.beams <= MAX_BEAMS:  # a small file may declare any shape
@@ -560,10 +618,9 @@ class Dataset:
         """
         where = f"path {str(self.path)!r}"
         try:
-            fields = {
-                name: (self._file[name][first:last] if self.has_truth or name != "pose_truth" else None)
-                for name in _FIELDS
-            }
+            fields = {name: (self._file[name][first:last] if name in self._stored else None) for name in _FIELDS}
+            if "invalid" not in self._stored:
+                fields["invalid"] = np.zeros(fields["no_return"].shape, np.bool_)
             fields |= {name: self._file[name][first:last] for name in self.optional}
         except OSError as error:  # a chunk that cannot be read, decompressed or fails its checksum
             raise ValueError(f"{where} is damaged: {error}") from None

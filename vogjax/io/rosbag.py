@@ -500,6 +500,8 @@ def _import(reader, bag: Path, out: Path, options: _Options) -> ImportSummary:
                     sonar_directions=np.stack([r[1] for r in rows]),
                     ranges=np.stack([r[2] for r in rows]),
                     no_return=np.stack([r[3] for r in rows]),
+                    # the bag's own rule: beams below range_min were dropped above, none is stored invalid
+                    invalid=np.zeros((len(rows), beams), np.bool_),
                     **extra,
                 )
                 bar.update(len(rows))

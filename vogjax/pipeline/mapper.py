@@ -43,6 +43,7 @@ from vogjax.maps.submaps import Submap
 from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
+from vogjax.sensors import mapped_beams
 from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection
 
 
@@ -134,17 +135,16 @@ class Mapper:
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
-        returned = batch.ranges[~batch.no_return]
+        returned = batch.ranges[batch.returned]
         self.returns["total"] += returned.size
         self.returns["beyond_reach"] += int(np.count_nonzero(returned > self.reach_m))
-        # 1. the maps without SLAM: every scan at its navigation pose, in one batch
-        origins, endpoints = batch.world(batch.pose_nav, self.reach_m)
+        # 1. the maps without SLAM: every scan at its navigation pose, in one batch (an invalid
+        # beam, its surface within the blind distance, clears nothing: it is left out)
+        beams = batch.beams(batch.pose_nav, self.reach_m)
         for name, whole_map in (("standard_map", self.standard_map), ("confidence_map", self.confidence_map)):
             if whole_map is not None:
                 start = time.perf_counter()
-                whole_map.integrate_scans(
-                    origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(batch)), endpoints.shape[1])
-                )
+                whole_map.integrate_scans(*beams)
                 self.timings[name].append(time.perf_counter() - start)
         # 2. cut into submaps, holding each one's scans until it is complete
         first = 0
@@ -364,25 +364,22 @@ class Mapper:
         base = scans.pose_nav[middle]
         truth = None if scans.pose_truth is None else scans.pose_truth[middle]
         origins, endpoints = scans.world(inverse(base) @ scans.pose_nav, self.reach_m)
-        returns = endpoints[~scans.no_return]
+        returns = endpoints[scans.returned]
         # the same beams placed by the truth, in the frame of the base's true pose
         true_rays = None if truth is None else scans.world(inverse(truth) @ scans.pose_truth, self.reach_m)
-        rigid = None if truth is None else rigid_truth(returns, true_rays[1][~scans.no_return], truth)
+        rigid = None if truth is None else rigid_truth(returns, true_rays[1][scans.returned], truth)
         record = SubmapRecord(
             scans.first, len(scans), scans.first + middle, float(scans.time_s[middle]), base, truth, rigid
         )
         submap = Submap(self.config.map, self.vog.device)
-        submap.integrate_scans(origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(scans)), endpoints.shape[1]))
+        submap.integrate_scans(*mapped_beams(origins, endpoints, scans.invalid))
         cloud_voxel = self.config.loop_closure.registration_voxel_m or self.config.map.voxel_size
         staged = (record, submap, voxel_means(returns, cloud_voxel), submap.bounds())
         self.timings["integration"].append(time.perf_counter() - start)
         if truth is not None:  # the ceiling: the same submap from true poses, at its true pose
             start = time.perf_counter()
             j = self.truth_vog.add_submap(truth)
-            origins, endpoints = true_rays
-            self.truth_vog.submap(j).integrate_scans(
-                origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(scans)), endpoints.shape[1])
-            )
+            self.truth_vog.submap(j).integrate_scans(*mapped_beams(*true_rays, scans.invalid))
             self.timings["truth_maps"].append(time.perf_counter() - start)
         return staged
 

@@ -35,13 +35,15 @@ def group_counts(
     sensor: RangeSensor,
     max_range: float,
     region,
+    frontier: bool = False,
 ) -> tuple[np.ndarray, int]:
-    """Voxels of each state (unknown, free, occupied) first seen by each group of views: poses
-    (V,4,4) sorted by their group (V,) in [0, num_groups). Returns (num_groups, 3) int64 and
-    the rays cast."""
+    """Voxels of each state (unknown, free, occupied) first seen by each group of views, and of
+    the unknown ones those on the frontier (a FREE face neighbour; counted only with
+    `frontier`, else 0): poses (V,4,4) sorted by their group (V,) in [0, num_groups). Returns
+    (num_groups, 4) int64 and the rays cast."""
     directions = sensor.beam_directions().reshape(-1, 3).astype(np.float64)
     if len(poses) == 0:
-        return np.zeros((num_groups, 3), np.int64), 0
+        return np.zeros((num_groups, 4), np.int64), 0
     groups = np.asarray(groups, np.int64)
     if np.any(np.diff(groups) < 0):
         raise ValueError("groups must be sorted")
@@ -79,6 +81,7 @@ def group_counts(
         region,
         _pow2(np.maximum(bound / FIRST_GUESS, 32)),
         FIRST_PROBES,
+        frontier,
     )
     retry = np.flatnonzero(overflowed)
     if len(retry):
@@ -95,6 +98,7 @@ def group_counts(
             region,
             _pow2(2 * bound[retry] + 1),
             None,
+            frontier,
         )
     return counts, len(poses) * len(directions)
 
@@ -104,9 +108,9 @@ def _pow2(values: np.ndarray) -> np.ndarray:
 
 
 def _launch(
-    source: Source, poses, groups, anchors, directions, min_range, max_range, region, capacity, max_probes
+    source: Source, poses, groups, anchors, directions, min_range, max_range, region, capacity, max_probes, frontier
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One pass: counts (G,3) and whether each group's set overflowed (its counts are then void)."""
+    """One pass: counts (G,4) and whether each group's set overflowed (its counts are then void)."""
     device = source.device
     num_groups = len(capacity)
     origins = np.ascontiguousarray(poses[:, :3, 3])
@@ -120,14 +124,14 @@ def _launch(
     region_lo, region_hi = region if region is not None else np.zeros((2, 3))
     d_anchors = wp.array(anchors.astype(np.int32), dtype=wp.vec3i, device=device)
     view_ranges = np.searchsorted(groups, np.arange(num_groups + 1))
-    counts = np.zeros((num_groups, 3), np.int64)
+    counts = np.zeros((num_groups, 4), np.int64)
     overflowed = np.zeros(num_groups, bool)
     for g0, g1 in _chunks(capacity, TABLE_BUDGET["cuda" if device.is_cuda else "cpu"]):
         table_offsets = np.zeros(num_groups + 1, np.int64)
         table_offsets[g0 : g1 + 1] = np.concatenate([[0], np.cumsum(capacity[g0:g1])])
         tables = wp.full(int(table_offsets[g1]), -1, dtype=wp.int64, device=device)
         d_offsets = wp.array(table_offsets, dtype=wp.int64, device=device)
-        out = wp.zeros((num_groups, 3), dtype=wp.int32, device=device)
+        out = wp.zeros((num_groups, 4), dtype=wp.int32, device=device)
         overflow = wp.zeros(num_groups, dtype=wp.int32, device=device)
         v0, v1 = int(view_ranges[g0]), int(view_ranges[g1])
         parts = _parts(view_ranges, g0, g1, parallel.num_parts(device, (v1 - v0) * len(directions)))
@@ -154,6 +158,7 @@ def _launch(
                     d_anchors,
                     tables,
                     -1 if max_probes is None else int(max_probes),
+                    int(frontier),
                 ],
                 outputs=[out, overflow],
                 device=device,

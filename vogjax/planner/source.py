@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from vogjax.config import MapConfig
@@ -21,26 +22,46 @@ from vogjax.maps.views import submap_views
 
 
 class Overlay:
-    """A global map with submaps of a VogMap on top at their current poses: what the global map
-    will hold once they are added. The mapper adds a submap only when it is complete, so a
-    planner on the online global map reads it through an Overlay of the submap being filled, or
-    it would not see the last up to 100 scans. Sums are exact: at voxel centres an Overlay
-    answers what `GlobalMap.add` of those submaps would. A submap added to base after the
-    Overlay was made is read from base alone from then on."""
+    """A global map with submaps on top at their current poses: what the global map will hold
+    once they are added.
 
-    def __init__(self, base: GlobalMap, vog: VogMap, ids):
+    The mapper adds a submap only when it is complete, and holds its scans until then, so a
+    planner on the online global map reads it through an Overlay of the scans not yet in it
+    (`extra`: a VogMap of their own, e.g. one submap of the scans the mapper holds), or it
+    would not see the last up to 100 scans. Sums are exact: at voxel centres an Overlay answers
+    what `GlobalMap.add` of those submaps would. A submap of `vog` added to base after the
+    Overlay was made is read from base alone from then on.
+
+    Parameters
+    ----------
+    base : vj.GlobalMap
+    vog : vj.VogMap
+        The map whose submaps `ids` lie on top (not yet in base).
+    ids : array_like of int
+        Submaps of `vog`, none of them in base.
+    extra : vj.VogMap, optional
+        Every submap of this map lies on top as well, at its pose (same MapConfig).
+    """
+
+    def __init__(self, base: GlobalMap, vog: VogMap, ids: npt.ArrayLike, extra: VogMap | None = None) -> None:
         if not isinstance(base, GlobalMap):
             raise ValueError(f"base must be a vj.GlobalMap, got {type(base).__name__}")
         if not isinstance(vog, VogMap):
             raise ValueError(f"vog must be a vj.VogMap, got {type(vog).__name__}")
         if vog.config != base.config:
             raise ValueError("vog has another MapConfig than base")
+        if extra is not None and (not isinstance(extra, VogMap) or extra.config != base.config):
+            raise ValueError("extra must be a vj.VogMap with base's MapConfig")
         self.ids = [int(i) for i in vog.check_ids("ids", ids)]
         clash = sorted(set(self.ids) & set(base.applied_ids))
         if clash or len(set(self.ids)) != len(self.ids):
             raise ValueError(f"ids: submaps {clash or self.ids} are already in base (or repeated)")
-        self.base, self.vog = base, vog
+        self.base, self.vog, self.extra = base, vog, extra
         self.config, self.device = base.config, base.device
+
+
+# What the planner's queries read: a map, the virtual map or a global map with submaps on top.
+MapLike = VoxelMap | GlobalMap | VogMap | Overlay
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +133,9 @@ def opened(map_, level: int = 0):
             # it would count twice
             applied = set(map_.base.applied_ids)
             submaps, poses = _observed(stack, map_.vog, [i for i in map_.ids if i not in applied])
+            if map_.extra is not None:
+                more, more_poses = _observed(stack, map_.extra, range(map_.extra.num_submaps))
+                submaps, poses = submaps + more, np.concatenate([poses, more_poses])
         else:
             stack.enter_context(map_.reading())
             store, kind = map_.store, planner_maps.LOG_ODDS_STORE

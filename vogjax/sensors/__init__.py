@@ -11,7 +11,7 @@ import numpy as np
 
 from vogjax.config import PointCloudConfig, SonarConfig
 from vogjax.config.lidar import LidarConfig
-from vogjax.sensors.base import RangeSensor, world_rays
+from vogjax.sensors.base import RangeSensor, mapped_beams, world_rays
 from vogjax.sensors.lidar import T_VEHICLE_LIDAR, SpinningLidar
 from vogjax.sensors.point_cloud import PointCloudSensor
 from vogjax.sensors.sonar import T_VEHICLE_SONAR, ProfilingSonar
@@ -90,5 +90,6 @@ __all__ = [
     "SpinningLidar",
     "as_sensor",
     "from_metadata",
+    "mapped_beams",
     "world_rays",
 ]

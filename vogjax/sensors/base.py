@@ -1,10 +1,13 @@
 """What every range sensor tells the rest of vogjax.
 
-A range sensor sends beams from one origin and measures a range per beam (NaN / no return when
-nothing lies within its range). The simulator casts its beams (`beam_directions`), the run
+A range sensor sends beams from one origin and measures a range per beam: a return, no return
+(nothing lies within its range: the beam saw water up to it), or an invalid beam (its surface
+lies within the sensor's blind distance, `min_range_m`: the echo is lost, and the beam tells
+nothing about the water along it). The simulator casts its beams (`beam_directions`), the run
 file stores each scan's origin, beam directions and ranges in the vehicle frame
 (`dataset_fields`) with the sensor described in the metadata (`metadata`), and the mapper turns
-stored scans into world rays (`world_rays`). A new sensor subclasses `RangeSensor` and registers
+stored scans into world rays (`world_rays`, `mapped_beams`): free space up to a return or along
+a beam without one, never along an invalid beam. A new sensor subclasses `RangeSensor` and registers
 its `kind` in `vogjax.sensors.KINDS`.
 """
 
@@ -88,32 +91,38 @@ class RangeSensor(abc.ABC):
             Unit directions in the sensor frame.
         """
 
-    def dataset_fields(self, ranges: npt.ArrayLike, no_return: npt.ArrayLike) -> dict:
-        """The run-file fields of S scans: origin and the central direction of each beam in the
-        vehicle frame, ranges (NaN where no return).
+    def dataset_fields(
+        self, ranges: npt.ArrayLike, no_return: npt.ArrayLike, invalid: npt.ArrayLike | None = None
+    ) -> dict:
+        """The run-file fields of S scans of this sensor's B beams.
 
         Parameters
         ----------
         ranges : (S, B) array_like of float
-            Measured ranges, metres.
+            Measured ranges, metres (ignored where `no_return` or `invalid`).
         no_return : (S, B) array_like of bool
             Beams without a return.
+        invalid : (S, B) array_like of bool, optional
+            Beams whose surface lies within the blind distance (default: none).
 
         Returns
         -------
         dict
-            ``sonar_origin`` (S, 3), ``sonar_directions`` (S, B, 3), ``ranges`` (S, B) and
-            ``no_return`` (S, B), as the run file stores them.
+            ``sonar_origin`` (S, 3) and ``sonar_directions`` (S, B, 3), the origin and the
+            central direction of each beam in the vehicle frame; ``ranges`` (S, B), NaN where
+            there is no return or the beam is invalid; ``no_return`` and ``invalid`` (S, B).
         """
-        ranges, no_return = np.asarray(ranges), np.asarray(no_return)
-        count = len(ranges)
+        no_return = np.asarray(no_return, dtype=bool)
+        invalid = np.zeros_like(no_return) if invalid is None else np.asarray(invalid, dtype=bool)
+        count = len(no_return)
         central = self.beam_directions()[:, self.beam_directions().shape[1] // 2]
         directions = central @ self.T_vehicle_sensor[:3, :3].T
         return {
             "sonar_origin": np.tile(self.T_vehicle_sensor[:3, 3], (count, 1)),
             "sonar_directions": np.tile(directions, (count, 1, 1)),
-            "ranges": np.where(no_return, np.nan, ranges),
-            "no_return": no_return,
+            "ranges": np.where(no_return | invalid, np.nan, ranges),
+            "no_return": no_return & ~invalid,
+            "invalid": invalid,
         }
 
     def metadata(self) -> dict:
@@ -138,36 +147,66 @@ def world_rays(
     ranges: np.ndarray,
     no_return: np.ndarray,
     max_range_m: float,
+    invalid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sensor origins and beam endpoints in the world frame of S scans.
-
-    Beams without a return end past `max_range_m`, so a map clears free space up to its range
-    along them and marks nothing occupied.
+    """Sensor origins and beam endpoints in the world frame of S scans of B beams.
 
     Parameters
     ----------
-    T_world_vehicle : (S, 4, 4) ndarray of float64
-        The vehicle's poses.
-    origins : (S, 3) ndarray of float64
-        The sensor's origin in the vehicle frame, per scan.
-    directions : (S, B, 3) ndarray of float64
-        Unit beam directions in the vehicle frame.
-    ranges : (S, B) ndarray of float64
-        Measured ranges, metres.
-    no_return : (S, B) ndarray of bool
-        Beams without a return.
+    T_world_vehicle : numpy.ndarray, (S, 4, 4) float
+        Vehicle poses.
+    origins, directions : numpy.ndarray, (S, 3) and (S, B, 3) float
+        Sensor origin and unit beam directions in the vehicle frame.
+    ranges, no_return : numpy.ndarray, (S, B)
+        Metres per beam; beams without a return.
     max_range_m : float
-        The map's reach, metres.
+        The reach a beam without a return clears free space to.
+    invalid : numpy.ndarray, (S, B) bool, optional
+        Beams whose surface lay within the sensor's blind distance (default: none).
 
     Returns
     -------
-    origins : (S, 3) ndarray of float64
-        The sensor's origins, world frame.
-    endpoints : (S, B, 3) ndarray of float64
-        The beams' end points, world frame.
+    origins : numpy.ndarray, (S, 3) float
+    endpoints : numpy.ndarray, (S, B, 3) float
+        Beams without a return end past `max_range_m` (a map clears free space up to its range
+        along them and marks nothing occupied); invalid beams end at NaN, which every map
+        refuses: drop them first (`mapped_beams`), nothing may be cleared along them.
     """
     R, t = T_world_vehicle[:, :3, :3], T_world_vehicle[:, :3, 3]
     world_origins = np.einsum("sij,sj->si", R, origins) + t
     world_directions = np.einsum("sij,sbj->sbi", R, directions)
     lengths = np.where(no_return, max_range_m * 1.05 + 0.1, ranges)
+    if invalid is not None:
+        lengths = np.where(invalid, np.nan, lengths)
     return world_origins, world_origins[:, None] + world_directions * lengths[..., None]
+
+
+def mapped_beams(
+    origins: np.ndarray, endpoints: np.ndarray, invalid: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The beams a map integrates: every beam of S scans but the invalid ones.
+
+    Parameters
+    ----------
+    origins : numpy.ndarray, (S, 3) float
+        Sensor origin per scan (`world_rays`).
+    endpoints : numpy.ndarray, (S, B, 3) float
+        Beam endpoints (`world_rays`).
+    invalid : numpy.ndarray, (S, B) bool, optional
+        Beams to leave out (default: none).
+
+    Returns
+    -------
+    origins : numpy.ndarray, (S, 3) float
+    points : numpy.ndarray, (N, 3) float
+        The endpoints of the valid beams, scan by scan.
+    scan_index : numpy.ndarray, (N,) int64
+        The scan of each point, for ``integrate_scans``.
+    """
+    count, beams = endpoints.shape[:2]
+    scan_index = np.repeat(np.arange(count), beams)
+    points = endpoints.reshape(-1, 3)
+    if invalid is not None and np.any(invalid):
+        keep = ~np.asarray(invalid, dtype=bool).reshape(-1)
+        points, scan_index = points[keep], scan_index[keep]
+    return origins, points, scan_index

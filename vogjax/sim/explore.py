@@ -29,10 +29,11 @@ from tqdm import tqdm
 import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
-from vogjax.config.planner import ExploreConfig, PlannerConfig
+from vogjax.config.planner import PAPERS, ExploreConfig, PlannerConfig
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import DatasetWriter, ScanBatch
+from vogjax.maps import VogMap
 from vogjax.pipeline import Mapper
 from vogjax.planner import NbvPlanner, Overlay
 from vogjax.sensors import ProfilingSonar, RangeSensor, as_sensor
@@ -59,6 +60,11 @@ CSV_FIELDS = (
     "z_m",
     "yaw_rad",
     "reached",
+    "score",
+    "branch_s",
+    "predicted_m3",
+    "realised_m3",
+    "step",
 )
 
 
@@ -84,21 +90,42 @@ class ExploreSummary:
 # The papers' planner settings per scene: Ho's tank (thesis Table 4.4: 1 m edges, the sensor's
 # 5.63 m range, no discount); every other scene takes Table 4.2's (PlannerConfig's defaults).
 SCENE_PLANNERS = {"tank": {"edge_length_m": 1.0, "gain_range_m": 5.63, "discount": 0.0}}
+RULES = ("time", "papers")
 
 
-def scene_planner(scene_name: str, seed: int = 0) -> PlannerConfig:
-    """The planner settings the papers used for a scene, seeded with `seed`."""
-    return PlannerConfig(seed=seed, **SCENE_PLANNERS.get(scene_name, {}))
+def scene_planner(scene_name: str, seed: int = 0, rule: str = "time") -> PlannerConfig:
+    """The planner settings for a scene, seeded with `seed`.
+
+    Parameters
+    ----------
+    scene_name : str
+        A built-in scene.
+    seed : int
+        The sampling's seed.
+    rule : {"time", "papers"}
+        "time": PlannerConfig's defaults (the time-aware rule); "papers": the papers' rule
+        (`vogjax.config.planner.PAPERS`) with the papers' settings for the scene (thesis
+        Table 4.4 for the tank, Table 4.2 for the others).
+
+    Returns
+    -------
+    PlannerConfig
+    """
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {', '.join(RULES)}, got {rule!r}")
+    if rule == "papers":
+        return PlannerConfig(seed=seed, **{**PAPERS, **SCENE_PLANNERS.get(scene_name, {})})
+    return PlannerConfig(seed=seed)
 
 
-def load_settings(path, scene_name: str, seed: int) -> tuple[PlannerConfig, PipelineConfig]:
-    """The planner's and the pipeline's settings: the scene's (`scene_planner`) and
+def load_settings(path, scene_name: str, seed: int, rule: str = "time") -> tuple[PlannerConfig, PipelineConfig]:
+    """The planner's and the pipeline's settings: the scene's for `rule` (`scene_planner`) and
     PipelineConfig's defaults, under what a TOML file (None: none) sets; the planner seeded
     with `seed`."""
     config = ExploreConfig.from_toml(path) if path is not None else ExploreConfig()
     given = tomllib.loads(Path(path).read_text()).get("planner", {}) if path is not None else {}
     changes = {key: getattr(config.planner, key) for key in given}  # checked by from_toml
-    return scene_planner(scene_name, seed).replace(**{**changes, "seed": seed}), config.pipeline
+    return scene_planner(scene_name, seed, rule).replace(**{**changes, "seed": seed}), config.pipeline
 
 
 def csv_path_of(out) -> Path:
@@ -124,8 +151,8 @@ def explore(
 ) -> ExploreSummary:
     """Explore a built-in scene until `submaps` submaps are finished (or the gain runs out) and
     write the run to `out` (HDF5, a normal run `vogjax map` reprocesses) and one row per
-    planning iteration to RUN.explore.csv. planner_config: default the papers' settings for the
-    scene (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise;
+    planning iteration to RUN.explore.csv. planner_config: default the time-aware rule's
+    settings (`scene_planner`); sensor: default the papers' profiling sonar with 2 cm range noise;
     on_iteration(mapper, plan, row): called after each plan (benchmarks); overwrite: replace an
     existing `out` and its CSV (else that is an error, raised before any work)."""
     if map_kind not in MAPS:
@@ -161,8 +188,12 @@ def explore(
         },
         "vogjax_version": vogjax.__version__,
     }
-    loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata)
-    nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=scene.region())
+    # the vehicle flies an edge as the planner costs it: turning while it translates (or, for
+    # the papers' rule, each axis at its own limit)
+    controller = ControllerConfig(yaw_along_path=planner_config.yaw_along_path)
+    loop = _Loop(scene, sensor, noise, seed, pipeline_config, metadata, controller)
+    region = scene.bounds if planner_config.gain_region == "bounds" else scene.region()
+    nbv = NbvPlanner(planner_config, bounds=scene.bounds, sensor=sensor, region=region)
     rows = []
     stopped = "submaps"
     with (
@@ -171,14 +202,27 @@ def explore(
     ):
         loop.writer = writer
         # nbvplanner's initial motion: a turn in place, so the first tree has a map to grow in
+        # (a full turn flown as four quarter turns; the default)
         x, y, z, yaw = loop.true_state()
-        loop.fly([[x, y, z, yaw + np.pi * k / 2] for k in range(1, 5)])
+        quarters = int(np.ceil(planner_config.initial_turn_rad / (np.pi / 2) - 1e-9))
+        if quarters:
+            step = planner_config.initial_turn_rad / quarters
+            loop.fly([[x, y, z, yaw + step * k] for k in range(1, quarters + 1)])
         while loop.mapper.num_submaps < submaps:
             if max_scans is not None and loop.scans >= max_scans:
                 stopped = "scans"
                 break
             T_plan = loop.estimate(map_kind)
-            plan = nbv.plan(loop.planning_map(map_kind), T_plan)
+            planning_map = loop.planning_map(map_kind)
+            plan = nbv.plan(planning_map, T_plan, drift_m=loop.drift_m(pipeline_config.nav_noise))
+            seconds, step = plan.seconds, "local"
+            spent = len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3
+            if planner_config.global_step and (spent or plan.score <= planner_config.global_below):
+                # little left to see nearby: a trip over the explored graph, if one gains more
+                trip = nbv.reposition(planning_map, T_plan)
+                seconds += trip.seconds
+                if len(trip.waypoints) and (spent or trip.score > plan.score):
+                    plan, step, spent = trip, "global", False
             row = {
                 "iteration": len(rows),
                 "time_s": loop.scans / sensor.rate_hz,
@@ -186,24 +230,46 @@ def explore(
                 "submaps": loop.mapper.num_submaps,
                 "explored_m3": loop.explored_m3(),
                 "path_m": loop.path_m,
-                "plan_s": plan.seconds,
+                "plan_s": seconds,
                 "rays": plan.rays,
                 "gain_m3": plan.gain_m3,
                 "nodes": plan.nodes,
                 "samples": plan.iterations,
+                "score": plan.score,
+                "branch_s": plan.branch_s,
+                "predicted_m3": plan.first_edge_m3,
+                "step": step,
             }
-            if len(plan.waypoints) == 0 or plan.gain_m3 <= planner_config.min_gain_m3:
-                rows.append({**row, **dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad"), float("nan")), "reached": False})
+            if spent:
+                flown = dict.fromkeys(("x_m", "y_m", "z_m", "yaw_rad", "realised_m3"), float("nan"))
+                rows.append({**row, **flown, "reached": False})
                 stopped = "gain" if plan.nodes else "blocked"
                 if on_iteration:
                     on_iteration(loop.mapper, plan, rows[-1])
                 break
-            goal = plan.waypoints[0]
-            # the motion the plan asks for, relative to where the vehicle believes it is
-            T_goal = loop.truth[-1] @ inverse(T_plan) @ pose_from_xyz_yaw(*goal)
-            target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
-            reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target))
-            rows.append({**row, "x_m": goal[0], "y_m": goal[1], "z_m": goal[2], "yaw_rad": goal[3], "reached": reached})
+            # the motion the plan asks for, relative to where the vehicle believed it was when it
+            # planned: a local step flies the best branch's first edge, a global step its whole trip
+            T_true_plan = loop.truth[-1] @ inverse(T_plan)
+            known_m3 = loop.known_m3(nbv.region)
+            for goal in plan.waypoints if step == "global" else plan.waypoints[:1]:
+                T_goal = T_true_plan @ pose_from_xyz_yaw(*goal)
+                target = np.r_[T_goal[:3, 3], yaw_pitch_roll(T_goal[:3, :3])[0]]
+                reached = loop.fly([target], timeout_s=_timeout_s(loop.true_state(), target, controller))
+                if step == "global":
+                    if not reached:
+                        break
+                    nbv.arrived(goal)
+            rows.append(
+                {
+                    **row,
+                    "x_m": goal[0],
+                    "y_m": goal[1],
+                    "z_m": goal[2],
+                    "yaw_rad": goal[3],
+                    "reached": reached,
+                    "realised_m3": loop.known_m3(nbv.region) - known_m3,
+                }
+            )
             if on_iteration:
                 on_iteration(loop.mapper, plan, rows[-1])
             bar.update(loop.mapper.num_submaps - bar.n)
@@ -233,8 +299,17 @@ def _timeout_s(state: np.ndarray, target: np.ndarray, config: ControllerConfig =
 class _Loop:
     """The simulated vehicle and its mapper: flies, scans, drifts, maps, records."""
 
-    def __init__(self, scene, sensor: RangeSensor, noise: NavNoise, seed: int, config: PipelineConfig, metadata: dict):
-        self.scene, self.sensor = scene, sensor
+    def __init__(
+        self,
+        scene,
+        sensor: RangeSensor,
+        noise: NavNoise,
+        seed: int,
+        config: PipelineConfig,
+        metadata: dict,
+        controller: ControllerConfig = ControllerConfig(),
+    ):
+        self.scene, self.sensor, self.controller = scene, sensor, controller
         self.mapper = Mapper(config, metadata)
         self.navigation = SteppedNavigation(noise, seed)
         self.rng = np.random.default_rng(seed + 1)
@@ -244,6 +319,8 @@ class _Loop:
         self.scans = 0
         self.path_m = 0.0
         self.writer = None
+        self._batches: list[ScanBatch] = []  # the recent scans, from the first the mapper holds
+        self._held, self._held_submaps, self._held_upto = None, -1, 0
 
     def true_state(self) -> np.ndarray:
         T = self.truth[-1]
@@ -252,11 +329,15 @@ class _Loop:
     def estimate(self, map_kind: str) -> np.ndarray:
         """The pose the planner plans from: navigation, corrected by the pose graph through the
         last finished submap (navigation alone for the standard map)."""
-        T_nav = self.nav[-1]
+        return self.correction(map_kind) @ self.nav[-1]
+
+    def correction(self, map_kind: str) -> np.ndarray:
+        """(4,4) what takes a navigation pose into the planning frame: the last finished
+        submap's correction by the pose graph (none for the standard map)."""
         k = self.mapper.num_submaps - 1
         if map_kind == "standard" or k < 0:
-            return T_nav
-        return self.mapper.vog.pose(k) @ inverse(self.mapper.submaps[k].T_world_base_nav) @ T_nav
+            return np.eye(4)
+        return self.mapper.vog.pose(k) @ inverse(self.mapper.submaps[k].T_world_base_nav)
 
     def planning_map(self, map_kind: str):
         mapper = self.mapper
@@ -265,7 +346,32 @@ class _Loop:
         if map_kind == "virtual":
             return mapper.vog
         filling = list(range(mapper.num_submaps, len(mapper.submaps)))
-        return Overlay(mapper.global_map, mapper.vog, filling) if filling else mapper.global_map
+        # the mapper holds the scans of the submap being filled until it is complete: without
+        # them the planner would not see the last up to 100 scans, and would plan to look again
+        # at what it has just seen
+        return Overlay(mapper.global_map, mapper.vog, filling, extra=self.held_scans_map())
+
+    def held_scans_map(self) -> VogMap:
+        """The scans the mapper holds (not yet in any submap) as one submap of a VogMap, at the
+        poses the planner estimates for them (their navigation with the last finished
+        submap's correction, as `estimate`), in the planning frame. Kept up to date scan batch
+        by scan batch; rebuilt when a submap is finished (the scans it took leave, and the
+        correction changes)."""
+        mapper = self.mapper
+        first = mapper.submaps[-1].first_scan + mapper.submaps[-1].scans if mapper.submaps else 0
+        if self._held is None or self._held_submaps != mapper.num_submaps:
+            self._held = VogMap(mapper.config.map)
+            self._held.add_submap(np.eye(4))
+            self._held_submaps, self._held_upto = mapper.num_submaps, first
+        self._batches = [b for b in self._batches if b.first + len(b) > first]
+        correction = self.correction("global")
+        for batch in self._batches:
+            if batch.first + len(batch) <= self._held_upto:
+                continue
+            part = batch.rows(max(self._held_upto - batch.first, 0), len(batch))
+            self._held.submap(0).integrate_scans(*part.beams(correction @ part.pose_nav, mapper.reach_m))
+            self._held_upto = part.first + len(part)
+        return self._held
 
     def explored_m3(self) -> float:
         """Known (free or occupied) volume of the scene's region in the global map."""
@@ -276,6 +382,30 @@ class _Loop:
         known = (values <= gmap.config.log_free) | (values >= gmap.config.log_occupied)
         return float(np.count_nonzero(inside & known) * gmap.config.voxel_size**3)
 
+    def drift_m(self, noise: NavNoise) -> float:
+        """How far (one sigma, per x-y axis, metres) the estimate may have drifted from the map:
+        what `noise` accrues since the base scan of the latest submap a loop closure anchored
+        (since the start, before any), the closures having tied the estimate to the map there."""
+        anchored_s = 0.0
+        if self.mapper.accepted:
+            latest = max(max(c.i, c.k) for c in self.mapper.accepted)
+            anchored_s = self.mapper.submaps[latest].time_s
+        return float(
+            np.sqrt(max(noise.sigma2_x, noise.sigma2_y) * max(self.scans / self.sensor.rate_hz - anchored_s, 0.0))
+        )
+
+    def known_m3(self, region) -> float:
+        """Known volume inside `region` ((2,3), None: everywhere) of the map that follows the
+        vehicle scan by scan: the navigation-only standard map (the global map takes a submap only
+        once it is complete), else the global map. Drift moves that map's voxels, barely their
+        number, so its change over a flight is the volume the flight revealed."""
+        m = self.mapper.standard_map or self.mapper.global_map
+        centres, values = m.voxels()
+        known = (values <= m.config.log_free) | (values >= m.config.log_occupied)
+        if region is not None:
+            known &= np.all((centres >= region[0]) & (centres <= region[1]), axis=1)
+        return float(np.count_nonzero(known) * m.config.voxel_size**3)
+
     def fly(self, waypoints, timeout_s: float | None = None) -> bool:
         """Fly through waypoints (W,4) in the true frame, scanning, until the last one is reached
         (or timeout_s passes); True when reached."""
@@ -284,8 +414,8 @@ class _Loop:
         limit = np.inf if timeout_s is None else timeout_s * rate
         flown = 0
         while flown < limit:
-            flight = vehicle.fly(self.qpos, self.qvel, waypoints, PIECE_SCANS, rate)
-            done = (flight.index == len(waypoints) - 1) & _near(flight.poses, waypoints[-1])
+            flight = vehicle.fly(self.qpos, self.qvel, waypoints, PIECE_SCANS, rate, self.controller)
+            done = (flight.index == len(waypoints) - 1) & _near(flight.poses, waypoints[-1], self.controller)
             keep = int(np.argmax(done)) + 1 if done.any() else PIECE_SCANS
             self._record(flight.poses[:keep])
             self.qpos, self.qvel = flight.qpos[keep - 1], flight.qvel[keep - 1]
@@ -301,16 +431,19 @@ class _Loop:
         times = (self.scans + np.arange(len(truth))) / rate
         nav = self.navigation.extend(truth, times)  # the run's first scan: the truth itself
         scans = ranging.scan(self.scene.warp_mesh, truth @ self.sensor.T_vehicle_sensor, self.sensor, self.rng)
-        fields = self.sensor.dataset_fields(scans.ranges, scans.no_return)
+        fields = self.sensor.dataset_fields(scans.ranges, scans.no_return, scans.invalid)
         # what the run file stores (float32 beams), so reprocessing it sees the same scans
         fields = {
             "sonar_origin": fields["sonar_origin"].astype(np.float32),
             "sonar_directions": fields["sonar_directions"].astype(np.float32),
             "ranges": fields["ranges"].astype(np.float32),
             "no_return": fields["no_return"],
+            "invalid": fields["invalid"],
         }
         self.writer.append(time_s=times, pose_truth=truth, pose_nav=nav, **fields)
-        self.mapper.add(ScanBatch(self.scans, times, truth, nav, **fields))
+        batch = ScanBatch(self.scans, times, truth, nav, **fields)
+        self.mapper.add(batch)
+        self._batches.append(batch)
         positions = np.concatenate([[self.truth[-1][:3, 3]], truth[:, :3, 3]])
         self.path_m += float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
         self.truth.append(truth[-1])

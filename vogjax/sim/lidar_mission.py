@@ -273,8 +273,9 @@ def _scans(
     no_return = cast.no_return.reshape(len(scan_ids), beams)
     if cfg.range_noise_m > 0:
         ranges = ranges + rng.normal(0.0, cfg.range_noise_m, ranges.shape)
-    # a surface within the minimum range: no range at all (the noise can take a return below it too)
-    invalid = ~no_return & (ranges < cfg.min_range_m)
+    # a surface within the minimum range: no range at all (the cast marks those it finds; the
+    # noise can take a return below it too)
+    invalid = cast.invalid.reshape(len(scan_ids), beams) | (~no_return & (ranges < cfg.min_range_m))
     directions = lidar.beam_directions()[:, 0]  # sensor frame, as fired
     firing = lidar.firing_offsets_s()
     ring = lidar.rings_of_beams()

@@ -172,11 +172,11 @@ def simulate_run(
         ):
             last = min(first + chunk, num_scans)
             scans = ranging.scan(scene.warp_mesh, truth[first:last] @ sensor.T_vehicle_sensor, sensor, rng)
-            returned += int((~scans.no_return).sum())
+            returned += int((~scans.no_return & ~scans.invalid).sum())
             writer.append(
                 time_s=times[first:last],
                 pose_truth=truth[first:last],
                 pose_nav=nav[first:last],
-                **sensor.dataset_fields(scans.ranges, scans.no_return),
+                **sensor.dataset_fields(scans.ranges, scans.no_return, scans.invalid),
             )
     return RunSummary(Path(out), num_scans, float(times[-1]), returned / (num_scans * sensor.beams))

@@ -28,15 +28,19 @@ class SimulatedScans:
     directions : (S, B, 3) ndarray of float64
         Unit beam directions.
     ranges : (S, B) ndarray of float64
-        Ranges, metres (NaN where no return).
+        Ranges, metres (NaN where no return or invalid).
     no_return : (S, B) ndarray of bool
-        Beams without a return.
+        Beams without a return: no surface within the sensor's range.
+    invalid : (S, B) ndarray of bool
+        Beams whose surface lies within the sensor's blind distance (`min_range_m`): they
+        measured nothing.
     """
 
     origins: np.ndarray
     directions: np.ndarray
     ranges: np.ndarray
     no_return: np.ndarray
+    invalid: np.ndarray
 
 
 def scan(
@@ -100,11 +104,12 @@ def scan(
             device="cpu",
         )
     ranges = ranges.numpy().astype(np.float64)
-    no_return = ranges < 0
+    no_return = ranges == ranging.NO_RETURN
+    invalid = ranges == ranging.INVALID
     if sensor.range_noise_m > 0:
         rng = rng or np.random.default_rng()
         ranges = ranges + rng.normal(0.0, sensor.range_noise_m, ranges.shape)
-    ranges[no_return] = np.nan
+    ranges[no_return | invalid] = np.nan
     centre = local[:, local.shape[1] // 2]  # the beam's central sub-ray
     directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], centre)
-    return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return)
+    return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return, invalid)

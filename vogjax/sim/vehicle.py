@@ -49,18 +49,25 @@ def model() -> tuple[mujoco.MjModel, mjx.Model]:
 
 
 def control(qpos, qvel, target, config: ControllerConfig):
-    """Thrusts (surge, sway, heave, yaw) steering toward target (x, y, z, yaw)."""
+    """Thrusts (surge, sway, heave, yaw) steering toward target (x, y, z, yaw).
+
+    Each axis asks for its proportional rate within its limit; with `config.yaw_along_path`
+    both are scaled down to the slower one's time to go, so the vehicle turns while it
+    translates and reaches the position and the heading together."""
     error = target[:3] - qpos[:3]
     distance = jnp.linalg.norm(error)
     speed = jnp.minimum(config.position_gain * distance, config.max_speed_mps)
+    turn = wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp))
+    yaw_rate = jnp.clip(config.yaw_gain * turn, -config.max_yaw_rate_rps, config.max_yaw_rate_rps)
+    if config.yaw_along_path:  # static: the config is a compile-time argument
+        translate_s = jnp.where(distance > 1e-9, distance / jnp.maximum(speed, 1e-9), 0.0)
+        turn_s = jnp.where(jnp.abs(turn) > 1e-9, turn / jnp.where(yaw_rate == 0.0, 1.0, yaw_rate), 0.0)
+        total_s = jnp.maximum(jnp.maximum(translate_s, turn_s), 1e-9)
+        speed = jnp.where(translate_s > 0.0, speed * translate_s / total_s, 0.0)
+        yaw_rate = jnp.where(turn_s > 0.0, yaw_rate * turn_s / total_s, 0.0)
     velocity = jnp.where(distance > 1e-9, error / jnp.maximum(distance, 1e-9) * speed, 0.0)
     force_world = DAMPING * velocity + config.velocity_gain * (velocity - qvel[:3])
     force_body = rotation_from_quaternion(qpos[3:7], jnp).T @ force_world
-    yaw_rate = jnp.clip(
-        config.yaw_gain * wrap_angle(target[3] - yaw_of_quaternion(qpos[3:7], jnp)),
-        -config.max_yaw_rate_rps,
-        config.max_yaw_rate_rps,
-    )
     torque = DAMPING * yaw_rate + config.yaw_rate_gain * (yaw_rate - qvel[5])
     return jnp.concatenate([force_body, torque[None]])
 
