@@ -269,7 +269,7 @@ def test_aligned_auc_takes_out_where_the_anchor_put_the_map(boxes_run):
     assert set(metrics["auc"]) == set(curves) - {"online, registered to the truth"}
 
 
-def test_slam_on_a_second_thread_gives_the_same_bits(boxes_run):
+def test_slam_on_a_second_thread_gives_the_same_bits(looping_boxes_run):
     """SLAM beside the map work (slam_thread) against every step in order: the same closures and
     rejections, optimised poses, global map sums and timing probes' submap counts."""
     import dataclasses
@@ -277,7 +277,9 @@ def test_slam_on_a_second_thread_gives_the_same_bits(boxes_run):
     config = pipeline.PipelineConfig(
         scans_per_submap=50, batch_scans=120, timing=pipeline.PipelineConfig().timing.replace(every_submaps=3)
     )
-    one, two = (pipeline.run(boxes_run, config.replace(slam_thread=flag), progress=False) for flag in ("off", "on"))
+    one, two = (
+        pipeline.run(looping_boxes_run, config.replace(slam_thread=flag), progress=False) for flag in ("off", "on")
+    )
     assert one.loop_closures and one.rejected  # the graph moves, and some pairs are refused
     np.testing.assert_array_equal(one.optimized, two.optimized)
     assert [(c.i, c.k) for c in one.loop_closures] == [(c.i, c.k) for c in two.loop_closures]
