@@ -183,7 +183,9 @@ def test_config_defaults_round_trip_for_explore(tmp_path, capsys):
     assert len(document_leaves(tomllib.loads(path.read_text()))) == len(leaves(ExploreConfig().pipeline))
     path.write_text(defaults(capsys, "--for", "explore", "--scene", "tank"))
     assert load_settings(path, "tank", 3) == load_settings(None, "tank", 3)
-    assert tomllib.loads(path.read_text())["planner"]["edge_length_m"] == 1.0  # the tank's, not the default
+    from vogjax.sim.explore import scene_planner
+
+    assert tomllib.loads(path.read_text())["planner"]["edge_length_m"] == scene_planner("tank").edge_length_m
     assert cli.main(["config", "--check", str(path), "--for", "explore", "--scene", "tank"]) == 0
     assert "every setting at its default" in capsys.readouterr().out
 

@@ -16,9 +16,8 @@ from vogjax.sim import simulate_run
 simulate_run("tank", "tank.h5", num_scans=300, progress=False, overwrite=True)
 with Dataset("tank.h5") as run:
     batch = next(run.batches(len(run)))
-origins, endpoints = batch.world(batch.pose_truth, max_range_m=11.0)  # true poses: mapping alone
-points = endpoints.reshape(-1, 3)
-scan_index = np.repeat(np.arange(len(batch)), endpoints.shape[1])
+# true poses: mapping alone; every beam but those within the sonar's blind distance
+origins, points, scan_index = batch.beams(batch.pose_truth, max_range_m=11.0)
 
 crm = vj.ConfidenceMap(vj.CrmConfig(voxel_size=0.1, max_range=11.0, range_sigma_m=0.05))
 crm.integrate_scans(origins, points, scan_index)

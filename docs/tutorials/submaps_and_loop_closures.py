@@ -31,14 +31,13 @@ for first in range(0, len(scans) - 50, 100):
     middle = len(submap_scans) // 2
     T_world_base_nav = submap_scans.pose_nav[middle]
     T_base_scans = np.linalg.inv(T_world_base_nav) @ submap_scans.pose_nav
-    origins, endpoints = submap_scans.world(T_base_scans, cfg.max_range)
     k = vog.add_submap(
         T_world_base_nav if graph is None else graph.poses()[-1] @ np.linalg.inv(nav_bases[-1]) @ T_world_base_nav
     )
-    vog.submap(k).integrate_scans(
-        origins, endpoints.reshape(-1, 3), np.repeat(np.arange(len(submap_scans)), endpoints.shape[1])
-    )
-    clouds.append(endpoints[~submap_scans.no_return])  # its returns, for registration
+    # every beam but those within the sonar's blind distance, which saw nothing
+    vog.submap(k).integrate_scans(*submap_scans.beams(T_base_scans, cfg.max_range))
+    _, endpoints = submap_scans.world(T_base_scans, cfg.max_range)
+    clouds.append(endpoints[submap_scans.returned])  # its returns, for registration
     nav_bases.append(T_world_base_nav)
     base_times_s.append(float(submap_scans.time_s[middle]))
     # 2. the pose-graph node, tied to the previous one by the navigation's relative motion
