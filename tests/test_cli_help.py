@@ -24,7 +24,7 @@ import pytest
 import vogjax as vj
 from vogjax import cli
 from vogjax.config import JobConfig
-from vogjax.config.planner import ExploreConfig
+from vogjax.config.planner import ExploreConfig, PlannerConfig
 from vogjax.config.schema import rule_of
 
 TINY = "[timing]\nrays = 100\nevery_submaps = 0\n[report]\nsurface_points = 500\n[pipeline]\nscans_per_submap = 10\n"
@@ -174,19 +174,23 @@ def test_config_defaults_round_trip_for_map(tmp_path, capsys, preset):
 
 
 def test_config_defaults_round_trip_for_explore(tmp_path, capsys):
-    from vogjax.sim.explore import load_settings
+    from vogjax.sim.explore import load_settings, scene_planner
 
     path = tmp_path / "explore.toml"
-    path.write_text(defaults(capsys, "--for", "explore"))
-    for scene in vj.scenes.NAMES:  # the commented [planner] leaves each scene's own defaults
+    path.write_text(defaults(capsys, "--for", "explore"))  # the time-aware rule: one planner for all scenes
+    for scene in vj.scenes.NAMES:
         assert load_settings(path, scene, 3) == load_settings(None, scene, 3)
+    document = tomllib.loads(path.read_text())
+    assert len(document_leaves(document)) == len(leaves(ExploreConfig()))
+    path.write_text(defaults(capsys, "--for", "explore", "--rule", "papers"))
+    for scene in vj.scenes.NAMES:  # the commented [planner] leaves each scene's own papers' settings
+        assert load_settings(path, scene, 3, "papers") == load_settings(None, scene, 3, "papers")
     assert len(document_leaves(tomllib.loads(path.read_text()))) == len(leaves(ExploreConfig().pipeline))
-    path.write_text(defaults(capsys, "--for", "explore", "--scene", "tank"))
-    assert load_settings(path, "tank", 3) == load_settings(None, "tank", 3)
-    from vogjax.sim.explore import scene_planner
-
-    assert tomllib.loads(path.read_text())["planner"]["edge_length_m"] == scene_planner("tank").edge_length_m
-    assert cli.main(["config", "--check", str(path), "--for", "explore", "--scene", "tank"]) == 0
+    path.write_text(defaults(capsys, "--for", "explore", "--rule", "papers", "--scene", "tank"))
+    assert load_settings(path, "tank", 3, "papers") == load_settings(None, "tank", 3, "papers")
+    edge_m = tomllib.loads(path.read_text())["planner"]["edge_length_m"]
+    assert edge_m == scene_planner("tank", rule="papers").edge_length_m != PlannerConfig().edge_length_m
+    assert cli.main(["config", "--check", str(path), "--for", "explore", "--rule", "papers", "--scene", "tank"]) == 0
     assert "every setting at its default" in capsys.readouterr().out
 
 
@@ -266,6 +270,7 @@ ERRORS = [
     ("view {d}/map.vog --save {d}/x.txt", ["--save", "x.txt"], []),
     ("view {d}/nope.vog", ["nope.vog"], []),
     ("config --defaults --scene tank", ["--scene", "--for explore"], []),
+    ("config --defaults --for explore --scene tank", ["--scene", "--rule papers"], []),
     ("config", ["--defaults", "--check"], []),
     ("mapp", ["unknown command 'mapp'", "did you mean map?"], []),
     ("", ["no command given", "simulate"], []),

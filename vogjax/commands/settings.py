@@ -26,7 +26,8 @@ EPILOG = """\
 examples:
   vogjax config --defaults > settings.toml
   vogjax config --defaults --preset paper > paper.toml
-  vogjax config --defaults --for explore --scene tank > explore.toml
+  vogjax config --defaults --for explore > explore.toml
+  vogjax config --defaults --for explore --rule papers --scene tank > tank_papers.toml
   vogjax config --check settings.toml"""
 
 
@@ -59,11 +60,19 @@ def add_parser(commands) -> None:
         help="with --for map: the settings to start from, as `vogjax map --preset`",
     )
     config.add_argument(
+        "--rule",
+        choices=("time", "papers"),
+        default="time",
+        help="with --for explore: the planner rule, as `vogjax explore --rule`; the time-aware rule's settings are "
+        "the same for every scene, the papers' depend on it",
+    )
+    config.add_argument(
         "--scene",
         choices=scene_names(ground=False),
         default=None,
-        help=f"with --for explore: the scene whose planner settings to print ({scene_help(ground=False)}); without it "
-        "[planner] is printed commented out, since its defaults are the scene's",
+        help=f"with --for explore --rule papers: the scene whose planner settings to print "
+        f"({scene_help(ground=False)}); by default none, and [planner] is printed commented out, since the papers' "
+        "settings are the scene's",
     )
     add_output_flags(config)
 
@@ -76,17 +85,19 @@ def run(args: argparse.Namespace) -> None:
     args : argparse.Namespace
         The parsed arguments of `vogjax config`.
     """
-    if args.command_for == "map" and args.scene is not None:
-        raise ValueError("--scene is for --for explore (the planner's defaults depend on the scene)")
+    if args.command_for == "map" and (args.scene is not None or args.rule != "time"):
+        raise ValueError("--scene and --rule are for --for explore (the planner's settings)")
+    if args.scene is not None and args.rule != "papers":
+        raise ValueError("--scene is for --rule papers (the time-aware rule's settings are the same for every scene)")
     if args.command_for == "explore" and args.preset != "default":
         raise ValueError("--preset is for --for map (`vogjax explore` has no presets)")
     if args.defaults:
-        print(defaults_text(args.command_for, args.preset, args.scene), end="")
+        print(defaults_text(args.command_for, args.preset, args.scene, args.rule), end="")
     else:
-        print(check_text(args.check, args.command_for, args.preset, args.scene))
+        print(check_text(args.check, args.command_for, args.preset, args.scene, args.rule))
 
 
-def default_settings(command: str, preset: str = "default", scene: str | None = None):
+def default_settings(command: str, preset: str = "default", scene: str | None = None, rule: str = "time"):
     """The settings a command uses when its settings file sets nothing.
 
     Parameters
@@ -96,7 +107,9 @@ def default_settings(command: str, preset: str = "default", scene: str | None = 
     preset : str
         `vogjax map`'s --preset ("default" or "paper").
     scene : str or None
-        `vogjax explore`'s scene: its planner settings (None: PlannerConfig's defaults).
+        `vogjax explore`'s scene: its planner settings under `rule` (None: PlannerConfig's defaults).
+    rule : str
+        `vogjax explore`'s --rule ("time" or "papers").
 
     Returns
     -------
@@ -108,16 +121,16 @@ def default_settings(command: str, preset: str = "default", scene: str | None = 
 
     if command == "map":
         return JobConfig.preset(preset)
-    return ExploreConfig(planner=_scene_planner(scene) if scene else PlannerConfig())
+    return ExploreConfig(planner=_scene_planner(scene, rule) if scene else PlannerConfig())
 
 
-def _scene_planner(scene: str):
+def _scene_planner(scene: str, rule: str):
     from vogjax.sim.explore import scene_planner  # MJX and JAX: only when a scene is named
 
-    return scene_planner(scene)
+    return scene_planner(scene, rule=rule)
 
 
-def defaults_text(command: str, preset: str = "default", scene: str | None = None) -> str:
+def defaults_text(command: str, preset: str = "default", scene: str | None = None, rule: str = "time") -> str:
     """The settings file of a command with every setting at its default.
 
     Parameters
@@ -127,31 +140,36 @@ def defaults_text(command: str, preset: str = "default", scene: str | None = Non
     preset : str
         `vogjax map`'s --preset.
     scene : str or None
-        `vogjax explore`'s scene (None: [planner] written commented out).
+        `vogjax explore`'s scene, with rule "papers" (None: [planner] written commented out).
+    rule : str
+        `vogjax explore`'s --rule.
 
     Returns
     -------
     str
-        TOML text that `--config` reads back to `default_settings(command, preset, scene)`.
+        TOML text that `--config` reads back to `default_settings(command, preset, scene, rule)`.
     """
     from vogjax.config.settings_file import settings_toml
 
-    config = default_settings(command, preset, scene)
+    config = default_settings(command, preset, scene, rule)
     if command == "map":
         title = "vogjax map" + (f" --preset {preset}" if preset != "default" else "")
         return settings_toml(config, title)
+    if rule == "time":
+        note = "The time-aware rule's settings, the same for every scene. The seed is --seed's."
+        return settings_toml(config, "vogjax explore", notes={"planner": note})
     if scene is None:
         note = (
-            "The planner's defaults are the scene's (the papers' settings for it): the lines below, "
-            "PlannerConfig's own defaults, are comments; `vogjax config --defaults --for explore --scene "
-            "NAME` prints a scene's. The seed is --seed's."
+            "With --rule papers the planner's settings are the scene's (the papers' for it): the lines below, "
+            "PlannerConfig's own defaults, are comments; `vogjax config --defaults --for explore --rule papers "
+            "--scene NAME` prints a scene's. The seed is --seed's."
         )
-        return settings_toml(config, "vogjax explore", commented=("planner",), notes={"planner": note})
-    note = f"The planner's settings for the {scene} scene. The seed is --seed's."
-    return settings_toml(config, f"vogjax explore --scene {scene}", notes={"planner": note})
+        return settings_toml(config, "vogjax explore --rule papers", commented=("planner",), notes={"planner": note})
+    note = f"The papers' planner settings for the {scene} scene. The seed is --seed's."
+    return settings_toml(config, f"vogjax explore --rule papers --scene {scene}", notes={"planner": note})
 
 
-def check_text(path: Path, command: str, preset: str = "default", scene: str | None = None) -> str:
+def check_text(path: Path, command: str, preset: str = "default", scene: str | None = None, rule: str = "time") -> str:
     """Read a settings file as `command` would; a line saying what it changes.
 
     Parameters
@@ -164,6 +182,8 @@ def check_text(path: Path, command: str, preset: str = "default", scene: str | N
         `vogjax map`'s --preset: the settings the file starts from.
     scene : str or None
         `vogjax explore`'s scene.
+    rule : str
+        `vogjax explore`'s --rule.
 
     Returns
     -------
@@ -178,7 +198,7 @@ def check_text(path: Path, command: str, preset: str = "default", scene: str | N
     """
     from vogjax.config.settings_file import differences
 
-    base = default_settings(command, preset, scene)
+    base = default_settings(command, preset, scene, rule)
     config = type(base).from_toml(path, base)  # what the file sets, over the defaults
     changed = differences(config, base)
     head = f"{path}: valid settings for `vogjax {command}`"
