@@ -2,7 +2,9 @@
 
 Blocks are collected from the Markdown itself, so a page and its test cannot drift apart. Per
 page, in one fresh working folder and in page order: ```python blocks run in one namespace,
-```bash blocks in a shell with this environment's `vogjax` on PATH, ```toml blocks load as a
+```bash blocks line by line (a line that is one `vogjax` command runs in this process through
+the CLI's entry point, the rest in bash with this environment's `vogjax` on PATH; a block that
+sets shell state runs in one bash), ```toml blocks load as a
 settings file. A block preceded by `<!-- skip: reason -->` is not run (install commands, runs of
 hours); the reason is required. A page that starts from the survey the Getting started page
 maps says so with `<!-- uses: the boxes survey -->`: its folder then starts with that page's
@@ -125,11 +127,18 @@ def segments(code: str) -> list[tuple[str, str]]:
     return [(kind, text.rstrip()) for kind, text in pieces if text.strip()]
 
 
+# shell state that later lines would need: such a block runs in one bash, vogjax lines included
+SHELL_STATE = re.compile(r"^\s*(cd|export|source|\.|set|alias)\s|^\s*\w+=", re.M)
+
+
 def run_bash(block: Block, folder: Path, survey=None) -> None:
     """Run a bash block in `folder` (the working folder); with `survey` (a callable giving the
     session's survey folder), the survey's own commands copy their outputs from it instead."""
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    for kind, text in segments(block.code):
+    pieces = segments(block.code)
+    if any(kind == "bash" and SHELL_STATE.search(text) for kind, text in pieces):
+        pieces = [("bash", block.code)]
+    for kind, text in pieces:
         if survey is not None and text in SURVEY:
             for output in SURVEY[text]:
                 source = survey() / output
@@ -245,6 +254,8 @@ def test_a_block_splits_into_vogjax_commands_and_bash_in_order():
         'vogjax map boxes.h5 --out maps || echo "exit status $?"\n'
         "ls maps\n"
     )
+    assert not any(SHELL_STATE.search(text) for _, text in segments(code))
+    assert SHELL_STATE.search("cd maps") and SHELL_STATE.search("RUN=boxes.h5")
     assert segments(code) == [
         ("vogjax", "vogjax --version"),
         ("bash", "cat > quick.toml <<'EOF'\n[pipeline]\nvogjax = 1\nEOF"),
