@@ -60,25 +60,26 @@ class RangeSensor(abc.ABC):
     def beams(self) -> int:
         """Beams a scan, B."""
 
+    # every sensor's settings carry these under the same names
     @property
-    @abc.abstractmethod
     def rate_hz(self) -> float:
-        """Scans a second."""
+        """Scans a second (its settings' `rate_hz`)."""
+        return self.config.rate_hz
 
     @property
-    @abc.abstractmethod
     def min_range_m(self) -> float:
-        """Nearest range it measures, metres."""
+        """Nearest range it measures, metres (its settings' `min_range_m`)."""
+        return self.config.min_range_m
 
     @property
-    @abc.abstractmethod
     def max_range_m(self) -> float:
-        """Farthest range it measures, metres."""
+        """Farthest range it measures, metres (its settings' `max_range_m`)."""
+        return self.config.max_range_m
 
     @property
     def range_noise_m(self) -> float:
-        """Standard deviation of its simulated range noise, metres (0: none)."""
-        return 0.0
+        """Standard deviation of its simulated range noise, metres (0: none, as for a recorded sensor)."""
+        return getattr(self.config, "range_noise_m", 0.0)
 
     @abc.abstractmethod
     def beam_directions(self) -> np.ndarray:

@@ -50,26 +50,6 @@ class SpinningLidar(RangeSensor):
         """Beams a scan."""
         return self.config.columns * self.config.rings
 
-    @property
-    def rate_hz(self) -> float:
-        """Scans a second."""
-        return self.config.rate_hz
-
-    @property
-    def min_range_m(self) -> float:
-        """Nearest range it measures, metres."""
-        return self.config.min_range_m
-
-    @property
-    def max_range_m(self) -> float:
-        """Farthest range it measures, metres."""
-        return self.config.max_range_m
-
-    @property
-    def range_noise_m(self) -> float:
-        """Standard deviation of its simulated range noise, metres."""
-        return self.config.range_noise_m
-
     def ring_directions(self) -> npt.NDArray[np.float64]:
         """The rings' unit directions at azimuth 0 (the first column), sensor frame.
 

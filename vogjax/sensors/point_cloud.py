@@ -44,21 +44,6 @@ class PointCloudSensor(RangeSensor):
         """Beams a scan."""
         return self.config.beams
 
-    @property
-    def rate_hz(self) -> float:
-        """Scans a second."""
-        return self.config.rate_hz
-
-    @property
-    def min_range_m(self) -> float:
-        """Nearest range it measures, metres."""
-        return self.config.min_range_m
-
-    @property
-    def max_range_m(self) -> float:
-        """Farthest range it measures, metres."""
-        return self.config.max_range_m
-
     def beam_directions(self) -> np.ndarray:
         """None: a recorded sensor's beams are in its run file.
 

@@ -43,26 +43,6 @@ class ProfilingSonar(RangeSensor):
         """Beams a scan."""
         return self.config.beams
 
-    @property
-    def rate_hz(self) -> float:
-        """Scans a second."""
-        return self.config.rate_hz
-
-    @property
-    def min_range_m(self) -> float:
-        """Nearest range it measures, metres."""
-        return self.config.min_range_m
-
-    @property
-    def max_range_m(self) -> float:
-        """Farthest range it measures, metres."""
-        return self.config.max_range_m
-
-    @property
-    def range_noise_m(self) -> float:
-        """Standard deviation of its simulated range noise, metres."""
-        return self.config.range_noise_m
-
     def beam_directions(self) -> np.ndarray:
         """The fan's beams, each `subrays` rays across the aperture.
 
