@@ -5,8 +5,9 @@ Measures, in one run and side by side:
   the pier at levels 0-3: time (median of --repeats) and agreement with level 0 (same hit or
   miss; coarse hits at or before level 0's; rays where level 0 hits and the coarse cast does
   not, or later: must be 0);
-- maintenance: the same scans integrated one call per scan (and per 100 scans) into three maps
-  at once, interleaved: no levels, levels 1-3, levels 1-6 kept; and what building levels from
+- maintenance: the same scans integrated one call per scan (and per 100 scans) into six maps
+  at once, interleaved: no levels, levels 1-3 or 1-6 kept and brought up to date every 1, 10
+  or 100 scans; and what building levels from
   scratch costs instead; a global map's merge and update_poses with and without levels 1-3;
 - loading: a .bt and a .ot of a few million voxels, vogjax's VoxelMap.from_octomap against
   octomap-python's OcTree.readBinary / OcTree.read (medians of --repeats, kernels compiled).
@@ -92,11 +93,12 @@ def warm_up(origins, points, scan, device) -> None:
 
 
 def maintenance(origins, points, scan, device, chunk: int) -> tuple[dict, list]:
-    """Integrate the scans `chunk` per call into five maps, interleaved call by call (the order
+    """Integrate the scans `chunk` per call into six maps, interleaved call by call (the order
     rotating, so load on the machine hits all alike): one keeping no levels, and ones keeping
-    levels 1-3 or 1-6 brought up to date (what a coarse query does first) after every call or
-    after every 100 scans (a planning iteration). Their time includes that update."""
-    kinds = [(0, 0), (3, 1), (3, 100), (6, 1), (6, 100)]  # (levels kept, scans between updates)
+    levels 1-3 or 1-6 brought up to date (what a coarse query does first) after every call,
+    after every 10 scans (levels 1-3) or after every 100 scans (a planning iteration). Their
+    time includes that update."""
+    kinds = [(0, 0), (3, 1), (3, 10), (3, 100), (6, 1), (6, 100)]  # (levels kept, scans between updates)
     maps = [vj.VoxelMap(vj.MapConfig(), device=device) for _ in kinds]
     for vmap, (levels, _) in zip(maps, kinds):
         if levels:

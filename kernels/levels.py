@@ -3,14 +3,15 @@
 Level k has voxels of 2^k level-0 voxels per axis: coarse voxel V holds level-0 keys
 [V 2^k, (V + 1) 2^k) (OctoMap's node at depth 16 - k, whose keys are aligned the same way) and
 the largest log-odds of its observed children, NaN when none is observed: OctoMap's
-`getMaxChildLogOdds` after `updateInnerOccupancy`. Each level is built from the one below:
-the maximum over the children's maxima is the maximum over all their voxels.
+`getMaxChildLogOdds` after `updateInnerOccupancy`.
 
-A coarse block (8^3 voxels of level k) covers 2 x 2 x 2 blocks of level k - 1: its octant o
-holds the coarse voxels whose children fill child block 2 B + o, so one thread per (block,
-octant) finds that child block once and writes its 64 coarse voxels. It also says whether any
-of them changed, bit for bit: a coarse block whose voxels all stayed gives its parent nothing new,
-so the level above need not recompute it (nor the levels above that, when none changed).
+A block's edge is 8 = 2^3 voxels, so the voxels of the three levels above a level-j block
+each cover voxels of that block alone: its 512 voxels decide 64 voxels one level up (an octant
+of its parent block), 8 two levels up and 1 three levels up, and no other block writes those.
+So one thread per block fills all three levels from it in one launch, each coarse value the
+maximum over the level below it in the order OctoMap visits the children (x, then y, then z,
+the first of equal values kept: a parent keeps the bits, the sign of a zero included, of the
+child it copies). Levels above j + 3 are filled the same way from the level-(j + 3) blocks.
 """
 
 import warp as wp
@@ -28,9 +29,10 @@ def larger_observed(best: wp.float32, value: wp.float32) -> wp.float32:
     return best
 
 
-# Bits of fill_coarse_blocks' octant_flags.
-OCTANT_OBSERVED = wp.constant(1)  # the octant holds an observed voxel
-OCTANT_CHANGED = wp.constant(2)  # a voxel of the octant now holds other bits than before
+# Bits of fill_levels_above_blocks' flags: REGION_OBSERVED when the block holds an observed
+# voxel; LEVEL_CHANGED << (i - 1) when a voxel it decides i levels up now holds other bits.
+REGION_OBSERVED = wp.constant(1)
+LEVEL_CHANGED = wp.constant(2)
 
 
 @wp.func
@@ -42,47 +44,117 @@ def same_value(a: wp.float32, b: wp.float32) -> bool:
     return a == b and (a != wp.float32(0.0) or wp.sign(wp.float32(1.0) / a) == wp.sign(wp.float32(1.0) / b))
 
 
+@wp.func
+def shifted_block(block: wp.vec3i, levels: int) -> wp.vec3i:
+    return wp.vec3i(block[0] >> levels, block[1] >> levels, block[2] >> levels)
+
+
+@wp.func
+def corner_in_parent(block: wp.vec3i, levels: int) -> wp.vec3i:
+    """The first voxel, inside its block `levels` levels up, of the voxels a block decides."""
+    mask = (1 << levels) - 1
+    edge = 8 >> levels
+    return wp.vec3i((block[0] & mask) * edge, (block[1] & mask) * edge, (block[2] & mask) * edge)
+
+
+@wp.func
+def octant(corner: wp.vec3i, o: int, size: int) -> wp.vec3i:
+    """Child `o` (x, y, z bits high to low) of the cube of edge 2 size at `corner`."""
+    return wp.vec3i(corner[0] + ((o >> 2) & 1) * size, corner[1] + ((o >> 1) & 1) * size, corner[2] + (o & 1) * size)
+
+
+@wp.func
+def write_value(log_odds: wp.array(dtype=wp.float32), index: int, value: wp.float32) -> int:
+    """Store `value`; LEVEL_CHANGED when the voxel held other bits."""
+    changed = wp.where(same_value(log_odds[index], value), 0, 1)
+    log_odds[index] = value
+    return changed
+
+
 @wp.kernel
-def fill_coarse_blocks(
+def fill_levels_above_blocks(
+    keys: wp.array(dtype=wp.int64),
+    count: wp.array(dtype=wp.int32),
+    depth: int,
+    table_keys: wp.array(dtype=wp.int64),
+    table_slots: wp.array(dtype=wp.int32),
+    log_odds: wp.array(dtype=wp.float32),
+    table_keys_1: wp.array(dtype=wp.int64),
+    table_slots_1: wp.array(dtype=wp.int32),
+    table_keys_2: wp.array(dtype=wp.int64),
+    table_slots_2: wp.array(dtype=wp.int32),
+    table_keys_3: wp.array(dtype=wp.int64),
+    table_slots_3: wp.array(dtype=wp.int32),
+    log_odds_1: wp.array(dtype=wp.float32),
+    log_odds_2: wp.array(dtype=wp.float32),
+    log_odds_3: wp.array(dtype=wp.float32),
+    flags: wp.array(dtype=wp.int32),
+):
+    """From the blocks with packed keys `keys` (distinct; a key absent from the table: a block of
+    unobserved voxels), the voxels they decide in the `depth` (1-3) levels above, whose blocks are
+    all in their tables (_1: one level up, ...; a level beyond `depth` is not read or written).
+    One thread per block, for the first count[0] keys (a launch recorded once serves any
+    number up to its size); flags[tid] as REGION_OBSERVED and LEVEL_CHANGED say (-1: a parent
+    block was missing, nothing written)."""
+    tid = wp.tid()
+    if tid >= count[0]:
+        return
+    key = keys[tid]
+    block = unpack_block(key)
+    slot = find_slot(table_keys, table_slots, key)
+    base_1 = find_slot(table_keys_1, table_slots_1, pack_block(shifted_block(block, 1))) * BLOCK_VOXELS
+    corner_1 = corner_in_parent(block, 1)
+    base_2 = int(0)
+    corner_2 = wp.vec3i(0, 0, 0)
+    if depth >= 2:
+        base_2 = find_slot(table_keys_2, table_slots_2, pack_block(shifted_block(block, 2))) * BLOCK_VOXELS
+        corner_2 = corner_in_parent(block, 2)
+    base_3 = int(0)
+    if depth >= 3:
+        base_3 = find_slot(table_keys_3, table_slots_3, pack_block(shifted_block(block, 3))) * BLOCK_VOXELS
+    if base_1 < 0 or base_2 < 0 or base_3 < 0:  # a parent block missing: the host allocates them first
+        flags[tid] = -1
+        return
+    changed_1 = int(0)
+    changed_2 = int(0)
+    best_3 = wp.float32(wp.nan)
+    for o2 in range(8):  # the block's eight cubes of 4^3 voxels: one voxel two levels up each
+        cube_2 = octant(wp.vec3i(0, 0, 0), o2, 4)
+        best_2 = wp.float32(wp.nan)
+        for o1 in range(8):  # their cubes of 2^3 voxels: one voxel one level up each
+            cube_1 = octant(cube_2, o1, 2)
+            best_1 = wp.float32(wp.nan)
+            if slot >= 0:
+                for o0 in range(8):
+                    voxel = octant(cube_1, o0, 1)
+                    best_1 = larger_observed(best_1, log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)])
+            up_1 = wp.vec3i(corner_1[0] + cube_1[0] / 2, corner_1[1] + cube_1[1] / 2, corner_1[2] + cube_1[2] / 2)
+            changed_1 = changed_1 | write_value(log_odds_1, base_1 + index_in_block(up_1), best_1)
+            best_2 = larger_observed(best_2, best_1)
+        if depth >= 2:
+            up_2 = wp.vec3i(corner_2[0] + cube_2[0] / 4, corner_2[1] + cube_2[1] / 4, corner_2[2] + cube_2[2] / 4)
+            changed_2 = changed_2 | write_value(log_odds_2, base_2 + index_in_block(up_2), best_2)
+        best_3 = larger_observed(best_3, best_2)
+    changed_3 = int(0)
+    if depth >= 3:
+        changed_3 = write_value(log_odds_3, base_3 + index_in_block(block), best_3)
+    seen = wp.where(observed(best_3), REGION_OBSERVED, 0)
+    flags[tid] = seen | (changed_1 * LEVEL_CHANGED) | (changed_2 * LEVEL_CHANGED * 2) | (changed_3 * LEVEL_CHANGED * 4)
+
+
+@wp.kernel
+def find_observed_blocks(
     keys: wp.array(dtype=wp.int64),
     table_keys: wp.array(dtype=wp.int64),
     table_slots: wp.array(dtype=wp.int32),
-    child_table_keys: wp.array(dtype=wp.int64),
-    child_table_slots: wp.array(dtype=wp.int32),
-    child_log_odds: wp.array(dtype=wp.float32),
     log_odds: wp.array(dtype=wp.float32),
-    octant_flags: wp.array(dtype=wp.int32),
+    holds_observed: wp.array(dtype=wp.int32),
 ):
-    """Recompute every voxel of the coarse blocks with packed keys `keys` (all in the coarse
-    store's table) from the level below (child_*). One thread per (block, octant): tid = 8 b + o;
-    octant_flags[tid] has OCTANT_OBSERVED when the octant holds an observed voxel (none in all
-    eight: the block is empty) and OCTANT_CHANGED when one of its voxels changed."""
+    """Whether the block with packed key keys[tid] (in the table) holds an observed voxel."""
     tid = wp.tid()
-    key = keys[tid / 8]
-    slot = find_slot(table_keys, table_slots, key)
-    octant = tid % 8
-    ox = (octant >> 2) & 1
-    oy = (octant >> 1) & 1
-    oz = octant & 1
-    block = unpack_block(key)
-    child_block = wp.vec3i(2 * block[0] + ox, 2 * block[1] + oy, 2 * block[2] + oz)
-    child_slot = find_slot(child_table_keys, child_table_slots, pack_block(child_block))
-    base = slot * BLOCK_VOXELS
-    child_base = child_slot * BLOCK_VOXELS
+    base = find_slot(table_keys, table_slots, keys[tid]) * BLOCK_VOXELS
     seen = int(0)
-    changed = int(0)
-    for lx in range(4):
-        for ly in range(4):
-            for lz in range(4):
-                best = wp.float32(wp.nan)
-                if child_slot >= 0:
-                    for c in range(8):
-                        child = wp.vec3i(2 * lx + ((c >> 2) & 1), 2 * ly + ((c >> 1) & 1), 2 * lz + (c & 1))
-                        best = larger_observed(best, child_log_odds[child_base + index_in_block(child)])
-                index = base + index_in_block(wp.vec3i(4 * ox + lx, 4 * oy + ly, 4 * oz + lz))
-                if not same_value(log_odds[index], best):
-                    changed = OCTANT_CHANGED
-                log_odds[index] = best
-                if observed(best):
-                    seen = OCTANT_OBSERVED
-    octant_flags[tid] = seen | changed
+    for i in range(BLOCK_VOXELS):
+        if observed(log_odds[base + i]):
+            seen = 1
+    holds_observed[tid] = seen

@@ -178,21 +178,23 @@ def _levels_equal(ours, theirs, levels):
 
 
 def test_levels_updated_after_every_scan_equal_a_fresh_build_at_every_step(monkeypatch):
-    """A level recomputes only the blocks whose children changed (a block that kept its bits
-    gives its parent nothing new), so an update after each scan often stops after a level or
-    two: after every scan, every level equals one built from scratch, and propagation stopped
-    early at least once (the pruned path ran)."""
+    """Levels 1-3 are recomputed from the written blocks, levels 4-6 only from the level-3
+    blocks whose voxels changed (a block that kept its bits gives its parent nothing new), so an
+    update after each scan often stops after three levels: after every scan, every level equals
+    one built from scratch, and propagation stopped early at least once (the pruned path ran)."""
     from vogjax.maps import levels as levels_module
 
     stopped = []
-    recompute = levels_module.Levels._recompute
+    fill = levels_module.Levels._fill
 
-    def counting(self, level, below, keys):
-        changed = recompute(self, level, below, keys)
-        stopped.append(len(changed) < len(keys))
+    def counting(self, level, depth, below, keys):
+        changed = fill(self, level, depth, below, keys)
+        above = np.unique(levels_module.shift_keys(keys, depth))
+        assert np.isin(changed, above).all()
+        stopped.append(len(changed) < len(above))
         return changed
 
-    monkeypatch.setattr(levels_module.Levels, "_recompute", counting)
+    monkeypatch.setattr(levels_module.Levels, "_fill", counting)
     cfg = vj.MapConfig()
     rng = np.random.default_rng(3)
     origins, points, scan = ref.random_scans(rng, 24, 120, spread=4.0)
@@ -263,6 +265,60 @@ def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps(monkeypatch):
         np.testing.assert_array_equal(a.distance, b.distance)
         la, lb = vog.line_query(points[:50], points[50:100], 2), fresh.line_query(points[:50], points[50:100], 2)
         np.testing.assert_array_equal(la[0], lb[0])
+
+
+block_coordinate = st.integers(-(1 << 20), (1 << 20) - 1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(blocks=st.lists(st.tuples(block_coordinate, block_coordinate, block_coordinate), min_size=1, max_size=20))
+def test_shifting_packed_keys_equals_shifting_the_coordinates(blocks):
+    from vogjax.maps.blocks import pack_blocks, unpack_blocks
+    from vogjax.maps.levels import shift_keys
+
+    blocks = np.array(blocks, np.int64)
+    keys = pack_blocks(blocks)
+    for levels in range(0, 16):
+        np.testing.assert_array_equal(shift_keys(keys, levels), pack_blocks(blocks >> levels))
+        np.testing.assert_array_equal(unpack_blocks(shift_keys(keys, levels)), blocks >> levels)
+
+
+def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
+    """The host allocates every parent first; were one missing, the kernel would index slot -1:
+    it flags the block instead and writes nothing (the host raises)."""
+    import warp as wp
+
+    from vogjax.kernels import levels as kernels
+    from vogjax.maps.blocks import BlockStore, pack_blocks
+    from vogjax.maps.levels import LAYERS
+
+    device = wp.get_device("cpu")
+    base, coarse = BlockStore(device, LAYERS), BlockStore(device, LAYERS)
+    keys = pack_blocks(np.array([[0, 0, 0], [5, -3, 2]]))
+    base.ensure_blocks(wp.array(keys, dtype=wp.int64, device=device))
+    base.layers["log_odds"].fill_(1.5)
+    coarse.ensure_blocks(wp.array(keys[:1], dtype=wp.int64, device=device))  # [5, -3, 2]'s parent missing
+    flags = wp.zeros(2, dtype=wp.int32, device=device)
+    tables = [coarse.table_keys, coarse.table_slots] * 3
+    wp.launch(
+        kernels.fill_levels_above_blocks,
+        dim=2,
+        inputs=[
+            wp.array(keys, dtype=wp.int64, device=device),
+            wp.array([2], dtype=wp.int32, device=device),
+            1,
+            base.table_keys,
+            base.table_slots,
+            base.layers["log_odds"],
+            *tables,
+            *[coarse.layers["log_odds"]] * 3,
+        ],
+        outputs=[flags],
+        device=device,
+    )
+    assert flags.numpy()[1] == -1 and flags.numpy()[0] & kernels.REGION_OBSERVED
+    values = coarse.layers["log_odds"].numpy()[:512].reshape(8, 8, 8)
+    assert np.all(values[:4, :4, :4] == 1.5) and np.isnan(values[4:]).all() and np.isnan(values[:, 4:]).all()
 
 
 def test_bad_levels_are_refused_naming_the_argument():

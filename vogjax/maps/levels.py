@@ -6,20 +6,20 @@ queries of level 0 run on it unchanged with the voxel size scaled by 2^k. A map 
 the first time it is queried and from then on keeps every level it built current.
 
 Keeping them current: each write notes the level-0 blocks it wrote (`note`, a list of keys:
-nothing else), and the next coarse query first recomputes, level by level, the coarse blocks
-above every block noted since, from their children (`flush`), so a query always sees every
-write before it, and the scans integrated between two queries share one recomputation. A log
-grown past FLUSH_KEYS keys is flushed by the write itself. A coarse block with no observed
-voxel left is released, so a level holds the blocks a fresh build would, whatever happened
-before.
+nothing else), and the next coarse query first recomputes what those blocks decide in every
+kept level (`flush`), so a query always sees every write before it, and the scans integrated
+between two queries share one recomputation. A log grown past FLUSH_KEYS keys is flushed by the
+write itself. A coarse block with no observed voxel left is released, so a level holds the
+blocks a fresh build would, whatever happened before.
 
-A level passes up only the blocks whose voxels changed (fill_coarse_blocks reports it, bit for
-bit): a block whose maximum stayed gives its parent nothing new, so the next level recomputes
-fewer blocks, and once none changed the levels above are left as they are, launches and all. A
-scan mostly lowers free voxels or raises occupied ones already at the maximum, so an update
-after every scan usually stops after a level or two. (On a GPU, where reading the flags back
-waits for the launch, a map that never releases blocks recomputes every level above the noted
-blocks, as it would without them.)
+Three levels at a time: a block decides the voxels above it in the next three levels alone
+(`kernels/levels.py`), so levels 1-3 are one launch over the noted blocks, levels 4-6 one over
+the level-3 blocks whose voxels changed, and so on: an update after every scan pays one launch
+for the planner's levels 1-3, where a level at a time paid three and their host work (a scan
+writes a few dozen blocks, where a launch's fixed cost outweighs the kernel). A group passes up
+only the blocks whose top voxel changed, so once nothing changed the groups above are left as
+they are, launches and all. (On a GPU, where reading the flags back waits for the launch, a map
+that never releases blocks passes every block up.)
 
 Measured in benchmarks/bench_octomap.py (docs/benchmarks/octomap.md).
 """
@@ -31,7 +31,7 @@ import warp as wp
 
 from vogjax.kernels import levels
 from vogjax.maps import parallel
-from vogjax.maps.blocks import EMPTY_KEY, BlockStore, pack_blocks, unpack_blocks
+from vogjax.maps.blocks import EMPTY_KEY, BlockStore
 
 # OctoMap's depth 16 - k: level 15 is depth 1, the root's children. (The root, level 16, is not
 # aligned with vogjax's keys: OctoMap's keys are offset by 2^15.)
@@ -90,11 +90,17 @@ def level_scales(voxel_size: float, level: int) -> tuple[np.float64, np.float64]
     return np.float64(np.ldexp(voxel_size, level)), np.float64(np.ldexp(1.0 / voxel_size, -level))
 
 
-def parent_keys(keys: np.ndarray) -> np.ndarray:
-    """Distinct packed keys (K,) of the blocks one level up from packed block keys `keys`."""
-    if len(keys) == 0:
-        return np.zeros(0, np.int64)
-    return np.unique(pack_blocks(unpack_blocks(keys) >> 1))
+def shift_keys(keys: np.ndarray, levels: int) -> np.ndarray:
+    """Packed keys (K,) of the blocks `levels` levels up from packed block keys `keys` (repeats
+    kept), computed on the packed fields: a biased coordinate f = c + 2^20 becomes
+    (c >> levels) + 2^20 = (f >> levels) + 2^20 - 2^(20 - levels), which fits its 21 bits, so
+    all three fields shift in one word with no carry between them."""
+    if levels == 0:
+        return keys
+    low = (1 << (21 - levels)) - 1  # what is left of a field shifted right
+    offset = (1 << 20) - (1 << (20 - levels))
+    mask = np.int64((low << 42) | (low << 21) | low)
+    return ((keys >> levels) & mask) + np.int64((offset << 42) | (offset << 21) | offset)
 
 
 class Levels:
@@ -111,6 +117,8 @@ class Levels:
         self._keys: list[np.ndarray] = []  # per level, its blocks' packed keys, sorted (a host mirror)
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
+        self._launches: dict = {}  # group's first level -> its recorded launch (_fill_launch)
+        self._ensured: dict = {}  # group's first level -> (its store, the version) when every parent was there
 
     @property
     def count(self) -> int:
@@ -129,19 +137,21 @@ class Levels:
         return sum(store.memory_bytes() for store in self.stores)
 
     def extend(self, base: BlockStore, level: int) -> None:
-        """Build levels count+1 .. `level` from scratch (each from the one below)."""
+        """Build levels count+1 .. `level` from scratch (up to three from the level below)."""
         self.flush(base)
         while self.count < level:
+            start = self.count
             below = self.stores[-1] if self.stores else base
-            store = BlockStore(self.device, LAYERS)
-            self.stores.append(store)
-            self._keys.append(np.zeros(0, np.int64))
-            self._recompute(self.count, below, parent_keys(_live_keys(below)))
+            depth = min(3, level - start)
+            for _ in range(depth):
+                self.stores.append(BlockStore(self.device, LAYERS))
+                self._keys.append(np.zeros(0, np.int64))
+            self._fill(start, depth, below, _live_keys(below))
 
     def rebuild(self, base: BlockStore) -> None:
         """Every kept level from scratch (after the level-0 store was replaced)."""
         count = self.count
-        self.stores, self._keys = [], []
+        self.stores, self._keys, self._launches, self._ensured = [], [], {}, {}
         self._noted, self._noted_keys = [], 0
         self.extend(base, count)
 
@@ -156,68 +166,133 @@ class Levels:
             self.flush(base)
 
     def flush(self, base: BlockStore) -> None:
-        """Recompute, in every kept level, the coarse blocks above the blocks noted since."""
+        """Recompute, in every kept level, what the blocks noted since decide."""
         if not self._noted:
             return
-        changed = np.unique(np.concatenate(self._noted))
+        changed = np.unique(np.concatenate(self._noted) if len(self._noted) > 1 else self._noted[0])
         self._noted, self._noted_keys = [], 0
-        changed = changed[changed != EMPTY_KEY]
-        below = base
-        for level, store in enumerate(self.stores, start=1):
-            if len(changed) == 0:
-                return
-            changed = self._recompute(level, below, parent_keys(changed))
-            below = store
+        if len(changed) and changed[0] == EMPTY_KEY:  # sorted: EMPTY_KEY (-1) first, at most once
+            changed = changed[1:]
+        level, below = 0, base
+        while level < self.count and len(changed):
+            depth = min(3, self.count - level)
+            changed = self._fill(level, depth, below, changed)
+            level += depth
+            below = self.store(level)
 
-    def _recompute(self, level: int, below: BlockStore, keys: np.ndarray) -> np.ndarray:
-        """Recompute the coarse blocks `keys` (distinct, sorted) of `level` from `below`;
-        release those left empty. Returns the keys of the blocks whose voxels changed (all of
-        `keys` where the flags are not read back)."""
+    def _fill(self, level: int, depth: int, below: BlockStore, keys: np.ndarray) -> np.ndarray:
+        """Recompute, in levels level+1 .. level+depth, the voxels that the blocks `keys`
+        (distinct) of `below` (level `level`) decide; release coarse blocks left empty. Returns
+        the distinct keys of the level-(level+depth) blocks whose voxels changed (every block
+        above `keys` where the flags are not read back)."""
         if len(keys) == 0:
             return keys
-        device, store = self.device, self.store(level)
-        # an update after every scan recomputes a few blocks a level, where the host's fixed
-        # costs (arrays made, a launch's arguments) outweigh the kernel: on a CPU the kernel reads
-        # the host's keys in place (it has finished when the launch returns), the launch is one
-        # call unless the blocks are many, and the host mirror is searched, not set-compared
-        d_keys = wp.array(keys, dtype=wp.int64, device=device, copy=device.is_cuda)
-        kept = self._keys[level - 1]
-        known = np.zeros(len(keys), bool)
-        if len(kept):
-            known = kept[np.minimum(np.searchsorted(kept, keys), len(kept) - 1)] == keys
-        if not known.all():  # the host mirror spares a launch and a read-back when every block exists
-            new = keys[~known]
-            store.ensure_blocks(wp.array(new, dtype=wp.int64, device=device))
-            self._keys[level - 1] = kept = np.union1d(kept, new)
-        flags = wp.empty(len(keys) * 8, dtype=wp.int32, device=device)
+        device = self.device
+        stores = [self.store(level + i) for i in range(1, depth + 1)]
+        # a coarse block's parent is allocated with it (and released after it), so only the
+        # ancestors of blocks new to a level can be new to the levels above; and where blocks
+        # are never released, a level that allocated no block since its last update has all
+        # its parents: an update after a scan that mapped no new ground searches nothing
+        ensured = self._ensured.get(level)
+        if self.releases or ensured is None or ensured[0] is not below or ensured[1] != below.version:
+            new = keys
+            for i, store in enumerate(stores, start=1):
+                parents = shift_keys(new, 1)
+                kept = self._keys[level + i - 1]
+                known = np.zeros(len(parents), bool)
+                if len(kept):
+                    known = kept[np.minimum(np.searchsorted(kept, parents), len(kept) - 1)] == parents
+                if known.all():
+                    break
+                new = np.unique(parents[~known])
+                store.ensure_blocks(wp.array(new, dtype=wp.int64, device=device))
+                self._keys[level + i - 1] = np.insert(kept, np.searchsorted(kept, new), new)
+            self._ensured[level] = (below, below.version)
+        padded = stores + [stores[-1]] * (3 - depth)  # levels past `depth` are neither read nor written
+        arrays = [below.table_keys, below.table_slots, below.layers["log_odds"]]
+        arrays += [a for store in padded for a in (store.table_keys, store.table_slots)]
+        arrays += [store.layers["log_odds"] for store in padded]
+        # a block is 512 reads: one scan's few dozen stay on one thread
+        parts = parallel.num_parts(device, len(keys) * 8)
+        if parts == 1 and not device.is_cuda:
+            flags = self._fill_launch(level, depth, arrays, keys)
+        else:
+            d_keys = wp.array(keys, dtype=wp.int64, device=device)
+            flags = wp.empty(len(keys), dtype=wp.int32, device=device)
+            edges = [len(keys) * part // parts for part in range(parts + 1)]
+            counts = wp.array(np.diff(edges).astype(np.int32), dtype=wp.int32, device=device)
 
-        def fill(part: int, lo: int, hi: int) -> None:
-            whole = hi - lo == len(keys)
-            wp.launch(
-                levels.fill_coarse_blocks,
-                dim=(hi - lo) * 8,
-                inputs=[
-                    d_keys if whole else d_keys[lo:hi],
-                    store.table_keys,
-                    store.table_slots,
-                    below.table_keys,
-                    below.table_slots,
-                    below.layers["log_odds"],
-                ],
-                outputs=[store.layers["log_odds"], flags if whole else flags[lo * 8 : hi * 8]],
-                device=device,
-            )
+            def fill(part: int, lo: int, hi: int) -> None:
+                wp.launch(
+                    levels.fill_levels_above_blocks,
+                    dim=hi - lo,
+                    inputs=[d_keys[lo:hi], counts[part : part + 1], depth, *arrays],
+                    outputs=[flags[lo:hi]],
+                    device=device,
+                )
 
-        parallel.split_launch(fill, len(keys), parallel.num_parts(device, len(keys) * 64))
-        if not (self.releases or not device.is_cuda):
-            return keys
-        octants = flags.numpy().reshape(-1, 8)
+            parallel.split_launch(fill, len(keys), parts)
+        top = level + depth
+        if not self.releases and device.is_cuda:
+            return np.unique(shift_keys(keys, depth)) if top < self.count else np.zeros(0, np.int64)
+        flags = flags if isinstance(flags, np.ndarray) else flags.numpy()
+        if np.any(flags < 0):
+            raise RuntimeError(f"coarse level {level + 1}-{top}: a parent block was not allocated (a vogjax bug)")
         if self.releases:
-            empty = ~(octants & levels.OCTANT_OBSERVED).any(axis=1)
-            if np.any(empty):
-                store.release(store.find(d_keys).numpy()[empty])
-                self._keys[level - 1] = np.setdiff1d(kept, keys[empty], assume_unique=True)
-        return keys[(octants & levels.OCTANT_CHANGED).any(axis=1)]
+            emptied = keys[(flags & levels.REGION_OBSERVED) == 0]
+            for i, store in enumerate(stores, start=1):
+                if len(emptied):
+                    self._release_empty(level + i, store, np.unique(shift_keys(emptied, i)))
+        if top == self.count:  # nothing above to pass up to
+            return np.zeros(0, np.int64)
+        changed = (flags & (levels.LEVEL_CHANGED << (depth - 1))) != 0
+        return np.unique(shift_keys(keys[changed], depth)) if changed.any() else np.zeros(0, np.int64)
+
+    def _fill_launch(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> wp.array:
+        """fill_levels_above_blocks on a CPU, one thread, with its arguments packed once per
+        group and reused while the stores keep their arrays: an update after every scan is one
+        launch of a few dozen blocks, where packing fifteen arguments costs as much as the
+        kernel. Returns the flags (len(keys),)."""
+        signature = (depth, *map(id, arrays))
+        cached = self._launches.get(level)
+        if cached is None or cached[0] != signature or len(cached[2]) < len(keys):
+            held = len(cached[2]) if cached else 0
+            capacity = held if held >= len(keys) else max(len(keys), 2 * held, 256)
+            d_keys = wp.empty(capacity, dtype=wp.int64, device=self.device)
+            count = wp.zeros(1, dtype=wp.int32, device=self.device)
+            flags = wp.empty(capacity, dtype=wp.int32, device=self.device)
+            command = wp.launch(
+                levels.fill_levels_above_blocks,
+                dim=capacity,
+                inputs=[d_keys, count, depth, *arrays],
+                outputs=[flags],
+                device=self.device,
+                record_cmd=True,
+            )
+            # the arrays are kept with the command: the ids in the signature stay theirs
+            cached = (signature, command, d_keys.numpy(), count.numpy(), flags.numpy(), arrays)
+            self._launches[level] = cached
+        _, command, host_keys, host_count, host_flags, _ = cached
+        host_keys[: len(keys)] = keys
+        host_count[0] = len(keys)
+        command.launch()  # over the whole capacity: the threads past the count return at once
+        return host_flags[: len(keys)]
+
+    def _release_empty(self, level: int, store: BlockStore, keys: np.ndarray) -> None:
+        """Release those of the coarse blocks `keys` (distinct, live) that hold no observed voxel."""
+        d_keys = wp.array(keys, dtype=wp.int64, device=self.device)
+        holds = wp.empty(len(keys), dtype=wp.int32, device=self.device)
+        wp.launch(
+            levels.find_observed_blocks,
+            dim=len(keys),
+            inputs=[d_keys, store.table_keys, store.table_slots, store.layers["log_odds"]],
+            outputs=[holds],
+            device=self.device,
+        )
+        empty = holds.numpy() == 0
+        if empty.any():
+            store.release(store.find(d_keys).numpy()[empty])
+            self._keys[level - 1] = np.setdiff1d(self._keys[level - 1], keys[empty], assume_unique=True)
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:
