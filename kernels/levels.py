@@ -94,8 +94,9 @@ def fill_levels_above_blocks(
     unobserved voxels), the voxels they decide in the `depth` (1-3) levels above, whose blocks are
     all in their tables (_1: one level up, ...; a level beyond `depth` is not read or written).
     One thread per block, for the first count[0] keys (a launch recorded once serves any
-    number up to its size); flags[tid] as REGION_OBSERVED and LEVEL_CHANGED say (-1: a parent
-    block was missing, nothing written)."""
+    number up to its size); flags[tid] as REGION_OBSERVED and LEVEL_CHANGED say, or, when a
+    parent block is missing, -1 - m with bit i - 1 of m set where the one i levels up is: nothing
+    is written then."""
     tid = wp.tid()
     if tid >= count[0]:
         return
@@ -112,8 +113,9 @@ def fill_levels_above_blocks(
     base_3 = int(0)
     if depth >= 3:
         base_3 = find_slot(table_keys_3, table_slots_3, pack_block(shifted_block(block, 3))) * BLOCK_VOXELS
-    if base_1 < 0 or base_2 < 0 or base_3 < 0:  # a parent block missing: the host allocates them first
-        flags[tid] = -1
+    missing = wp.where(base_1 < 0, 1, 0) | wp.where(base_2 < 0, 2, 0) | wp.where(base_3 < 0, 4, 0)
+    if missing != 0:  # the host allocates the missing parents and fills the block again
+        flags[tid] = -1 - missing
         return
     changed_1 = int(0)
     changed_2 = int(0)

@@ -284,8 +284,8 @@ def test_shifting_packed_keys_equals_shifting_the_coordinates(blocks):
 
 
 def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
-    """The host allocates every parent first; were one missing, the kernel would index slot -1:
-    it flags the block instead and writes nothing (the host raises)."""
+    """A block whose parent is missing would index slot -1: the kernel flags it with the levels
+    whose parents are missing and writes nothing (the host allocates them and fills it again)."""
     import warp as wp
 
     from vogjax.kernels import levels as kernels
@@ -316,7 +316,7 @@ def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
         outputs=[flags],
         device=device,
     )
-    assert flags.numpy()[1] == -1 and flags.numpy()[0] & kernels.REGION_OBSERVED
+    assert flags.numpy()[1] == -1 - 1 and flags.numpy()[0] & kernels.REGION_OBSERVED
     values = coarse.layers["log_odds"].numpy()[:512].reshape(8, 8, 8)
     assert np.all(values[:4, :4, :4] == 1.5) and np.isnan(values[4:]).all() and np.isnan(values[:, 4:]).all()
 

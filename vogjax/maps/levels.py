@@ -18,8 +18,9 @@ the level-3 blocks whose voxels changed, and so on: an update after every scan p
 for the planner's levels 1-3, where a level at a time paid three and their host work (a scan
 writes a few dozen blocks, where a launch's fixed cost outweighs the kernel). A group passes up
 only the blocks whose top voxel changed, so once nothing changed the groups above are left as
-they are, launches and all. (On a GPU, where reading the flags back waits for the launch, a map
-that never releases blocks passes every block up.)
+they are, launches and all. Parent blocks are allocated when the kernel finds them missing (it
+flags the block and writes nothing; the host allocates and fills it again), so an update that
+reaches no new coarse block searches for none.
 
 Measured in benchmarks/bench_octomap.py (docs/benchmarks/octomap.md).
 """
@@ -114,11 +115,9 @@ class Levels:
         self.device = device
         self.releases = releases
         self.stores: list[BlockStore] = []
-        self._keys: list[np.ndarray] = []  # per level, its blocks' packed keys, sorted (a host mirror)
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
         self._launches: dict = {}  # group's first level -> its recorded launch (_fill_launch)
-        self._ensured: dict = {}  # group's first level -> (its store, the version) when every parent was there
 
     @property
     def count(self) -> int:
@@ -143,15 +142,16 @@ class Levels:
             start = self.count
             below = self.stores[-1] if self.stores else base
             depth = min(3, level - start)
-            for _ in range(depth):
-                self.stores.append(BlockStore(self.device, LAYERS))
-                self._keys.append(np.zeros(0, np.int64))
-            self._fill(start, depth, below, _live_keys(below))
+            self.stores += [BlockStore(self.device, LAYERS) for _ in range(depth)]
+            keys = _live_keys(below)
+            for i in range(1, depth + 1):  # every block needs its parents: allocated up front
+                self._allocate(start + i, shift_keys(keys, i))
+            self._fill(start, depth, below, keys)
 
     def rebuild(self, base: BlockStore) -> None:
         """Every kept level from scratch (after the level-0 store was replaced)."""
         count = self.count
-        self.stores, self._keys, self._launches, self._ensured = [], [], {}, {}
+        self.stores, self._launches = [], {}
         self._noted, self._noted_keys = [], 0
         self.extend(base, count)
 
@@ -183,70 +183,67 @@ class Levels:
     def _fill(self, level: int, depth: int, below: BlockStore, keys: np.ndarray) -> np.ndarray:
         """Recompute, in levels level+1 .. level+depth, the voxels that the blocks `keys`
         (distinct) of `below` (level `level`) decide; release coarse blocks left empty. Returns
-        the distinct keys of the level-(level+depth) blocks whose voxels changed (every block
-        above `keys` where the flags are not read back)."""
+        the distinct keys of the level-(level+depth) blocks whose voxels changed."""
         if len(keys) == 0:
             return keys
-        device = self.device
         stores = [self.store(level + i) for i in range(1, depth + 1)]
-        # a coarse block's parent is allocated with it (and released after it), so only the
-        # ancestors of blocks new to a level can be new to the levels above; and where blocks
-        # are never released, a level that allocated no block since its last update has all
-        # its parents: an update after a scan that mapped no new ground searches nothing
-        ensured = self._ensured.get(level)
-        if self.releases or ensured is None or ensured[0] is not below or ensured[1] != below.version:
-            new = keys
-            for i, store in enumerate(stores, start=1):
-                parents = shift_keys(new, 1)
-                kept = self._keys[level + i - 1]
-                known = np.zeros(len(parents), bool)
-                if len(kept):
-                    known = kept[np.minimum(np.searchsorted(kept, parents), len(kept) - 1)] == parents
-                if known.all():
-                    break
-                new = np.unique(parents[~known])
-                store.ensure_blocks(wp.array(new, dtype=wp.int64, device=device))
-                self._keys[level + i - 1] = np.insert(kept, np.searchsorted(kept, new), new)
-            self._ensured[level] = (below, below.version)
-        padded = stores + [stores[-1]] * (3 - depth)  # levels past `depth` are neither read nor written
-        arrays = [below.table_keys, below.table_slots, below.layers["log_odds"]]
-        arrays += [a for store in padded for a in (store.table_keys, store.table_slots)]
-        arrays += [store.layers["log_odds"] for store in padded]
-        # a block is 512 reads: one scan's few dozen stay on one thread
-        parts = parallel.num_parts(device, len(keys) * 8)
-        if parts == 1 and not device.is_cuda:
-            flags = self._fill_launch(level, depth, arrays, keys)
-        else:
-            d_keys = wp.array(keys, dtype=wp.int64, device=device)
-            flags = wp.empty(len(keys), dtype=wp.int32, device=device)
-            edges = [len(keys) * part // parts for part in range(parts + 1)]
-            counts = wp.array(np.diff(edges).astype(np.int32), dtype=wp.int32, device=device)
-
-            def fill(part: int, lo: int, hi: int) -> None:
-                wp.launch(
-                    levels.fill_levels_above_blocks,
-                    dim=hi - lo,
-                    inputs=[d_keys[lo:hi], counts[part : part + 1], depth, *arrays],
-                    outputs=[flags[lo:hi]],
-                    device=device,
+        flags = self._launch_fill(level, depth, below, stores, keys)
+        # A block whose parents are not all there yet is flagged and left unwritten: its missing
+        # parents are allocated and it is filled again. Most updates allocate nothing (the scan
+        # mapped no new coarse block), and they pay no search for parents at all.
+        missing = flags < 0
+        if missing.any():
+            absent = keys[missing]
+            levels_missing = int(np.bitwise_or.reduce(-1 - flags[missing]))
+            for i in range(1, depth + 1):
+                if levels_missing >> (i - 1) & 1:
+                    self._allocate(level + i, shift_keys(absent, i))
+            flags[missing] = self._launch_fill(level, depth, below, stores, absent)
+            if np.any(flags < 0):
+                raise RuntimeError(
+                    f"coarse levels {level + 1}-{level + depth}: a parent block is missing (a vogjax bug)"
                 )
-
-            parallel.split_launch(fill, len(keys), parts)
-        top = level + depth
-        if not self.releases and device.is_cuda:
-            return np.unique(shift_keys(keys, depth)) if top < self.count else np.zeros(0, np.int64)
-        flags = flags if isinstance(flags, np.ndarray) else flags.numpy()
-        if np.any(flags < 0):
-            raise RuntimeError(f"coarse level {level + 1}-{top}: a parent block was not allocated (a vogjax bug)")
         if self.releases:
             emptied = keys[(flags & levels.REGION_OBSERVED) == 0]
             for i, store in enumerate(stores, start=1):
                 if len(emptied):
-                    self._release_empty(level + i, store, np.unique(shift_keys(emptied, i)))
-        if top == self.count:  # nothing above to pass up to
+                    self._release_empty(store, np.unique(shift_keys(emptied, i)))
+        if level + depth == self.count:  # nothing above to pass up to
             return np.zeros(0, np.int64)
         changed = (flags & (levels.LEVEL_CHANGED << (depth - 1))) != 0
         return np.unique(shift_keys(keys[changed], depth)) if changed.any() else np.zeros(0, np.int64)
+
+    def _allocate(self, level: int, keys: np.ndarray) -> None:
+        """Blocks for the packed keys `keys` (repeats allowed) in `level`, where missing."""
+        self.store(level).ensure_blocks(wp.array(np.unique(keys), dtype=wp.int64, device=self.device))
+
+    def _launch_fill(self, level: int, depth: int, below: BlockStore, stores: list, keys: np.ndarray) -> np.ndarray:
+        """fill_levels_above_blocks over `keys`: the flags (len(keys),) int32, on the host."""
+        padded = stores + [stores[-1]] * (3 - depth)  # levels past `depth` are neither read nor written
+        arrays = [below.table_keys, below.table_slots, below.layers["log_odds"]]
+        arrays += [a for store in padded for a in (store.table_keys, store.table_slots)]
+        arrays += [store.layers["log_odds"] for store in padded]
+        device = self.device
+        # a block is 512 reads: one scan's few dozen stay on one thread
+        parts = parallel.num_parts(device, len(keys) * 8)
+        if parts == 1 and not device.is_cuda:
+            return self._fill_launch(level, depth, arrays, keys).copy()
+        d_keys = wp.array(keys, dtype=wp.int64, device=device)
+        flags = wp.empty(len(keys), dtype=wp.int32, device=device)
+        edges = [len(keys) * part // parts for part in range(parts + 1)]
+        counts = wp.array(np.diff(edges).astype(np.int32), dtype=wp.int32, device=device)
+
+        def fill(part: int, lo: int, hi: int) -> None:
+            wp.launch(
+                levels.fill_levels_above_blocks,
+                dim=hi - lo,
+                inputs=[d_keys[lo:hi], counts[part : part + 1], depth, *arrays],
+                outputs=[flags[lo:hi]],
+                device=device,
+            )
+
+        parallel.split_launch(fill, len(keys), parts)
+        return flags.numpy()
 
     def _fill_launch(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> wp.array:
         """fill_levels_above_blocks on a CPU, one thread, with its arguments packed once per
@@ -278,7 +275,7 @@ class Levels:
         command.launch()  # over the whole capacity: the threads past the count return at once
         return host_flags[: len(keys)]
 
-    def _release_empty(self, level: int, store: BlockStore, keys: np.ndarray) -> None:
+    def _release_empty(self, store: BlockStore, keys: np.ndarray) -> None:
         """Release those of the coarse blocks `keys` (distinct, live) that hold no observed voxel."""
         d_keys = wp.array(keys, dtype=wp.int64, device=self.device)
         holds = wp.empty(len(keys), dtype=wp.int32, device=self.device)
@@ -292,7 +289,6 @@ class Levels:
         empty = holds.numpy() == 0
         if empty.any():
             store.release(store.find(d_keys).numpy()[empty])
-            self._keys[level - 1] = np.setdiff1d(self._keys[level - 1], keys[empty], assume_unique=True)
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:
