@@ -135,8 +135,11 @@ def check_rays(
 
 # The key range's half-width in voxels, as a float64 (ray_cast_start).
 KEY_LIMIT_VOXELS = wp.constant(wp.float64(VOXEL_KEY_LIMIT))
-# A stretch of unknown voxels longer than this is counted in closed form, not walked.
-SKIP_VOXELS = wp.constant(64)
+# A stretch of unknown voxels longer than this is counted in closed form, not walked, at level
+# 0 (the host passes it as skip_voxels; a coarse level's, SKIP_VOXELS_COARSE, is shorter: its
+# voxels are 2^k times as long, and a walk of 64 of them is most of any planner ray).
+SKIP_VOXELS = 64
+SKIP_VOXELS_COARSE = 4
 
 
 @wp.struct
@@ -162,20 +165,22 @@ def ray_cast_start(
     max_range: wp.float64,
     resolution: wp.float64,
     inv_resolution: wp.float64,
-    grid_lo: wp.vec3i,
-    grid_hi: wp.vec3i,
+    known_lo: wp.vec3i,
+    known_hi: wp.vec3i,
+    skip_voxels: int,
 ) -> RayCastStart:
-    """The start of a ray cast along unit `direction` over a map whose blocks lie in
-    [grid_lo, grid_hi] (block coordinates; hi < lo: no blocks). Every voxel outside that box is
-    unknown, so a stretch of more than SKIP_VOXELS voxels before it is skipped and counted.
+    """The start of a ray cast along unit `direction` over a map whose known voxels all lie in
+    [known_lo, known_hi] (voxel coordinates; hi < lo: none). Every voxel outside that box
+    (widened by a voxel) is unknown, so a stretch of more than `skip_voxels` voxels before it is
+    skipped and counted.
 
     Every ray pays this once, whatever it walks after, so the common cases take a shorter way
     to the same bits: a ray that cannot leave the key range within its range has its range as
     its end (no distance to the key range's faces), and a ray starting in the map's box has no
     stretch before it, so only its distance to the box's exit faces is needed."""
     w = ray_walk_begin(origin, direction, resolution, inv_resolution, max_range)
-    lo = wp.vec3d(wp.float64(grid_lo[0] * 8 - 1), wp.float64(grid_lo[1] * 8 - 1), wp.float64(grid_lo[2] * 8 - 1))
-    hi = wp.vec3d(wp.float64(grid_hi[0] * 8 + 9), wp.float64(grid_hi[1] * 8 + 9), wp.float64(grid_hi[2] * 8 + 9))
+    lo = wp.vec3d(wp.float64(known_lo[0] - 1), wp.float64(known_lo[1] - 1), wp.float64(known_lo[2] - 1))
+    hi = wp.vec3d(wp.float64(known_hi[0] + 2), wp.float64(known_hi[1] + 2), wp.float64(known_hi[2] + 2))
     lo = lo * resolution
     hi = hi * resolution
     s = RayCastStart()
@@ -195,7 +200,7 @@ def ray_cast_start(
     else:
         s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
     inside = (
-        grid_hi[0] >= grid_lo[0]
+        known_hi[0] >= known_lo[0]
         and origin[0] >= lo[0]
         and origin[0] <= hi[0]
         and origin[1] >= lo[1]
@@ -211,13 +216,13 @@ def ray_cast_start(
         s.t_after = t_out
         return s
     span = ray_box_span(origin, direction, lo, hi)
-    if grid_hi[0] < grid_lo[0] or span[0] > span[1]:
-        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no blocks on the ray: all after
+    if known_hi[0] < known_lo[0] or span[0] > span[1]:
+        span = wp.vec2d(wp.float64(-1.0), wp.float64(-1.0))  # no known voxel on the ray: all after
     s.t_after = span[1]
     if span[0] > wp.float64(0.0) and span[0] < s.t_end:  # a long unknown stretch before the map: skip it
         target = ray_voxel_at(origin, direction, w.voxel, w.step, inv_resolution, span[0])
         skipped = l1_distance(w.voxel, target)
-        if skipped > SKIP_VOXELS:
+        if skipped > skip_voxels:
             s.skipped = skipped
             s.t_entry = ray_entry(origin, direction, w.voxel, target, w.step, resolution)
             s.voxel = target
@@ -235,7 +240,9 @@ def cast_rays(
     table_keys: wp.array(dtype=wp.int64),
     table_slots: wp.array(dtype=wp.int32),
     grid_lo: wp.vec3i,
-    grid_hi: wp.vec3i,
+    known_lo: wp.vec3i,
+    known_hi: wp.vec3i,
+    skip_voxels: int,
     grid_dims: wp.vec3i,
     grid: wp.array(dtype=wp.int32),
     states: wp.array(dtype=wp.uint32),
@@ -247,17 +254,18 @@ def cast_rays(
     """First OCCUPIED voxel along each ray (directions of any nonzero length) within its range
     (max_ranges: one per ray, or one for all), and the FREE and UNKNOWN voxels passed before it.
 
-    Voxel states come from classify_blocks. The map's blocks lie in [grid_lo, grid_hi] (block
-    coordinates); a block is looked up on entering it, in the dense grid when grid_dims > 0
-    (one load), else in the hash table. Outside that box every voxel is unknown: a ray skips a
-    long stretch before it (`ray_cast_start`) and counts the rest after it (`ray_voxels_until`)
-    without walking, so its cost is bounded by the map, not the range. Voxels outside the key
-    range are not counted. The GPU's kernel; on a CPU, cast_rays_on_grid answers the same.
+    Voxel states come from classify_blocks. A block is looked up on entering it, in the dense
+    grid (its first block at grid_lo) when grid_dims > 0 (one load), else in the hash table.
+    Every known voxel lies in [known_lo, known_hi] (voxel coordinates): outside that box a ray
+    skips a stretch of more than `skip_voxels` before it (`ray_cast_start`) and counts one after
+    it (`ray_voxels_until`) without walking, so its cost is bounded by the map, not the range.
+    Voxels outside the key range are not counted. The GPU's kernel; on a CPU,
+    cast_rays_on_grid answers the same.
     """
     tid = wp.tid()
     origin, direction = origins[tid], unit_direction(directions[tid])
     max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, skip_voxels)
     # walk_step's choice, on scalars (a struct copied every step costs several times the step)
     voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
     x, y, z = voxel[0], voxel[1], voxel[2]
@@ -279,7 +287,7 @@ def cast_rays(
         if t_entry > t_after:  # past the map: count the rest of a long stretch
             t_after = FAR
             n = ray_voxels_until(origin, direction, wp.vec3i(x, y, z), step, resolution, inv_resolution, t_end)
-            if n > SKIP_VOXELS:
+            if n > skip_voxels:
                 unknown += n
                 break
         if not looked_up or (x >> 3) != block[0] or (y >> 3) != block[1] or (z >> 3) != block[2]:
@@ -399,7 +407,9 @@ def _cast_rays_for_cpu(dense: bool):
         resolution: wp.float64,
         inv_resolution: wp.float64,
         grid_lo: wp.vec3i,
-        grid_hi: wp.vec3i,
+        known_lo: wp.vec3i,
+        known_hi: wp.vec3i,
+        skip_voxels: int,
         padded_dims: wp.vec3i,
         columns: wp.array(dtype=wp.uint16),
         bases: wp.array(dtype=wp.int32),
@@ -412,7 +422,7 @@ def _cast_rays_for_cpu(dense: bool):
         tid = wp.tid()
         origin, direction = origins[tid], unit_direction(directions[tid])
         max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, grid_lo, grid_hi)
+        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, skip_voxels)
         voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
         ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
         x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner
@@ -448,7 +458,7 @@ def _cast_rays_for_cpu(dense: bool):
                 t_after = FAR
                 here = wp.vec3i(x + ox, y + oy, z + oz)
                 n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
-                if n > SKIP_VOXELS:
+                if n > skip_voxels:
                     rest = n
                     break
             state = int(0)

@@ -106,13 +106,15 @@ def _occupied(tree, node, cfg):
 
 def test_coarse_ray_casts_and_lines_walk_the_coarse_voxels(scans):
     """At level k the queries are level 0's on a map of voxels of voxel_size * 2^k holding the
-    coarse values: the brute-force reference walk on those cells answers the same."""
+    coarse values: the brute-force reference walk on those cells answers the same, also for
+    rays that leave the map (the unknown voxels past it counted in closed form)."""
     cfg = vj.MapConfig()
     vmap = vj.VoxelMap(cfg)
     vmap.integrate_scans(*scans)
     rng = np.random.default_rng(3)
     origins, directions = rng.uniform(-1.5, 1.5, (300, 3)), rng.normal(size=(300, 3))
-    ranges = rng.uniform(0.02, 3.0, 300)
+    # a third long enough to leave the map: the stretch past it is counted, not walked
+    ranges = np.concatenate([rng.uniform(0.02, 3.0, 200), rng.uniform(8.0, 25.0, 100)])
     starts, ends = rng.uniform(-5, 5, (100, 3)), rng.uniform(-5, 5, (100, 3))
     for level in (1, 2, 3):
         coarse = dataclasses.replace(cfg, voxel_size=cfg.voxel_size * 2**level)

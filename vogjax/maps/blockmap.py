@@ -531,8 +531,8 @@ class BlockMap:
                     dim=hi - lo,
                     inputs=[
                         *rays,
-                        box_lo,
-                        box_hi,
+                        grid_lo,
+                        *known,
                         wp.vec3i(*tables.padded_dims),
                         tables.columns,
                         tables.bases,
@@ -549,8 +549,8 @@ class BlockMap:
                         *rays,
                         tables.store.table_keys,
                         tables.store.table_slots,
-                        box_lo,
-                        box_hi,
+                        grid_lo,
+                        *known,
                         wp.vec3i(*tables.grid.dims),
                         tables.grid.cells,
                         tables.states,
@@ -561,9 +561,25 @@ class BlockMap:
 
         with self._lock.reading():
             tables = self._ray_tables(level)
-            box_lo, box_hi = wp.vec3i(*tables.grid.lo), wp.vec3i(*tables.grid.hi)
+            grid_lo = wp.vec3i(*tables.grid.lo)
+            known = self._known_box(level, tables.grid)
             parallel.split_launch(launch, count, parallel.num_parts(device, count))
         return out
+
+    def _known_box(self, level: int, grid) -> tuple:
+        """The ray casts' box of known voxels at `level` (lo, hi voxel keys as wp.vec3i, then
+        the stretch of unknown voxels worth skipping): the voxels of the blocks' box at level
+        0; at a coarse level, the level-0 box's voxels shifted (tighter than the coarse blocks'
+        box, whose blocks are 2^k times as wide: a coarse voxel is known only above a known
+        level-0 voxel)."""
+        if level == 0:
+            lo, hi = np.array(grid.lo) * 8, np.array(grid.hi) * 8 + 7
+            return wp.vec3i(*lo.tolist()), wp.vec3i(*hi.tolist()), queries.SKIP_VOXELS
+        box = self._store.block_box()
+        if box is None:
+            return wp.vec3i(0, 0, 0), wp.vec3i(-1, -1, -1), queries.SKIP_VOXELS_COARSE
+        lo, hi = (np.asarray(box[0]) * 8) >> level, (np.asarray(box[1]) * 8 + 7) >> level
+        return wp.vec3i(*lo.tolist()), wp.vec3i(*hi.tolist()), queries.SKIP_VOXELS_COARSE
 
     def line_query(
         self, starts: npt.ArrayLike, ends: npt.ArrayLike, level: int = 0
