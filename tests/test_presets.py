@@ -46,6 +46,10 @@ def test_a_simulated_lidar_run_picks_the_lidar_and_wheel_odometry_preset(lidar_r
     assert config.scans_per_submap == round(10.0 * DEFAULT_LIDAR.rate_hz)
     assert config.map.voxel_size == 0.2
     assert config.nav_noise == presets.WHEEL_ODOMETRY
+    # closures gated over a complete overlap's score, and ICP's inliers within half its reach in rms
+    closures = config.loop_closure
+    assert (closures.overlap_reference, closures.min_overlap_score) == ("self", 0.5)
+    assert closures.max_fitness_m2 == pytest.approx((closures.icp.max_correspondence_m / 2) ** 2)
     # wheel odometry's yaw drifts: closures solve it, pitch and roll stay held
     assert config.loop_closure.icp.free == "yaw"
     assert derived.origins["loop_closure.icp.free"][1].startswith("navigation noise")

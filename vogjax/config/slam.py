@@ -10,6 +10,7 @@ ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
 ALIGNERS = ("correlative_icp",)  # vogjax.slam.loop_closure.ALIGNERS
 ROBUST_LOSSES = ("none", "huber", "cauchy", "geman_mcclure", "dcs")  # GTSAM's noiseModel.mEstimator
 CLOSURE_SCREENS = ("none", "graph")
+OVERLAP_REFERENCES = ("absolute", "self")  # LoopClosureConfig.overlap_reference
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,7 +128,13 @@ class LoopClosureConfig(Config):
         Cap on the correlative search radius in x-y, metres (the radius is the navigation's
         drift bound, `drift_sigmas` sigmas, capped here).
     min_overlap_score : float
-        Least correlative peak score (the mean blurred occupancy under the source points).
+        Least overlap: the correlative peak's score (the mean blurred occupancy under the source
+        points), over the reference `overlap_reference` names.
+    overlap_reference : str
+        What the peak's score is measured against: "absolute" (the score as it is, the papers'
+        gate on sonar swaths) or "self" (over the score the source cloud gets against itself,
+        `vogjax.slam.correlative.self_score`: the share of a complete overlap reached, whatever
+        the grid, the blur and the shape of the sensor's surfaces).
     max_ambiguity : float
         Most runner-up score (the best at least `correlative.exclusion_m` from the peak) over
         the peak's: repetitive structure matches in several places (1 lets every pair through).
@@ -179,6 +186,7 @@ class LoopClosureConfig(Config):
     correlative: CorrelativeConfig = section(CorrelativeConfig())
     max_search_m: float = non_negative(4.0)
     min_overlap_score: float = non_negative(0.3)
+    overlap_reference: str = text("absolute", OVERLAP_REFERENCES)
     max_ambiguity: float = non_negative(1.0)
     min_inlier_fraction: float = number(0.0, low=0, high=1)
     max_refinement_m: float = non_negative(0.2)

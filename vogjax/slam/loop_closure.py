@@ -36,7 +36,7 @@ import warp as wp
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
 from vogjax.geometry import inverse
-from vogjax.slam.correlative import correlative_xyh_batch
+from vogjax.slam.correlative import correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
 
 
@@ -63,7 +63,8 @@ class LoopClosure:
     num_inliers : int
         ICP's inliers (source points matched).
     overlap : float
-        The aligner's overlap score (correlative peak); NaN when it has none.
+        The aligner's overlap (the correlative peak's score, over its reference:
+        `LoopClosureConfig.overlap_reference`); NaN when it has none.
     ambiguity : float
         Runner-up over peak score (0: unambiguous, 1: a tie); NaN when it has none.
     distance : float
@@ -159,12 +160,13 @@ def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, 
         config.correlative,
         device,
     )
+    overlaps = _overlaps(pairs, seeds, config)
     seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
     # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
     refine = [
         n
         for n, seed in enumerate(seeds)
-        if seed.score >= config.min_overlap_score and seed.ratio <= config.max_ambiguity
+        if overlaps[n] >= config.min_overlap_score and seed.ratio <= config.max_ambiguity
     ]
     start = time.perf_counter()
     results = (
@@ -181,7 +183,33 @@ def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, 
     )
     seconds["icp"] = seconds.get("icp", 0.0) + time.perf_counter() - start
     refined = dict(zip(refine, results))
-    return [Alignment(refined.get(n), seed.T_target_source, seed.score, seed.ratio) for n, seed in enumerate(seeds)]
+    return [Alignment(refined.get(n), seed.T_target_source, overlaps[n], seed.ratio) for n, seed in enumerate(seeds)]
+
+
+def _overlaps(pairs: list, seeds: list, config: LoopClosureConfig) -> list[float]:
+    """Each pair's overlap, the figure `min_overlap_score` gates: its peak's score as it is
+    ("absolute"), or ("self") the larger of the shares of a complete overlap each cloud reaches
+    on the other at the peak: the peak's score over the source's self-score, and the target's
+    points scored on the source's field over the target's self-score (a short submap's cloud
+    explains little of a long one's, however well the two match where they overlap)."""
+    if config.overlap_reference == "absolute":
+        return [seed.score for seed in seeds]
+    references: dict[int, float] = {}
+
+    def reference(cloud: np.ndarray) -> float:
+        if id(cloud) not in references:
+            references[id(cloud)] = self_score(cloud, config.correlative)
+        return references[id(cloud)]
+
+    out = []
+    for (source, target, *_), seed in zip(pairs, seeds):
+        forward = seed.score / reference(source)
+        if seed.score == 0:  # no target point within reach: no overlap either way
+            out.append(0.0)
+            continue
+        back = correlative_xyh(target.points, source, inverse(seed.T_target_source), 0.0, 0.0, config.correlative)
+        out.append(max(forward, back.score / reference(target.points)))
+    return out
 
 
 ALIGNERS = {"correlative_icp": correlative_then_icp}
