@@ -8,8 +8,9 @@ from pathlib import Path
 WIDTH = 100
 # The settings behind each closure gate (`vogjax.slam.loop_closure.REASONS`).
 GATE_SETTINGS = {
-    "overlap": "[loop_closure] min_overlap_score, or the search: [loop_closure.correlative] resolution_m "
-    "and yaw_step_rad, [nav_noise] (the search's radius)",
+    "overlap": '[loop_closure] min_overlap_score and overlap_reference ("self": against a complete '
+    "overlap's score, for dense clouds), or the search: [loop_closure.correlative] resolution_m and "
+    "yaw_step_rad, [nav_noise] (the search's radius)",
     "ambiguous": "[loop_closure] max_ambiguity",
     "not converged": "[loop_closure.icp] max_iterations and max_correspondence_m",
     "fitness": "[loop_closure] max_fitness_m2 (and registration_voxel_m)",

@@ -5,7 +5,7 @@
 - `LoopClosureDetector`: candidate pairs of submaps, aligned and accepted or rejected
   (`LoopClosure`, `Rejection`);
 - `correlative_xyh`: the x-y-yaw search over the navigation's drift that seeds ICP
-  (`CorrelativeMatch`);
+  (`CorrelativeMatch`), and `self_score`, what a complete overlap scores;
 - `icp`: point-to-plane (degeneracy-aware) and 2D point-to-point ICP, batched (`IcpResult`,
   `IcpTarget`).
 
@@ -16,7 +16,7 @@ covariances and tangents follow GTSAM's Pose3 order, rotation then translation.
 from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import ClosureCheck, PoseGraph
-from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch
+from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 
@@ -39,4 +39,5 @@ __all__ = [
     "icp_batch",
     "pose_deltas",
     "prepare_target",
+    "self_score",
 ]
