@@ -126,6 +126,10 @@ def count_unsafe_voxels(
     size = sizes[e]
     if column >= size[0] * size[1]:
         return
+    if unsafe[e] > 0:
+        # already blocked: only unsafe[e] == 0 is read, so the edge's other columns need no look
+        # (a CPU runs the threads in order and skips them all; on a GPU a racing thread may not)
+        return
     start = starts[e]
     end = ends[e]
     s = m.resolution
