@@ -126,6 +126,10 @@ def count_unsafe_voxels(
     size = sizes[e]
     if column >= size[0] * size[1]:
         return
+    if unsafe[e] > 0:
+        # already blocked: only unsafe[e] == 0 is read, so the edge's other columns need no look
+        # (a CPU runs the threads in order and skips them all; on a GPU a racing thread may not)
+        return
     start = starts[e]
     end = ends[e]
     s = m.resolution
@@ -133,7 +137,15 @@ def count_unsafe_voxels(
     vehicle_hi = vehicle + half
     first = candidate_offsets[e]
     last = candidate_offsets[e + 1]
-    voxel = wp.vec3i(first_voxels[e][0] + column / size[1], first_voxels[e][1] + column % size[1], first_voxels[e][2])
+    # columns from the edge's end first: the start lies in water the vehicle has seen, so a
+    # blocked edge is found blocked sooner, and the early return above skips more
+    ix = column / size[1]
+    iy = column % size[1]
+    if end[0] >= start[0]:
+        ix = size[0] - 1 - ix
+    if end[1] >= start[1]:
+        iy = size[1] - 1 - iy
+    voxel = wp.vec3i(first_voxels[e][0] + ix, first_voxels[e][1] + iy, first_voxels[e][2])
     slot = int(-1)
     block = wp.vec3i(0, 0, 0)
     looked_up = bool(False)
