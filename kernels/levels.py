@@ -9,9 +9,10 @@ A block's edge is 8 = 2^3 voxels, so the voxels of the three levels above a leve
 each cover voxels of that block alone: its 512 voxels decide 64 voxels one level up (an octant
 of its parent block), 8 two levels up and 1 three levels up, and no other block writes those.
 So one thread per block fills all three levels from it in one launch, each coarse value the
-maximum over the level below it in the order OctoMap visits the children (x, then y, then z,
-the first of equal values kept: a parent keeps the bits, the sign of a zero included, of the
-child it copies). Levels above j + 3 are filled the same way from the level-(j + 3) blocks.
+maximum over the level below it in OctoMap's child order (`computeChildIdx`: x varies
+fastest, then y, then z; the first of equal values kept, so a parent keeps the bits, the sign
+of a zero included, of the child OctoMap's `getMaxChildLogOdds` would copy). Levels above
+j + 3 are filled the same way from the level-(j + 3) blocks.
 """
 
 import warp as wp
@@ -59,8 +60,9 @@ def corner_in_parent(block: wp.vec3i, levels: int) -> wp.vec3i:
 
 @wp.func
 def octant(corner: wp.vec3i, o: int, size: int) -> wp.vec3i:
-    """Child `o` (x, y, z bits high to low) of the cube of edge 2 size at `corner`."""
-    return wp.vec3i(corner[0] + ((o >> 2) & 1) * size, corner[1] + ((o >> 1) & 1) * size, corner[2] + (o & 1) * size)
+    """Child `o` of the cube of edge 2 size at `corner`, numbered as OctoMap numbers a node's
+    children: bit 0 x, bit 1 y, bit 2 z."""
+    return wp.vec3i(corner[0] + (o & 1) * size, corner[1] + ((o >> 1) & 1) * size, corner[2] + ((o >> 2) & 1) * size)
 
 
 @wp.func

@@ -135,10 +135,13 @@ def check_rays(
 
 # The key range's half-width in voxels, as a float64 (ray_cast_start).
 KEY_LIMIT_VOXELS = wp.constant(wp.float64(VOXEL_KEY_LIMIT))
-# A stretch of unknown voxels longer than this is counted in closed form, not walked, at level
-# 0 (the host passes it as skip_voxels; a coarse level's, SKIP_VOXELS_COARSE, is shorter: its
-# voxels are 2^k times as long, and a walk of 64 of them is most of any planner ray).
-SKIP_VOXELS = 64
+# A stretch of unknown voxels longer than this is skipped and counted in closed form, not
+# walked. Past the map's box, where nothing can be hit, a coarse level counts a stretch of more
+# than SKIP_VOXELS_COARSE (the host passes it as count_after): its voxels are 2^k times as long,
+# and 64 of them are longer than any planner ray. Before the box the walk resumes from
+# recomputed boundaries, which can break a tie at a voxel edge the other way than a walk: there
+# every level keeps SKIP_VOXELS, so only rays from that far off see it.
+SKIP_VOXELS = wp.constant(64)
 SKIP_VOXELS_COARSE = 4
 
 
@@ -167,11 +170,10 @@ def ray_cast_start(
     inv_resolution: wp.float64,
     known_lo: wp.vec3i,
     known_hi: wp.vec3i,
-    skip_voxels: int,
 ) -> RayCastStart:
     """The start of a ray cast along unit `direction` over a map whose known voxels all lie in
     [known_lo, known_hi] (voxel coordinates; hi < lo: none). Every voxel outside that box
-    (widened by a voxel) is unknown, so a stretch of more than `skip_voxels` voxels before it is
+    (widened by a voxel) is unknown, so a stretch of more than SKIP_VOXELS voxels before it is
     skipped and counted.
 
     Every ray pays this once, whatever it walks after, so the common cases take a shorter way
@@ -222,7 +224,7 @@ def ray_cast_start(
     if span[0] > wp.float64(0.0) and span[0] < s.t_end:  # a long unknown stretch before the map: skip it
         target = ray_voxel_at(origin, direction, w.voxel, w.step, inv_resolution, span[0])
         skipped = l1_distance(w.voxel, target)
-        if skipped > skip_voxels:
+        if skipped > SKIP_VOXELS:
             s.skipped = skipped
             s.t_entry = ray_entry(origin, direction, w.voxel, target, w.step, resolution)
             s.voxel = target
@@ -242,7 +244,7 @@ def cast_rays(
     grid_lo: wp.vec3i,
     known_lo: wp.vec3i,
     known_hi: wp.vec3i,
-    skip_voxels: int,
+    count_after: int,
     grid_dims: wp.vec3i,
     grid: wp.array(dtype=wp.int32),
     states: wp.array(dtype=wp.uint32),
@@ -257,15 +259,16 @@ def cast_rays(
     Voxel states come from classify_blocks. A block is looked up on entering it, in the dense
     grid (its first block at grid_lo) when grid_dims > 0 (one load), else in the hash table.
     Every known voxel lies in [known_lo, known_hi] (voxel coordinates): outside that box a ray
-    skips a stretch of more than `skip_voxels` before it (`ray_cast_start`) and counts one after
-    it (`ray_voxels_until`) without walking, so its cost is bounded by the map, not the range.
+    skips a stretch of more than SKIP_VOXELS before it (`ray_cast_start`) and counts one of more
+    than `count_after` after it (`ray_voxels_until`) without walking, so its cost is bounded by
+    the map, not the range.
     Voxels outside the key range are not counted. The GPU's kernel; on a CPU,
     cast_rays_on_grid answers the same.
     """
     tid = wp.tid()
     origin, direction = origins[tid], unit_direction(directions[tid])
     max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, skip_voxels)
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi)
     # walk_step's choice, on scalars (a struct copied every step costs several times the step)
     voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
     x, y, z = voxel[0], voxel[1], voxel[2]
@@ -287,7 +290,7 @@ def cast_rays(
         if t_entry > t_after:  # past the map: count the rest of a long stretch
             t_after = FAR
             n = ray_voxels_until(origin, direction, wp.vec3i(x, y, z), step, resolution, inv_resolution, t_end)
-            if n > skip_voxels:
+            if n > count_after:
                 unknown += n
                 break
         if not looked_up or (x >> 3) != block[0] or (y >> 3) != block[1] or (z >> 3) != block[2]:
@@ -409,7 +412,7 @@ def _cast_rays_for_cpu(dense: bool):
         grid_lo: wp.vec3i,
         known_lo: wp.vec3i,
         known_hi: wp.vec3i,
-        skip_voxels: int,
+        count_after: int,
         padded_dims: wp.vec3i,
         columns: wp.array(dtype=wp.uint16),
         bases: wp.array(dtype=wp.int32),
@@ -422,7 +425,7 @@ def _cast_rays_for_cpu(dense: bool):
         tid = wp.tid()
         origin, direction = origins[tid], unit_direction(directions[tid])
         max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, skip_voxels)
+        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi)
         voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
         ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
         x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner
@@ -458,7 +461,7 @@ def _cast_rays_for_cpu(dense: bool):
                 t_after = FAR
                 here = wp.vec3i(x + ox, y + oy, z + oz)
                 n = ray_voxels_until(origin, direction, here, step, resolution, inv_resolution, t_end)
-                if n > skip_voxels:
+                if n > count_after:
                     rest = n
                     break
             state = int(0)

@@ -568,10 +568,10 @@ class BlockMap:
 
     def _known_box(self, level: int, grid) -> tuple:
         """The ray casts' box of known voxels at `level` (lo, hi voxel keys as wp.vec3i, then
-        the stretch of unknown voxels worth skipping): the voxels of the blocks' box at level
-        0; at a coarse level, the level-0 box's voxels shifted (tighter than the coarse blocks'
-        box, whose blocks are 2^k times as wide: a coarse voxel is known only above a known
-        level-0 voxel)."""
+        the stretch past it worth counting instead of walking): the voxels of the blocks' box
+        at level 0; at a coarse level, the level-0 box's voxels shifted (tighter than the
+        coarse blocks' box, whose blocks are 2^k times as wide: a coarse voxel is known only
+        above a known level-0 voxel)."""
         if level == 0:
             lo, hi = np.array(grid.lo) * 8, np.array(grid.hi) * 8 + 7
             return wp.vec3i(*lo.tolist()), wp.vec3i(*hi.tolist()), queries.SKIP_VOXELS

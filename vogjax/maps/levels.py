@@ -118,6 +118,7 @@ class Levels:
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
         self._launches: dict = {}  # group's first level -> its recorded launch (_fill_launch)
+        self._updating = False  # extend is under way (`stale`)
 
     @property
     def count(self) -> int:
@@ -126,8 +127,9 @@ class Levels:
 
     @property
     def stale(self) -> bool:
-        """Whether writes were noted that the levels do not show yet."""
-        return bool(self._noted)
+        """Whether writes were noted that the levels do not show yet, or the levels are being
+        brought up to date (a reader then waits for that, rather than reading a level part-way)."""
+        return bool(self._noted) or self._updating
 
     def store(self, level: int) -> BlockStore:
         return self.stores[level - 1]
@@ -136,7 +138,15 @@ class Levels:
         return sum(store.memory_bytes() for store in self.stores)
 
     def extend(self, base: BlockStore, level: int) -> None:
-        """Build levels count+1 .. `level` from scratch (up to three from the level below)."""
+        """Bring the levels up to date, then build levels count+1 .. `level` from scratch (up
+        to three from the level below)."""
+        self._updating = True
+        try:
+            self._extend(base, level)
+        finally:
+            self._updating = False
+
+    def _extend(self, base: BlockStore, level: int) -> None:
         self.flush(base)
         while self.count < level:
             start = self.count
