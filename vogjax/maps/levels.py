@@ -260,7 +260,9 @@ class Levels:
         group and reused while the stores keep their arrays: an update after every scan is one
         launch of a few dozen blocks, where packing fifteen arguments costs as much as the
         kernel. Returns the flags (len(keys),)."""
-        signature = (depth, *map(id, arrays))
+        # the command holds each array's address and length, not the array: equal ones make the
+        # same arguments (a store's old arrays, once replaced, are not kept alive for it)
+        signature = (depth, *((a.ptr, a.shape[0]) for a in arrays))
         cached = self._launches.get(level)
         if cached is None or cached[0] != signature or len(cached[2]) < len(keys):
             held = len(cached[2]) if cached else 0
@@ -276,8 +278,7 @@ class Levels:
                 device=self.device,
                 record_cmd=True,
             )
-            # the arrays are kept with the command: the ids in the signature stay theirs
-            cached = (signature, command, d_keys.numpy(), count.numpy(), flags.numpy(), arrays)
+            cached = (signature, command, d_keys.numpy(), count.numpy(), flags.numpy(), (d_keys, count, flags))
             self._launches[level] = cached
         _, command, host_keys, host_count, host_flags, _ = cached
         host_keys[: len(keys)] = keys
