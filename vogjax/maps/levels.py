@@ -117,7 +117,7 @@ class Levels:
         self.stores: list[BlockStore] = []
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
-        self._launches: dict = {}  # group's first level -> its recorded launch (_fill_launch)
+        self._launches: dict = {}  # group's first level -> its recorded launch (_recorded_fill)
         self._updating = False  # extend is under way (`stale`)
 
     @property
@@ -237,7 +237,7 @@ class Levels:
         # a block is 512 reads: one scan's few dozen stay on one thread
         parts = parallel.num_parts(device, len(keys) * 8)
         if parts == 1 and not device.is_cuda:
-            return self._fill_launch(level, depth, arrays, keys).copy()
+            return self._recorded_fill(level, depth, arrays, keys).copy()
         d_keys = wp.array(keys, dtype=wp.int64, device=device)
         flags = wp.empty(len(keys), dtype=wp.int32, device=device)
         edges = [len(keys) * part // parts for part in range(parts + 1)]
@@ -255,11 +255,11 @@ class Levels:
         parallel.split_launch(fill, len(keys), parts)
         return flags.numpy()
 
-    def _fill_launch(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> wp.array:
+    def _recorded_fill(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> np.ndarray:
         """fill_levels_above_blocks on a CPU, one thread, with its arguments packed once per
         group and reused while the stores keep their arrays: an update after every scan is one
         launch of a few dozen blocks, where packing fifteen arguments costs as much as the
-        kernel. Returns the flags (len(keys),)."""
+        kernel. Returns the flags (len(keys),), a view of its buffer (the next launch overwrites it)."""
         # the command holds each array's address and length, not the array: equal ones make the
         # same arguments (a store's old arrays, once replaced, are not kept alive for it)
         signature = (depth, *((a.ptr, a.shape[0]) for a in arrays))
