@@ -175,19 +175,13 @@ class PlannerConfig(Config):
         "scene", the box holding the scene's mesh and that box (the papers' runs counted everything the rays
         reach).
     collision_level : int
-        The map level the collision checks and the gain rays read: 0 the map's voxels; k >= 1 voxels of
-        voxel_size * 2^k holding the most occupied of their observed voxels (`docs/concepts/multi-
-        resolution.md`). A coarse level never lets an edge through an OCCUPIED voxel, but reads a coarse voxel
-        as FREE when its observed voxels are, unknown ones among them; a coarse gain counts coarse voxels
-        (their volume), so partly seen ones count as seen. Needs a VoxelMap, GlobalMap or VogMap (not an
-        Overlay).
+        The map level the collision checks read: 0 the map's voxels; k >= 1 voxels of voxel_size * 2^k
+        holding the most occupied of their observed voxels (`docs/concepts/multi-resolution.md`). A coarse
+        level never lets an edge through an OCCUPIED voxel, but reads a coarse voxel as FREE when its observed
+        voxels are, unknown ones among them. Needs a VoxelMap, GlobalMap or VogMap (not an Overlay).
     gain_level : int
-        The map level the collision checks and the gain rays read: 0 the map's voxels; k >= 1 voxels of
-        voxel_size * 2^k holding the most occupied of their observed voxels (`docs/concepts/multi-
-        resolution.md`). A coarse level never lets an edge through an OCCUPIED voxel, but reads a coarse voxel
-        as FREE when its observed voxels are, unknown ones among them; a coarse gain counts coarse voxels
-        (their volume), so partly seen ones count as seen. Needs a VoxelMap, GlobalMap or VogMap (not an
-        Overlay).
+        The map level the gain rays read, as `collision_level`: a coarse gain counts coarse voxels (their
+        volume), so partly seen ones count as seen.
 
     Raises
     ------

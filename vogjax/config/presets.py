@@ -224,22 +224,23 @@ def odometry_of(metadata: dict) -> str:
     return "unknown" if "source" in metadata else "hauv"
 
 
-def _reach(metadata: dict) -> float:
+def _sensor_value(metadata: dict, name: str, default: float) -> float:
+    """The sensor's setting `name` from the run's metadata; `default` where it is missing or not
+    a positive finite number."""
     config = metadata.get("sensor_config", metadata.get("sonar", {}))
     try:
-        reach = float(config.get("max_range_m", 11.0))
+        value = float(config.get(name, default))
     except (AttributeError, TypeError, ValueError):
-        return 11.0
-    return reach if math.isfinite(reach) and reach > 0 else 11.0
+        return default
+    return value if math.isfinite(value) and value > 0 else default
+
+
+def _reach(metadata: dict) -> float:
+    return _sensor_value(metadata, "max_range_m", 11.0)
 
 
 def _rate(metadata: dict) -> float:
-    config = metadata.get("sensor_config", metadata.get("sonar", {}))
-    try:
-        rate = float(config.get("rate_hz", 10.0))
-    except (AttributeError, TypeError, ValueError):
-        return 10.0
-    return rate if math.isfinite(rate) and rate > 0 else 10.0
+    return _sensor_value(metadata, "rate_hz", 10.0)
 
 
 def _beams(metadata: dict) -> int:
