@@ -349,6 +349,55 @@ def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
     assert np.all(values[:4, :4, :4] == 1.5) and np.isnan(values[4:]).all() and np.isnan(values[:, 4:]).all()
 
 
+def _max_child_in_child_order(values):
+    """OctoMap's getMaxChildLogOdds over a dense (2n, 2n, 2n) float32 array: children taken in
+    computeChildIdx order (x fastest, then y, then z), the first of equal values kept (so the
+    sign of a zero is that of the first zero child), unobserved (NaN) children ignored."""
+    n = values.shape[0] // 2
+    out = np.full((n, n, n), np.nan, np.float32)
+    for x, y, z in np.ndindex(n, n, n):
+        best = np.float32(np.nan)
+        for child in range(8):
+            v = values[2 * x + (child & 1), 2 * y + (child >> 1 & 1), 2 * z + (child >> 2 & 1)]
+            if not np.isnan(v) and (np.isnan(best) or v > best):
+                best = v
+        out[x, y, z] = best
+    return out
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), block=st.tuples(*[st.integers(-40, 40)] * 3))
+def test_filled_levels_keep_the_first_maximum_in_child_order_signed_zeros_included(seed, block):
+    """Levels 1-3 above one block of values drawn from a few ties (+0 and -0 among them) and
+    NaN, against the child-order reference, bit for bit: a fill reading the block in another
+    order would keep the other zero where +0 and -0 tie."""
+    import warp as wp
+
+    from vogjax.maps.blocks import BlockStore, pack_blocks
+    from vogjax.maps.levels import LAYERS, Levels
+
+    rng = np.random.default_rng(seed)
+    choices = np.array([np.nan, 0.0, -0.0, 0.4, -0.4, 1.25], np.float32)
+    values = choices[rng.integers(0, len(choices), (8, 8, 8))]
+    device = wp.get_device("cpu")
+    base = BlockStore(device, LAYERS)
+    base.ensure_blocks(wp.array(pack_blocks(np.array([block])), dtype=wp.int64, device=device))
+    base.layers["log_odds"].assign(values.reshape(-1))  # slot 0; index (x * 8 + y) * 8 + z
+    levels = Levels(device, releases=False)
+    levels.extend(base, 3)
+    expected = values
+    for level in (1, 2, 3):
+        expected = _max_child_in_child_order(expected)
+        store = levels.store(level)
+        parent = np.array(block) >> level
+        slot = store.find(wp.array(pack_blocks(parent[None]), dtype=wp.int64, device=device)).numpy()[0]
+        mine = store.layers["log_odds"].numpy()[slot * 512 : (slot + 1) * 512].reshape(8, 8, 8)
+        n = 8 >> level
+        corner = (np.array(block) & ((1 << level) - 1)) * n
+        region = mine[corner[0] : corner[0] + n, corner[1] : corner[1] + n, corner[2] : corner[2] + n]
+        np.testing.assert_array_equal(region.view(np.uint32), expected.view(np.uint32), err_msg=f"level {level}")
+
+
 def test_bad_levels_are_refused_naming_the_argument():
     vmap = vj.VoxelMap()
     for bad in (-1, MAX_LEVEL + 1, 1.0, True, "2"):
