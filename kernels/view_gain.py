@@ -87,6 +87,7 @@ def count_seen_voxels(
     tables: wp.array(dtype=wp.int64),
     max_probes: int,
     count_frontier: int,
+    counted_states: int,
     counts: wp.array2d(dtype=wp.int32),
     overflow: wp.array(dtype=wp.int32),
 ):
@@ -95,8 +96,11 @@ def count_seen_voxels(
 
     A voxel is seen if the ray enters it before max_range and leaves it beyond min_range (the
     sensor's blind distance); with use_region, only voxels whose centre lies in [region_lo,
-    region_hi] count. Rays still stop at occupied voxels they do not count. overflow[group]
-    counts voxels its set found no place for within max_probes (its counts are then void)."""
+    region_hi] count; only voxels of the states whose bit (1 << state) is set in counted_states
+    are counted (and put in the set: a caller that reads only the unknown totals saves the
+    insertions of the free voxels, most of what a view sees). Rays still stop at occupied
+    voxels they do not count. overflow[group] counts voxels its set found no place for within
+    max_probes (its counts are then void)."""
     v, r = wp.tid()
     v = v + first_view
     group = groups[v]
@@ -115,7 +119,7 @@ def count_seen_voxels(
             slot = store_slot(m, voxel)
         state = state_of(m, voxel_value(m, voxel, slot, candidates, first, last))
         t_exit = wp.min(wp.min(t_max[0], t_max[1]), t_max[2])
-        counted = t_exit > min_range
+        counted = t_exit > min_range and ((counted_states >> state) & 1) != 0
         if counted and use_region != 0:
             counted = inside(voxel_centre(voxel, m.resolution), region_lo, region_hi)
         if counted:

@@ -228,6 +228,35 @@ def test_edge_gain_counts_each_voxel_once_per_edge():
     assert per_view.unknown.sum() > gain.unknown[0]
 
 
+@pytest.mark.parametrize("states", [(0,), (0, 2), (1,), (2, 1, 0)])
+def test_edge_counts_of_some_states_equal_theirs_in_the_full_count_and_mark_the_others(states):
+    """The planner counts only the states it weighs (the unknown voxels by default): those
+    columns equal the brute-force count, the frontier column too, and the states left out read
+    -1, never 0 (the frontier's column too when the unknown voxels are left out)."""
+    from vogjax.planner.gain import edge_counts
+    from vogjax.planner.source import opened
+
+    rng = np.random.default_rng(11)
+    cfg = vj.MapConfig(voxel_size=0.2, max_range=4.0)
+    vmap = small_map(rng, cfg)
+    starts = np.c_[rng.uniform(-1, 1, (6, 3)), rng.uniform(-np.pi, np.pi, 6)]
+    ends = starts + np.c_[rng.normal(0, 0.5, (6, 3)), rng.normal(0, 0.5, 6)]
+    poses, edge = edge_views(starts, ends, SONAR.T_vehicle_sensor, 0.25, 3.0)
+    expected = brute_gain(vmap, poses, SONAR, 3.0, groups=edge, frontier=True)
+    with opened(vmap) as source:
+        counts, rays = edge_counts(source, starts, ends, SONAR, 0.25, 3.0, None, True, states)
+    for state in range(3):
+        if state in states:
+            np.testing.assert_array_equal(counts[:, state], expected[:, state])
+        else:
+            assert np.all(counts[:, state] == -1)
+    np.testing.assert_array_equal(counts[:, 3], expected[:, 3] if 0 in states else -1)
+    assert expected[:, :3].min(axis=0).min() >= 0 and expected[:, 0].sum() > 0 and expected[:, 1].sum() > 0
+    assert rays == len(poses) * 24
+    with opened(vmap) as source, pytest.raises(ValueError, match="states"):
+        edge_counts(source, starts, ends, SONAR, 0.25, 3.0, None, False, (0, 3))
+
+
 def test_view_gain_splits_across_cores_without_changing_counts(monkeypatch):
     from vogjax.maps import parallel
 

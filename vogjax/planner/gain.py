@@ -22,7 +22,7 @@ import numpy.typing as npt
 from vogjax.config import SonarConfig
 from vogjax.geometry import rigid_poses, rotation_from_ypr
 from vogjax.kernels import hashing
-from vogjax.planner.seen import group_counts
+from vogjax.planner.seen import ALL_STATES, group_counts
 from vogjax.planner.source import MapLike, Source, opened
 from vogjax.sensors import RangeSensor, as_sensor
 from vogjax.validation import float_array, positive_number, within_key_range
@@ -252,11 +252,12 @@ def edge_counts(
     max_range: float,
     region,
     frontier: bool = False,
+    states: tuple[int, ...] = ALL_STATES,
 ) -> tuple[np.ndarray, int]:
     """`edge_gain` on an opened map: counts (E,4) unknown, free, occupied, frontier (0 unless
-    `frontier`), and the rays cast."""
+    `frontier`; -1 in the columns of states not in `states`), and the rays cast."""
     poses, edge = edge_views(starts, ends, sensor.T_vehicle_sensor, step_m, max_range)
-    return group_counts(source, poses, edge, len(starts), sensor, max_range, region, frontier)
+    return group_counts(source, poses, edge, len(starts), sensor, max_range, region, frontier, states)
 
 
 def discounted(gain: npt.ArrayLike, distance_m: npt.ArrayLike, discount: float) -> npt.NDArray[np.float64]:

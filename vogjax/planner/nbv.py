@@ -256,6 +256,7 @@ class NbvPlanner:
                     cfg.gain_range_m,
                     self.region,
                     frontier=cfg.gain == "frontier",
+                    states=self._counted_states(),
                 )
                 gains, unknown = self._visible(counts, source.config.voxel_size)
                 self.graph.promised[pool] = gains  # what they promise now
@@ -305,14 +306,29 @@ class NbvPlanner:
         """
         self.graph.visit(np.asarray(state, np.float64))
 
+    def _counted_states(self) -> tuple[int, ...]:
+        """The states whose voxels a plan's gain reads (the counts' columns): unknown always (its
+        volume is kept per node), free and occupied only where they are weighted. The view-gain
+        kernel counts only these, so the free voxels a view sees cost no set insertions."""
+        cfg = self.config
+        if cfg.gain == "frontier":
+            return (0,)
+        return (0,) + ((1,) if cfg.gain_free else ()) + ((2,) if cfg.gain_occupied else ())
+
     def _visible(self, counts: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
-        """Gains (the configured kind) and unknown volumes (m^3) of edges' counts (E,4)."""
+        """Gains (the configured kind) and unknown volumes (m^3) of edges' counts (E,4), counted
+        for `_counted_states` (the others' columns are -1 and not read)."""
         cfg = self.config
         voxel_m3 = voxel_size**3
         unknown_m3 = counts[:, 0] * voxel_m3
         if cfg.gain == "frontier":
             return counts[:, 3] * voxel_m3, unknown_m3
-        weighted = cfg.gain_unknown * counts[:, 0] + cfg.gain_free * counts[:, 1] + cfg.gain_occupied * counts[:, 2]
+        # the terms of zero weight, which added +0.0 before, are left out: the same sums
+        weighted = cfg.gain_unknown * counts[:, 0]
+        if cfg.gain_free:
+            weighted = weighted + cfg.gain_free * counts[:, 1]
+        if cfg.gain_occupied:
+            weighted = weighted + cfg.gain_occupied * counts[:, 2]
         return weighted * voxel_m3, unknown_m3
 
     def plan(self, map_: MapLike, T_world_vehicle: npt.ArrayLike, drift_m: float = 0.0) -> Plan:
@@ -499,6 +515,7 @@ class NbvPlanner:
             cfg.gain_range_m,
             self.region,
             frontier=cfg.gain == "frontier",
+            states=self._counted_states(),
         )
         visible, unknown_m3 = self._visible(counts, see.config.voxel_size)
         if cfg.risk_weight > 0:

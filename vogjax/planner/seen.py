@@ -3,7 +3,8 @@
 Each group's hash set gets a segment sized from a guess (a fan's rays share most voxels near
 the sensor, so the distinct voxels are far fewer than the voxels its rays cross). A set whose
 insertions probe too long is counted again in a second pass, in a set twice the size of every
-voxel its rays cross, which cannot fill up. Counts are exact either way.
+voxel its rays cross, which cannot fill up. Counts are exact either way. A caller may count
+only some states (the planner: the unknown voxels), whose voxels alone go into the sets.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ TABLE_BUDGET = {"cpu": 8 << 20, "cuda": 128 << 20}
 # insertions give up after this many probes.
 FIRST_GUESS = 4
 FIRST_PROBES = 64
+# The states a view's voxels are counted by, as the counts' columns: unknown, free, occupied.
+ALL_STATES = (0, 1, 2)
 
 
 def group_counts(
@@ -36,14 +39,19 @@ def group_counts(
     max_range: float,
     region,
     frontier: bool = False,
+    states: tuple[int, ...] = ALL_STATES,
 ) -> tuple[np.ndarray, int]:
     """Voxels of each state (unknown, free, occupied) first seen by each group of views, and of
     the unknown ones those on the frontier (a FREE face neighbour; counted only with
-    `frontier`, else 0): poses (V,4,4) sorted by their group (V,) in [0, num_groups). Returns
-    (num_groups, 4) int64 and the rays cast."""
+    `frontier`, else 0): poses (V,4,4) sorted by their group (V,) in [0, num_groups). Only
+    the `states` listed are counted: the others' columns hold -1 (not counted, never a zero
+    that reads as none seen). Returns (num_groups, 4) int64 and the rays cast."""
     directions = sensor.beam_directions().reshape(-1, 3).astype(np.float64)
+    if not states or not set(states) <= set(ALL_STATES):
+        raise ValueError(f"states must be a non-empty subset of {ALL_STATES}, got {states!r}")
+    mask = sum(1 << int(state) for state in set(states))
     if len(poses) == 0:
-        return np.zeros((num_groups, 4), np.int64), 0
+        return _uncounted(np.zeros((num_groups, 4), np.int64), states), 0
     groups = np.asarray(groups, np.int64)
     if np.any(np.diff(groups) < 0):
         raise ValueError("groups must be sorted")
@@ -82,6 +90,7 @@ def group_counts(
         _pow2(np.maximum(bound / FIRST_GUESS, 32)),
         FIRST_PROBES,
         frontier,
+        mask,
     )
     retry = np.flatnonzero(overflowed)
     if len(retry):
@@ -99,8 +108,18 @@ def group_counts(
             _pow2(2 * bound[retry] + 1),
             None,
             frontier,
+            mask,
         )
-    return counts, len(poses) * len(directions)
+    return _uncounted(counts, states), len(poses) * len(directions)
+
+
+def _uncounted(counts: np.ndarray, states) -> np.ndarray:
+    """-1 in the columns of the states not counted (the frontier's too, unknown voxels left out)."""
+    for state in set(ALL_STATES) - set(states):
+        counts[:, state] = -1
+    if 0 not in states:
+        counts[:, 3] = -1
+    return counts
 
 
 def _pow2(values: np.ndarray) -> np.ndarray:
@@ -108,7 +127,18 @@ def _pow2(values: np.ndarray) -> np.ndarray:
 
 
 def _launch(
-    source: Source, poses, groups, anchors, directions, min_range, max_range, region, capacity, max_probes, frontier
+    source: Source,
+    poses,
+    groups,
+    anchors,
+    directions,
+    min_range,
+    max_range,
+    region,
+    capacity,
+    max_probes,
+    frontier,
+    mask,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One pass: counts (G,4) and whether each group's set overflowed (its counts are then void)."""
     device = source.device
@@ -159,6 +189,7 @@ def _launch(
                     tables,
                     -1 if max_probes is None else int(max_probes),
                     int(frontier),
+                    int(mask),
                 ],
                 outputs=[out, overflow],
                 device=device,
