@@ -97,8 +97,8 @@ def count_seen_voxels(
     A voxel is seen if the ray enters it before max_range and leaves it beyond min_range (the
     sensor's blind distance); with use_region, only voxels whose centre lies in [region_lo,
     region_hi] count; only voxels of the states whose bit (1 << state) is set in counted_states
-    are counted (and put in the set: a caller that reads only the unknown totals saves the
-    insertions of the free voxels, most of what a view sees). Rays still stop at occupied
+    are counted (and put in the set: a caller that reads only the unknown totals pays no
+    insertions for the free voxels its rays cross). Rays still stop at occupied
     voxels they do not count. overflow[group] counts voxels its set found no place for within
     max_probes (its counts are then void)."""
     v, r = wp.tid()
