@@ -251,7 +251,7 @@ def test_edge_counts_of_some_states_equal_theirs_in_the_full_count_and_mark_the_
         else:
             assert np.all(counts[:, state] == -1)
     np.testing.assert_array_equal(counts[:, 3], expected[:, 3] if 0 in states else -1)
-    assert expected[:, :3].min(axis=0).min() >= 0 and expected[:, 0].sum() > 0 and expected[:, 1].sum() > 0
+    assert expected[:, 0].sum() > 0 and expected[:, 1].sum() > 0  # both kinds seen: the check can tell them apart
     assert rays == len(poses) * 24
     with opened(vmap) as source, pytest.raises(ValueError, match="states"):
         edge_counts(source, starts, ends, SONAR, 0.25, 3.0, None, False, (0, 3))

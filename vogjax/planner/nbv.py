@@ -54,6 +54,7 @@ from vogjax.config.planner import PlannerConfig
 from vogjax.geometry import rigid_poses, wrap_angle, yaw_pitch_roll
 from vogjax.kernels import hashing
 from vogjax.maps import VogMap
+from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN
 from vogjax.planner.collision import clear_edges
 from vogjax.planner.gain import check_region, edge_counts, gain_range
 from vogjax.planner.graph import ExploredGraph
@@ -312,8 +313,8 @@ class NbvPlanner:
         kernel counts only these, so the free voxels a view sees cost no set insertions."""
         cfg = self.config
         if cfg.gain == "frontier":
-            return (0,)
-        return (0,) + ((1,) if cfg.gain_free else ()) + ((2,) if cfg.gain_occupied else ())
+            return (UNKNOWN,)
+        return (UNKNOWN,) + ((FREE,) if cfg.gain_free else ()) + ((OCCUPIED,) if cfg.gain_occupied else ())
 
     def _visible(self, counts: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
         """Gains (the configured kind) and unknown volumes (m^3) of edges' counts (E,4), counted

@@ -16,6 +16,7 @@ from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.kernels import hashing
 from vogjax.kernels import view_gain as kernels
 from vogjax.maps import parallel
+from vogjax.maps.blockmap import FREE, OCCUPIED, UNKNOWN
 from vogjax.planner.source import Source
 from vogjax.sensors import RangeSensor
 from vogjax.validation import within_key_range
@@ -27,7 +28,7 @@ TABLE_BUDGET = {"cpu": 8 << 20, "cuda": 128 << 20}
 FIRST_GUESS = 4
 FIRST_PROBES = 64
 # The states a view's voxels are counted by, as the counts' columns: unknown, free, occupied.
-ALL_STATES = (0, 1, 2)
+ALL_STATES = (UNKNOWN, FREE, OCCUPIED)
 
 
 def group_counts(
@@ -117,7 +118,7 @@ def _uncounted(counts: np.ndarray, states) -> np.ndarray:
     """-1 in the columns of the states not counted (the frontier's too, unknown voxels left out)."""
     for state in set(ALL_STATES) - set(states):
         counts[:, state] = -1
-    if 0 not in states:
+    if UNKNOWN not in states:
         counts[:, 3] = -1
     return counts
 
