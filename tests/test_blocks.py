@@ -2,6 +2,8 @@
 
 import numpy as np
 import warp as wp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import vogjax as vj
 from vogjax import devices
@@ -57,3 +59,41 @@ def test_map_grows_its_pool_and_keeps_values():
     a, b = gradual.voxels(), at_once.voxels()
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert gradual.memory_bytes() >= gradual.num_blocks * 512 * 4
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["numpy", "warp", "release"]),
+            st.lists(st.integers(-40, 40), min_size=0, max_size=300),
+        ),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_small_allocations_and_releases_match_a_set(steps):
+    # Many small calls (the replayed launches' case: each reuses or re-records its launch as
+    # the table and pool grow) against a plain set of keys: every live key has its own slot,
+    # holding its key, and nothing else is found.
+    devices.init()
+    device = wp.get_device("cpu")
+    store = BlockStore(device, layers={"v": (wp.float32, 0.0)}, block_capacity=1)
+    live: set[int] = set()
+    for kind, coordinates in steps:
+        blocks = np.array(coordinates[: len(coordinates) // 3 * 3], dtype=np.int64).reshape(-1, 3)
+        keys = pack_blocks(blocks)
+        if kind == "release":
+            gone = sorted(live & set(keys.tolist()))
+            slots = store.find(wp.array(np.array(gone, np.int64), dtype=wp.int64, device=device)).numpy()
+            store.release(slots)
+            live -= set(gone)
+        else:
+            store.ensure_blocks(keys if kind == "numpy" else wp.array(keys, dtype=wp.int64, device=device))
+            live |= set(keys.tolist())
+        every = pack_blocks(np.array(np.meshgrid(*[np.arange(-13, 14)] * 3)).reshape(3, -1).T)
+        slots = store.find(wp.array(every, dtype=wp.int64, device=device)).numpy()
+        inside = np.isin(every, np.array(sorted(live), np.int64))
+        assert np.all(slots[~inside] == -1)
+        assert np.all(slots[inside] >= 0) and len(np.unique(slots[inside])) == inside.sum()
+        np.testing.assert_array_equal(store.slot_keys.numpy()[slots[inside]], every[inside])

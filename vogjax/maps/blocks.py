@@ -14,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from vogjax.kernels import hashing
+from vogjax.maps.replay import Replay
 
 BLOCK_EDGE = hashing.BLOCK_EDGE
 BLOCK_VOXELS = hashing.BLOCK_VOXELS
@@ -108,6 +109,14 @@ class BlockStore:
         self.version = 0  # counts changes to the set of blocks (BlockGrid follows it)
         self._new_positions = wp.empty(0, dtype=wp.int32, device=device)  # ensure_blocks' scratch
         self._counters = wp.zeros(2, dtype=wp.int32, device=device)
+        # on a CPU the counters are read in place, and the keys to insert are copied into one
+        # array the recorded launches keep (a scan allocates a few dozen blocks: the launches'
+        # set-up, not the kernels, was most of the cost)
+        self._counters_view = None if device.is_cuda else self._counters.numpy()
+        self._staged = wp.empty(0, dtype=wp.int64, device=device)
+        self._staged_view = self._staged.numpy() if not device.is_cuda else None
+        self._insert = Replay(hashing.insert_keys, device)
+        self._assign = Replay(hashing.assign_slots, device)
         self._no_slots = wp.empty(0, dtype=wp.int32, device=device)  # no released slots to reuse
         self._grid: tuple | None = None  # (version, BlockGrid)
         self._box: tuple | None = None  # (version, block_box())
@@ -172,26 +181,21 @@ class BlockStore:
         )
         return BlockGrid(*box, tuple(dims.tolist()), cells)
 
-    def ensure_blocks(self, keys: wp.array) -> None:
-        """Allocate a block for every packed key in `keys` (EMPTY_KEY entries are skipped)."""
-        if keys.shape[0] == 0:
+    def ensure_blocks(self, keys: wp.array | np.ndarray) -> None:
+        """Allocate a block for every packed key in `keys` (K,) int64, a Warp array on the store's
+        device or a NumPy array (EMPTY_KEY entries are skipped)."""
+        count = keys.shape[0]
+        if count == 0:
             return
-        if self._new_positions.shape[0] < keys.shape[0]:
-            self._new_positions = wp.empty(keys.shape[0] + keys.shape[0] // 2, dtype=wp.int32, device=self.device)
+        keys = self._stage(keys)
+        if self._new_positions.shape[0] < count:
+            self._new_positions = wp.empty(count + count // 2, dtype=wp.int32, device=self.device)
         # room for every key first (keys may repeat: at most their number are new): inserting
         # into a table they would overfill fails part-way, and costs a second round
-        if 2 * (self.live_blocks + self.tombstones + keys.shape[0]) > self.table_capacity:
-            self._reserve_table(self.live_blocks + keys.shape[0])
+        if 2 * (self.live_blocks + self.tombstones + count) > self.table_capacity:
+            self._reserve_table(self.live_blocks + count)
         while True:
-            self._counters.zero_()
-            wp.launch(
-                hashing.insert_keys,
-                dim=keys.shape[0],
-                inputs=[keys],
-                outputs=[self.table_keys, self._new_positions, self._counters],
-                device=self.device,
-            )
-            new_blocks, failed = (int(c) for c in self._counters.numpy())
+            new_blocks, failed = self._insert_keys(keys, count)
             if new_blocks:
                 reused = self.free_slots[:new_blocks]
                 del self.free_slots[:new_blocks]
@@ -202,12 +206,10 @@ class BlockStore:
                     if reused
                     else self._no_slots
                 )
-                wp.launch(
-                    hashing.assign_slots,
-                    dim=new_blocks,
-                    inputs=[self._new_positions, reused_slots, self.num_blocks],
-                    outputs=[self.table_keys, self.table_slots, self.slot_keys],
-                    device=self.device,
+                self._assign(
+                    new_blocks,
+                    [self._new_positions, reused_slots, self.num_blocks],
+                    [self.table_keys, self.table_slots, self.slot_keys],
                 )
                 self.num_blocks += fresh
                 self.version += 1
@@ -217,6 +219,28 @@ class BlockStore:
                 self._reserve_table(self.live_blocks + self.live_blocks // 2)
             if not failed:
                 return
+
+    def _stage(self, keys: wp.array | np.ndarray) -> wp.array:
+        """The keys as a Warp array on the device: on a CPU, copied into the one array the
+        recorded insertion reads (only its first len(keys) entries are read)."""
+        if self.device.is_cuda:
+            return keys if isinstance(keys, wp.array) else wp.array(np.asarray(keys, np.int64), device=self.device)
+        count = keys.shape[0]
+        if self._staged.shape[0] < count:
+            self._staged = wp.empty(max(count, 2 * self._staged.shape[0], 256), dtype=wp.int64, device=self.device)
+            self._staged_view = self._staged.numpy()
+        self._staged_view[:count] = keys.numpy() if isinstance(keys, wp.array) else keys
+        return self._staged
+
+    def _insert_keys(self, keys: wp.array, count: int) -> tuple[int, int]:
+        """insert_keys over keys[:count]: (keys new to the table, insertions that failed)."""
+        if self._counters_view is None:
+            self._counters.zero_()
+        else:
+            self._counters_view[:] = 0
+        self._insert(count, [keys], [self.table_keys, self._new_positions, self._counters])
+        counters = self._counters.numpy() if self._counters_view is None else self._counters_view
+        return int(counters[0]), int(counters[1])
 
     def release(self, slots: np.ndarray) -> None:
         """Drop the blocks in `slots` (distinct, live): their slots are reused, their layers reset."""
@@ -300,6 +324,8 @@ class BlockStore:
 
     def _rehash(self, capacity: int) -> None:
         self.tombstones = 0
+        self._insert.forget()  # they hold the old table
+        self._assign.forget()
         self.table_keys = wp.full(capacity, EMPTY_KEY, dtype=wp.int64, device=self.device)
         self.table_slots = wp.full(capacity, -1, dtype=wp.int32, device=self.device)
         if self.num_blocks:
@@ -318,6 +344,7 @@ class BlockStore:
         # Steps of a quarter: a map grown pass by pass copies its pool about four times in all
         # (a few milliseconds for a 2000-scan survey) and holds at most a fifth of it spare.
         capacity = max(num_blocks, old + old // 4)
+        self._assign.forget()  # it holds the old slot keys
         self.slot_keys = _grown(self.slot_keys, capacity, EMPTY_KEY)
         for name, (_, fill) in self.layer_specs.items():
             self.layers[name] = _grown(self.layers[name], capacity * BLOCK_VOXELS, fill)

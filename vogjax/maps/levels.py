@@ -33,6 +33,7 @@ import warp as wp
 from vogjax.kernels import levels
 from vogjax.maps import parallel
 from vogjax.maps.blocks import EMPTY_KEY, BlockStore
+from vogjax.maps.replay import Replay
 
 # OctoMap's depth 16 - k: level 15 is depth 1, the root's children. (The root, level 16, is not
 # aligned with vogjax's keys: OctoMap's keys are offset by 2^15.)
@@ -117,7 +118,7 @@ class Levels:
         self.stores: list[BlockStore] = []
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
-        self._launches: dict = {}  # group's first level -> its recorded launch (_recorded_fill)
+        self._launches: dict = {}  # group's first level -> its replayed launch and buffers (_recorded_fill)
         self._updating = False  # extend is under way (`stale`)
 
     @property
@@ -225,7 +226,7 @@ class Levels:
 
     def _allocate(self, level: int, keys: np.ndarray) -> None:
         """Blocks for the packed keys `keys` (repeats allowed) in `level`, where missing."""
-        self.store(level).ensure_blocks(wp.array(np.unique(keys), dtype=wp.int64, device=self.device))
+        self.store(level).ensure_blocks(np.unique(keys))
 
     def _launch_fill(self, level: int, depth: int, below: BlockStore, stores: list, keys: np.ndarray) -> np.ndarray:
         """fill_levels_above_blocks over `keys`: the flags (len(keys),) int32, on the host."""
@@ -256,34 +257,23 @@ class Levels:
         return flags.numpy()
 
     def _recorded_fill(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> np.ndarray:
-        """fill_levels_above_blocks on a CPU, one thread, with its arguments packed once per
-        group and reused while the stores keep their arrays: an update after every scan is one
-        launch of a few dozen blocks, where packing fifteen arguments costs as much as the
-        kernel. Returns the flags (len(keys),), a view of its buffer (the next launch overwrites it)."""
-        # the command holds each array's address and length, not the array: equal ones make the
-        # same arguments (a store's old arrays, once replaced, are not kept alive for it)
-        signature = (depth, *((a.ptr, a.shape[0]) for a in arrays))
+        """fill_levels_above_blocks on a CPU, one thread, its launch replayed (`replay.Replay`):
+        an update after every scan is one launch of a few dozen blocks, where packing sixteen
+        arguments costs as much as the kernel. Returns the flags (len(keys),), a view of its
+        buffer (the next launch overwrites it)."""
         cached = self._launches.get(level)
-        if cached is None or cached[0] != signature or len(cached[2]) < len(keys):
-            held = len(cached[2]) if cached else 0
-            capacity = held if held >= len(keys) else max(len(keys), 2 * held, 256)
+        if cached is None or len(cached[1]) < len(keys):
+            capacity = max(len(keys), 2 * len(cached[1]) if cached else 0, 256)
             d_keys = wp.empty(capacity, dtype=wp.int64, device=self.device)
             count = wp.zeros(1, dtype=wp.int32, device=self.device)
             flags = wp.empty(capacity, dtype=wp.int32, device=self.device)
-            command = wp.launch(
-                levels.fill_levels_above_blocks,
-                dim=capacity,
-                inputs=[d_keys, count, depth, *arrays],
-                outputs=[flags],
-                device=self.device,
-                record_cmd=True,
-            )
-            cached = (signature, command, d_keys.numpy(), count.numpy(), flags.numpy(), (d_keys, count, flags))
+            replay = Replay(levels.fill_levels_above_blocks, self.device)
+            cached = (replay, d_keys.numpy(), count.numpy(), flags.numpy(), (d_keys, count, flags))
             self._launches[level] = cached
-        _, command, host_keys, host_count, host_flags, _ = cached
+        replay, host_keys, host_count, host_flags, (d_keys, count, flags) = cached
         host_keys[: len(keys)] = keys
         host_count[0] = len(keys)
-        command.launch()  # over the whole capacity: the threads past the count return at once
+        replay(len(keys), [d_keys, count, depth, *arrays], [flags])
         return host_flags[: len(keys)]
 
     def _release_empty(self, store: BlockStore, keys: np.ndarray) -> None:
