@@ -237,6 +237,29 @@ def test_levels_updated_after_every_scan_equal_a_fresh_build_at_every_step(monke
     assert any(stopped) and not all(stopped)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_levels_after_calls_of_several_passes_equal_a_fresh_build(monkeypatch, threads):
+    """A call integrates its scans in passes that share one scratch; the blocks each pass wrote
+    are noted for the levels, and must survive the passes after it and the calls before the next
+    coarse query (a one-thread CPU reused the scratch's key buffer under them: the levels missed
+    every pass but the last)."""
+    from vogjax.maps import parallel, voxelmap
+
+    monkeypatch.setattr(parallel, "CPU_THREADS", threads)
+    monkeypatch.setattr(voxelmap, "SCANS_PER_PASS", 3)
+    cfg = vj.MapConfig()
+    rng = np.random.default_rng(5)
+    origins, points, scan = ref.random_scans(rng, 16, 1400, spread=5.0)  # 2 parts a pass on 2 threads
+    kept = vj.VoxelMap(cfg)
+    kept.store_at(6)
+    for calls in ((0, 10), (10, 11), (11, 12), (12, 16)):  # no query between the calls
+        rows = (scan >= calls[0]) & (scan < calls[1])
+        kept.integrate_scans(origins[calls[0] : calls[1]], points[rows], scan[rows] - calls[0])
+    fresh = vj.VoxelMap(cfg)
+    fresh.integrate_scans(origins, points, scan)
+    _levels_equal(kept, fresh, range(1, 7))
+
+
 def test_global_map_levels_updated_after_every_undo_equal_a_fresh_merge():
     """The same with releases: a global map's voxels go back to unknown when a submap moves
     away, coarse blocks empty and are released; queried after every update_poses."""

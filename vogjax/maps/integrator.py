@@ -335,8 +335,8 @@ def _apply(
         return
     store.ensure_blocks(keys)
     slots = store.find(keys)
-    if scratch.touched is not None:
-        scratch.touched.append(keys.numpy())
+    if scratch.touched is not None:  # a copy: on a CPU, numpy() views the scratch the next pass reuses
+        scratch.touched.append(np.array(keys.numpy()))
     inputs = [
         words,
         capacity,

@@ -118,6 +118,7 @@ class Levels:
         self.stores: list[BlockStore] = []
         self._noted: list[np.ndarray] = []
         self._noted_keys = 0
+        self._noted_distinct = False  # the one array noted is vouched distinct (`note`)
         self._launches: dict = {}  # group's first level -> its replayed launch and buffers (_recorded_fill)
         self._updating = False  # extend is under way (`stale`)
 
@@ -163,15 +164,18 @@ class Levels:
         """Every kept level from scratch (after the level-0 store was replaced)."""
         count = self.count
         self.stores, self._launches = [], {}
-        self._noted, self._noted_keys = [], 0
+        self._noted, self._noted_keys, self._noted_distinct = [], 0, False
         self.extend(base, count)
 
-    def note(self, base: BlockStore, keys: np.ndarray) -> None:
+    def note(self, base: BlockStore, keys: np.ndarray, distinct: bool = False) -> None:
         """Record that the level-0 blocks with packed keys `keys` (any order, repeats allowed,
-        released blocks included) were written; recomputed at the next `flush`."""
+        released blocks included) were written; recomputed at the next `flush`. `distinct`:
+        the caller vouches that `keys` holds no repeats and no EMPTY_KEY (one integration
+        pass's blocks), so a flush of these keys alone need not sort them."""
         if not self.stores or len(keys) == 0:
             return
         self._noted.append(np.asarray(keys, np.int64))
+        self._noted_distinct = distinct and len(self._noted) == 1
         self._noted_keys += len(keys)
         if self._noted_keys > FLUSH_KEYS:
             self.flush(base)
@@ -180,10 +184,13 @@ class Levels:
         """Recompute, in every kept level, what the blocks noted since decide."""
         if not self._noted:
             return
-        changed = np.unique(np.concatenate(self._noted) if len(self._noted) > 1 else self._noted[0])
-        self._noted, self._noted_keys = [], 0
-        if len(changed) and changed[0] == EMPTY_KEY:  # sorted: EMPTY_KEY (-1) first, at most once
-            changed = changed[1:]
+        if self._noted_distinct:  # in any order: each block writes voxels no other block does
+            changed = self._noted[0]
+        else:
+            changed = np.unique(np.concatenate(self._noted) if len(self._noted) > 1 else self._noted[0])
+            if len(changed) and changed[0] == EMPTY_KEY:  # sorted: EMPTY_KEY (-1) first, at most once
+                changed = changed[1:]
+        self._noted, self._noted_keys, self._noted_distinct = [], 0, False
         level, below = 0, base
         while level < self.count and len(changed):
             depth = min(3, self.count - level)
@@ -273,7 +280,10 @@ class Levels:
         replay, host_keys, host_count, host_flags, (d_keys, count, flags) = cached
         host_keys[: len(keys)] = keys
         host_count[0] = len(keys)
-        replay(len(keys), [d_keys, count, depth, *arrays], [flags])
+        # threads past count[0] return at once: a dimension rounded up to a power of two is
+        # rarely set anew, where setting it costs as much as a few dozen idle threads
+        dim = min(1 << (len(keys) - 1).bit_length(), len(host_keys))
+        replay(dim, [d_keys, count, depth, *arrays], [flags])
         return host_flags[: len(keys)]
 
     def _release_empty(self, store: BlockStore, keys: np.ndarray) -> None:

@@ -147,7 +147,10 @@ class VoxelMap(BlockMap):
                 touched,
             )
             self.revision += 1
-            self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
+            if touched and len(touched) == 1:  # one pass: its blocks are distinct
+                self._values_changed(touched[0], distinct=True)
+            else:
+                self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
 
     # ---------------------------------------------------------------- files
     def save(self, path: str | os.PathLike) -> None:
