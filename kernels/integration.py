@@ -24,6 +24,7 @@ are plain read-modify-writes. The replay ORs the parts' marks of a block before 
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, observed, pack_block
+from .levels import same_value
 from .traversal import VoxelWalk, norm_like_octomap, segment_continues, segment_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -360,6 +361,18 @@ def value_before(slot: int, log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
 
 
 @wp.func
+def note_changed_cell(
+    u: int, voxel: int, before: wp.float32, after: wp.float32, record: int, cell_masks: wp.array(dtype=wp.uint64)
+):
+    """With `record`, set in cell_masks[u] the bit of the voxel's 2x2x2 cell (bit
+    (x >> 1) * 16 + (y >> 1) * 4 + (z >> 1)) when its log-odds changed bits: the cells the
+    coarse levels must recompute (`kernels/levels.py`)."""
+    if record != 0 and not same_value(before, after):
+        cell = ((voxel >> 7) << 4) | (((voxel >> 4) & 3) << 2) | ((voxel >> 1) & 3)
+        wp.atomic_or(cell_masks, u, wp.uint64(1) << wp.uint64(cell))
+
+
+@wp.func
 def release_entries(
     u: int,
     part_blocks: wp.array2d(dtype=wp.int32),
@@ -391,16 +404,20 @@ def apply_marks(
     table_keys: wp.array2d(dtype=wp.int64),
     table_index: wp.array2d(dtype=wp.int32),
     table_position: wp.array2d(dtype=wp.int32),
+    record: int,
     log_odds: wp.array(dtype=wp.float32),
+    cell_masks: wp.array(dtype=wp.uint64),
 ):
     """Per voxel of the touched blocks (block u = map slot block_slots[u], numbered
     part_blocks[u, p] in scratch part p, -1 where that part did not touch it): replay the marked
-    scans in order, then clear the marks read (and, once per block, its table entries)."""
+    scans in order, then clear the marks read (and, once per block, its table entries). With
+    `record`, the cells whose voxels changed are ORed into cell_masks[u] (zeroed before)."""
     tid = first + wp.tid()
     u = tid // BLOCK_VOXELS
     voxel = tid - u * BLOCK_VOXELS
     i = int(0)
     value = wp.float32(0.0)
+    before = wp.float32(0.0)
     marked = bool(False)
     for word in range(words_per_voxel):
         m = wp.uint64(0)
@@ -416,10 +433,12 @@ def apply_marks(
             if not marked:  # the map is read only for voxels the pass marked
                 marked = True
                 i = block_slots[u] * BLOCK_VOXELS + voxel
+                before = log_odds[i]
                 value = value_before(i, log_odds)
             value = replay_word(value, m, log_hit, log_miss, clamp_min, clamp_max)
     if marked:
         log_odds[i] = value
+        note_changed_cell(u, voxel, before, value, record, cell_masks)
     if voxel == 0:
         release_entries(u, part_blocks, table_keys, table_index, table_position)
 
@@ -444,7 +463,9 @@ def apply_marks_few_words(
     table_keys: wp.array2d(dtype=wp.int64),
     table_index: wp.array2d(dtype=wp.int32),
     table_position: wp.array2d(dtype=wp.int32),
+    record: int,
     log_odds: wp.array(dtype=wp.float32),
+    cell_masks: wp.array(dtype=wp.uint64),
 ):
     """apply_marks for passes of at most FEW_WORDS words per voxel: each part's block number is
     read once and its words gathered into registers (loops unrolled), then replayed in order.
@@ -471,9 +492,11 @@ def apply_marks_few_words(
         marked = marked | m[word]
     if marked != zero:  # the map is read only for voxels the pass marked
         i = block_slots[u] * BLOCK_VOXELS + voxel
+        before = log_odds[i]
         value = value_before(i, log_odds)
         for word in range(FEW_WORDS):
             value = replay_word(value, m[word], log_hit, log_miss, clamp_min, clamp_max)
         log_odds[i] = value
+        note_changed_cell(u, voxel, before, value, record, cell_masks)
     if voxel == 0:
         release_entries(u, part_blocks, table_keys, table_index, table_position)

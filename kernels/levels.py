@@ -66,6 +66,21 @@ def octant(corner: wp.vec3i, o: int, size: int) -> wp.vec3i:
 
 
 @wp.func
+def cell_bit(cube: wp.vec3i) -> wp.uint64:
+    """The bit of the 2x2x2 cell at voxel `cube` (even coordinates) in a block's cell mask."""
+    return wp.uint64(1) << wp.uint64((cube[0] >> 1) * 16 + (cube[1] >> 1) * 4 + (cube[2] >> 1))
+
+
+@wp.func
+def cube_cells(cube: wp.vec3i) -> wp.uint64:
+    """The bits of the eight cells of the 4x4x4 cube at voxel `cube` (coordinates 0 or 4)."""
+    cells = wp.uint64(0)
+    for o in range(8):
+        cells = cells | cell_bit(octant(cube, o, 2))
+    return cells
+
+
+@wp.func
 def write_value(log_odds: wp.array(dtype=wp.float32), index: int, value: wp.float32) -> int:
     """Store `value`; LEVEL_CHANGED when the voxel held other bits."""
     changed = wp.where(same_value(log_odds[index], value), 0, 1)
@@ -76,6 +91,7 @@ def write_value(log_odds: wp.array(dtype=wp.float32), index: int, value: wp.floa
 @wp.kernel
 def fill_levels_above_blocks(
     keys: wp.array(dtype=wp.int64),
+    cells: wp.array(dtype=wp.uint64),
     count: wp.array(dtype=wp.int32),
     depth: int,
     table_keys: wp.array(dtype=wp.int64),
@@ -95,6 +111,9 @@ def fill_levels_above_blocks(
     """From the blocks with packed keys `keys` (distinct; a key absent from the table: a block of
     unobserved voxels), the voxels they decide in the `depth` (1-3) levels above, whose blocks are
     all in their tables (_1: one level up, ...; a level beyond `depth` is not read or written).
+    cells[tid]: the block's 2x2x2 cells whose voxels may have changed (bit (x >> 1) * 16 +
+    (y >> 1) * 4 + (z >> 1), as `integration.note_changed_cell` sets them); the voxels above
+    the others hold their values already and are read, not recomputed.
     One thread per block, for the first count[0] keys (a launch recorded once serves any
     number up to its size); flags[tid] as REGION_OBSERVED and LEVEL_CHANGED say, or, when a
     parent block is missing, -1 - m with bit i - 1 of m set where the one i levels up is: nothing
@@ -119,25 +138,32 @@ def fill_levels_above_blocks(
     if missing != 0:  # the host allocates the missing parents and fills the block again
         flags[tid] = -1 - missing
         return
+    mask = cells[tid]
     changed_1 = int(0)
     changed_2 = int(0)
     best_3 = wp.float32(wp.nan)
     for o2 in range(8):  # the block's eight cubes of 4^3 voxels: one voxel two levels up each
         cube_2 = octant(wp.vec3i(0, 0, 0), o2, 4)
+        up_2 = wp.vec3i(corner_2[0] + cube_2[0] / 4, corner_2[1] + cube_2[1] / 4, corner_2[2] + cube_2[2] / 4)
         best_2 = wp.float32(wp.nan)
-        for o1 in range(8):  # their cubes of 2^3 voxels: one voxel one level up each
-            cube_1 = octant(cube_2, o1, 2)
-            best_1 = wp.float32(wp.nan)
-            if slot >= 0:
-                for o0 in range(8):
-                    voxel = octant(cube_1, o0, 1)
-                    best_1 = larger_observed(best_1, log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)])
-            up_1 = wp.vec3i(corner_1[0] + cube_1[0] / 2, corner_1[1] + cube_1[1] / 2, corner_1[2] + cube_1[2] / 2)
-            changed_1 = changed_1 | write_value(log_odds_1, base_1 + index_in_block(up_1), best_1)
-            best_2 = larger_observed(best_2, best_1)
-        if depth >= 2:
-            up_2 = wp.vec3i(corner_2[0] + cube_2[0] / 4, corner_2[1] + cube_2[1] / 4, corner_2[2] + cube_2[2] / 4)
-            changed_2 = changed_2 | write_value(log_odds_2, base_2 + index_in_block(up_2), best_2)
+        if depth >= 2 and (mask & cube_cells(cube_2)) == wp.uint64(0):  # none of its cells changed
+            best_2 = log_odds_2[base_2 + index_in_block(up_2)]
+        else:
+            for o1 in range(8):  # its cubes of 2^3 voxels: one voxel one level up each
+                cube_1 = octant(cube_2, o1, 2)
+                up_1 = wp.vec3i(corner_1[0] + cube_1[0] / 2, corner_1[1] + cube_1[1] / 2, corner_1[2] + cube_1[2] / 2)
+                best_1 = wp.float32(wp.nan)
+                if (mask & cell_bit(cube_1)) == wp.uint64(0):
+                    best_1 = log_odds_1[base_1 + index_in_block(up_1)]
+                else:
+                    if slot >= 0:
+                        for o0 in range(8):
+                            voxel = octant(cube_1, o0, 1)
+                            best_1 = larger_observed(best_1, log_odds[slot * BLOCK_VOXELS + index_in_block(voxel)])
+                    changed_1 = changed_1 | write_value(log_odds_1, base_1 + index_in_block(up_1), best_1)
+                best_2 = larger_observed(best_2, best_1)
+            if depth >= 2:
+                changed_2 = changed_2 | write_value(log_odds_2, base_2 + index_in_block(up_2), best_2)
         best_3 = larger_observed(best_3, best_2)
     changed_3 = int(0)
     if depth >= 3:

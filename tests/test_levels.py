@@ -215,8 +215,8 @@ def test_levels_updated_after_every_scan_equal_a_fresh_build_at_every_step(monke
     stopped = []
     fill = levels_module.Levels._fill
 
-    def counting(self, level, depth, below, keys):
-        changed = fill(self, level, depth, below, keys)
+    def counting(self, level, depth, below, keys, cells=None):
+        changed = fill(self, level, depth, below, keys, cells)
         above = np.unique(levels_module.shift_keys(keys, depth))
         assert np.isin(changed, above).all()
         stopped.append(len(changed) < len(above))
@@ -258,6 +258,51 @@ def test_levels_after_calls_of_several_passes_equal_a_fresh_build(monkeypatch, t
     fresh = vj.VoxelMap(cfg)
     fresh.integrate_scans(origins, points, scan)
     _levels_equal(kept, fresh, range(1, 7))
+
+
+def _block_bits(vmap):
+    """{packed key: (512,) int32 bits of the block's log-odds} of a map's live blocks."""
+    store = vmap.store
+    keys = store.slot_keys.numpy()[: store.num_blocks]
+    values = store.layers["log_odds"].numpy().reshape(-1, 512)[: store.num_blocks].view(np.int32)
+    return {int(k): values[i].copy() for i, k in enumerate(keys) if k != -1}
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_cells_noted_for_the_levels_are_those_whose_voxels_changed(monkeypatch, threads):
+    """The levels recompute a written block only above the 2x2x2 cells integration reports
+    changed, so those reports must be exact: per written block, the cells where a voxel's bits
+    differ from before the scan (NumPy), none missing; scans of 4,500 beams split in two parts
+    on two threads (the parts' boundaries must not cut a block's report)."""
+    from vogjax.maps import levels as levels_module
+    from vogjax.maps import parallel
+
+    monkeypatch.setattr(parallel, "CPU_THREADS", threads)
+    noted = []
+    note = levels_module.Levels.note
+
+    def recording(self, base, keys, cells=None, distinct=False):
+        noted.append((np.array(keys), None if cells is None else np.array(cells)))
+        note(self, base, keys, cells, distinct)
+
+    monkeypatch.setattr(levels_module.Levels, "note", recording)
+    rng = np.random.default_rng(11)
+    origins, points, scan = ref.random_scans(rng, 4, 4500, spread=5.0)
+    vmap = vj.VoxelMap(vj.MapConfig())
+    vmap.store_at(3)
+    unobserved = np.full(512, np.float32(np.nan)).view(np.int32)
+    for k in range(len(origins)):
+        before = _block_bits(vmap)
+        vmap.integrate_scans(origins[k : k + 1], points[scan == k], np.zeros((scan == k).sum(), int))
+        after = _block_bits(vmap)
+        keys, cells = noted[-1]
+        assert cells is not None and set(after) - set(before) <= set(keys.tolist())
+        for key, mask in zip(keys.tolist(), cells.tolist()):
+            changed = (after[key] != before.get(key, unobserved)).reshape(4, 2, 4, 2, 4, 2).any(axis=(1, 3, 5))
+            assert mask == sum(1 << int(bit) for bit in np.flatnonzero(changed.ravel()))
+        fresh = vj.VoxelMap(vmap.config)
+        fresh._store = vmap.store
+        _levels_equal(vmap, fresh, range(1, 4))
 
 
 def test_global_map_levels_updated_after_every_undo_equal_a_fresh_merge():
@@ -341,7 +386,7 @@ def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
 
     from vogjax.kernels import levels as kernels
     from vogjax.maps.blocks import BlockStore, pack_blocks
-    from vogjax.maps.levels import LAYERS
+    from vogjax.maps.levels import ALL_CELLS, LAYERS
 
     device = wp.get_device("cpu")
     base, coarse = BlockStore(device, LAYERS), BlockStore(device, LAYERS)
@@ -356,6 +401,7 @@ def test_the_fill_kernel_writes_nothing_when_a_parent_block_is_missing():
         dim=2,
         inputs=[
             wp.array(keys, dtype=wp.int64, device=device),
+            wp.full(2, ALL_CELLS, dtype=wp.uint64, device=device),
             wp.array([2], dtype=wp.int32, device=device),
             1,
             base.table_keys,

@@ -194,17 +194,19 @@ class BlockMap:
         """The coarsest level this map keeps current (0: none built yet)."""
         return self._levels.count
 
-    def _values_changed(self, keys: np.ndarray | None = None, distinct: bool = False) -> None:
+    def _values_changed(
+        self, keys: np.ndarray | None = None, cells: np.ndarray | None = None, distinct: bool = False
+    ) -> None:
         """Call (under the write lock) after writing log-odds: the ray-cast states go stale, and
         the coarse levels above the written blocks (packed keys `keys` (K,) int64; None: the
-        store was replaced, every level is rebuilt; `distinct`: no repeats and no EMPTY_KEY
-        among them, `Levels.note`) are noted for the next coarse query."""
+        store was replaced, every level is rebuilt) are noted for the next coarse query, with
+        the cells of each that changed (`Levels.note`; None: any may have)."""
         self._values_revision += 1
         if self._levels.count:
             if keys is None:
                 self._levels.rebuild(self._store)
             else:
-                self._levels.note(self._store, keys, distinct)
+                self._levels.note(self._store, keys, cells, distinct)
 
     def _ray_tables(self, level: int = 0) -> RayTables:
         """What ray casts read, rebuilt after the log-odds or the blocks changed; call under the

@@ -64,6 +64,11 @@ class Scratch:
         self.marks = wp.zeros((self.parts, mark_words), dtype=wp.uint64, device=self.device)
         # (blocks, 1): block u is number u of part 0, the replay's block list for one part
         self.numbers = wp.array(np.arange(blocks, dtype=np.int32)[:, None], dtype=wp.int32, device=self.device)
+        # per block of a pass (the parts' distinct blocks: up to parts * blocks), the 2x2x2 cells
+        # whose voxels changed (for the coarse levels)
+        self.cell_masks = wp.zeros(self.parts * blocks, dtype=wp.uint64, device=self.device)
+        # on a CPU, the same memory as NumPy: slicing a Warp array costs more than the launch
+        self.cell_masks_host = None if self.device.is_cuda else self.cell_masks.numpy()
         self._rows = None
 
     def part_rows(self, part: int) -> tuple:
@@ -151,7 +156,8 @@ def integrate(
     touched: list | None = None,
 ) -> None:
     """Integrate every scan of `batch`, `scans_per_pass` at a time, into `store`; with a
-    `touched` list, append to it per pass the packed keys (K,) int64 of the blocks written."""
+    `touched` list, append to it per pass the packed keys (K,) int64 of the blocks written and
+    their changed cells (K,) uint64 (`Levels.note`)."""
     num_scans = batch.host_origins.shape[0]
     if batch.scan_index.shape[0] == 0:
         return
@@ -335,8 +341,11 @@ def _apply(
         return
     store.ensure_blocks(keys)
     slots = store.find(keys)
-    if scratch.touched is not None:  # a copy: on a CPU, numpy() views the scratch the next pass reuses
-        scratch.touched.append(np.array(keys.numpy()))
+    record = scratch.touched is not None
+    if record and scratch.cell_masks_host is not None:
+        scratch.cell_masks_host[:count] = 0
+    elif record:
+        scratch.cell_masks[:count].zero_()
     inputs = [
         words,
         capacity,
@@ -356,17 +365,22 @@ def _apply(
         if words <= integration.FEW_WORDS and not device.is_cuda
         else integration.apply_marks
     )
+    # split at block boundaries: a block's cell mask is ORed by its voxels' threads, and CPU
+    # atomics are plain read-modify-writes
     parallel.split_launch(
         lambda part, a, b: wp.launch(
             kernel,
-            dim=b - a,
-            inputs=[slots, d_part_blocks, a, *inputs],
-            outputs=[store.layers["log_odds"]],
+            dim=(b - a) * BLOCK_VOXELS,
+            inputs=[slots, d_part_blocks, a * BLOCK_VOXELS, *inputs, int(record)],
+            outputs=[store.layers["log_odds"], scratch.cell_masks],
             device=device,
         ),
-        voxels,
-        parallel.num_parts(device, voxels),
+        count,
+        min(count, parallel.num_parts(device, voxels)),
     )
+    if record:  # copies: on a CPU, numpy() views the scratch the next pass reuses
+        masks = scratch.cell_masks_host if scratch.cell_masks_host is not None else scratch.cell_masks.numpy()
+        scratch.touched.append((np.array(keys.numpy()), masks[:count].copy()))
     scratch.counters.zero_()
 
 

@@ -5,12 +5,14 @@ each holding the maximum log-odds of its observed level-0 voxels (NaN: none obse
 queries of level 0 run on it unchanged with the voxel size scaled by 2^k. A map builds a level
 the first time it is queried and from then on keeps every level it built current.
 
-Keeping them current: each write notes the level-0 blocks it wrote (`note`, a list of keys:
-nothing else), and the next coarse query first recomputes what those blocks decide in every
-kept level (`flush`), so a query always sees every write before it, and the scans integrated
-between two queries share one recomputation. A log grown past FLUSH_KEYS keys is flushed by the
-write itself. A coarse block with no observed voxel left is released, so a level holds the
-blocks a fresh build would, whatever happened before.
+Keeping them current: each write notes the level-0 blocks it wrote (`note`: their keys and,
+from integration, a mask of the 2x2x2 cells of each whose voxels changed), and the next coarse
+query first recomputes what those blocks decide in every kept level (`flush`; levels 1-3 only
+above the changed cells, reading the values above the others), so a query always sees every
+write before it, and the scans integrated between two queries share one recomputation. A log
+grown past FLUSH_KEYS keys is flushed by the write itself. A coarse block with no observed
+voxel left is released, so a level holds the blocks a fresh build would, whatever happened
+before.
 
 Three levels at a time: a block decides the voxels above it in the next three levels alone
 (`kernels/levels.py`), so levels 1-3 are one launch over the noted blocks, levels 4-6 one over
@@ -41,6 +43,7 @@ MAX_LEVEL = 15
 LAYERS = {"log_odds": (wp.float32, np.nan)}
 # Noted block keys a map holds before a write recomputes its levels itself (8 MiB of keys).
 FLUSH_KEYS = 1 << 20
+ALL_CELLS = np.uint64(0xFFFF_FFFF_FFFF_FFFF)  # a block's cell mask when any of its 64 cells may have changed
 
 
 def check_level(level: int) -> int:
@@ -167,14 +170,16 @@ class Levels:
         self._noted, self._noted_keys, self._noted_distinct = [], 0, False
         self.extend(base, count)
 
-    def note(self, base: BlockStore, keys: np.ndarray, distinct: bool = False) -> None:
+    def note(self, base: BlockStore, keys: np.ndarray, cells: np.ndarray | None = None, distinct: bool = False) -> None:
         """Record that the level-0 blocks with packed keys `keys` (any order, repeats allowed,
-        released blocks included) were written; recomputed at the next `flush`. `distinct`:
-        the caller vouches that `keys` holds no repeats and no EMPTY_KEY (one integration
-        pass's blocks), so a flush of these keys alone need not sort them."""
+        released blocks included) were written; recomputed at the next `flush`. `cells` (K,)
+        uint64: per block, the 2x2x2 cells whose voxels changed (`kernels/levels.py`); None:
+        any of them. `distinct`: the caller vouches that `keys` holds no repeats and no
+        EMPTY_KEY (one integration pass's blocks), so a flush of these keys alone need not
+        sort them. The arrays are kept, not copied: the caller gives them up."""
         if not self.stores or len(keys) == 0:
             return
-        self._noted.append(np.asarray(keys, np.int64))
+        self._noted.append((np.asarray(keys, np.int64), None if cells is None else np.asarray(cells, np.uint64)))
         self._noted_distinct = distinct and len(self._noted) == 1
         self._noted_keys += len(keys)
         if self._noted_keys > FLUSH_KEYS:
@@ -185,27 +190,29 @@ class Levels:
         if not self._noted:
             return
         if self._noted_distinct:  # in any order: each block writes voxels no other block does
-            changed = self._noted[0]
+            changed, cells = self._noted[0]
         else:
-            changed = np.unique(np.concatenate(self._noted) if len(self._noted) > 1 else self._noted[0])
-            if len(changed) and changed[0] == EMPTY_KEY:  # sorted: EMPTY_KEY (-1) first, at most once
-                changed = changed[1:]
+            changed, cells = _merge_noted(self._noted)
         self._noted, self._noted_keys, self._noted_distinct = [], 0, False
         level, below = 0, base
         while level < self.count and len(changed):
             depth = min(3, self.count - level)
-            changed = self._fill(level, depth, below, changed)
+            changed = self._fill(level, depth, below, changed, cells)
+            cells = None  # a group above recomputes whole blocks
             level += depth
             below = self.store(level)
 
-    def _fill(self, level: int, depth: int, below: BlockStore, keys: np.ndarray) -> np.ndarray:
+    def _fill(
+        self, level: int, depth: int, below: BlockStore, keys: np.ndarray, cells: np.ndarray | None = None
+    ) -> np.ndarray:
         """Recompute, in levels level+1 .. level+depth, the voxels that the blocks `keys`
-        (distinct) of `below` (level `level`) decide; release coarse blocks left empty. Returns
-        the distinct keys of the level-(level+depth) blocks whose voxels changed."""
+        (distinct) of `below` (level `level`) decide, above their `cells` (`note`; None: all);
+        release coarse blocks left empty. Returns the distinct keys of the level-(level+depth)
+        blocks whose voxels changed."""
         if len(keys) == 0:
             return keys
         stores = [self.store(level + i) for i in range(1, depth + 1)]
-        flags = self._launch_fill(level, depth, below, stores, keys)
+        flags = self._launch_fill(level, depth, below, stores, keys, cells)
         # A block whose parents are not all there yet is flagged and left unwritten: its missing
         # parents are allocated and it is filled again. Most updates allocate nothing (the scan
         # mapped no new coarse block), and they pay no search for parents at all.
@@ -216,7 +223,9 @@ class Levels:
             for i in range(1, depth + 1):
                 if levels_missing >> (i - 1) & 1:
                     self._allocate(level + i, shift_keys(absent, i))
-            flags[missing] = self._launch_fill(level, depth, below, stores, absent)
+            flags[missing] = self._launch_fill(
+                level, depth, below, stores, absent, None if cells is None else cells[missing]
+            )
             if np.any(flags < 0):
                 raise RuntimeError(
                     f"coarse levels {level + 1}-{level + depth}: a parent block is missing (a vogjax bug)"
@@ -235,7 +244,9 @@ class Levels:
         """Blocks for the packed keys `keys` (repeats allowed) in `level`, where missing."""
         self.store(level).ensure_blocks(np.unique(keys))
 
-    def _launch_fill(self, level: int, depth: int, below: BlockStore, stores: list, keys: np.ndarray) -> np.ndarray:
+    def _launch_fill(
+        self, level: int, depth: int, below: BlockStore, stores: list, keys: np.ndarray, cells: np.ndarray | None
+    ) -> np.ndarray:
         """fill_levels_above_blocks over `keys`: the flags (len(keys),) int32, on the host."""
         padded = stores + [stores[-1]] * (3 - depth)  # levels past `depth` are neither read nor written
         arrays = [below.table_keys, below.table_slots, below.layers["log_odds"]]
@@ -245,8 +256,9 @@ class Levels:
         # a block is 512 reads: one scan's few dozen stay on one thread
         parts = parallel.num_parts(device, len(keys) * 8)
         if parts == 1 and not device.is_cuda:
-            return self._recorded_fill(level, depth, arrays, keys).copy()
+            return self._recorded_fill(level, depth, arrays, keys, cells).copy()
         d_keys = wp.array(keys, dtype=wp.int64, device=device)
+        d_cells = wp.array(np.full(len(keys), ALL_CELLS) if cells is None else cells, dtype=wp.uint64, device=device)
         flags = wp.empty(len(keys), dtype=wp.int32, device=device)
         edges = [len(keys) * part // parts for part in range(parts + 1)]
         counts = wp.array(np.diff(edges).astype(np.int32), dtype=wp.int32, device=device)
@@ -255,7 +267,7 @@ class Levels:
             wp.launch(
                 levels.fill_levels_above_blocks,
                 dim=hi - lo,
-                inputs=[d_keys[lo:hi], counts[part : part + 1], depth, *arrays],
+                inputs=[d_keys[lo:hi], d_cells[lo:hi], counts[part : part + 1], depth, *arrays],
                 outputs=[flags[lo:hi]],
                 device=device,
             )
@@ -263,7 +275,9 @@ class Levels:
         parallel.split_launch(fill, len(keys), parts)
         return flags.numpy()
 
-    def _recorded_fill(self, level: int, depth: int, arrays: list, keys: np.ndarray) -> np.ndarray:
+    def _recorded_fill(
+        self, level: int, depth: int, arrays: list, keys: np.ndarray, cells: np.ndarray | None
+    ) -> np.ndarray:
         """fill_levels_above_blocks on a CPU, one thread, its launch replayed (`replay.Replay`):
         an update after every scan is one launch of a few dozen blocks, where packing sixteen
         arguments costs as much as the kernel. Returns the flags (len(keys),), a view of its
@@ -272,18 +286,21 @@ class Levels:
         if cached is None or len(cached[1]) < len(keys):
             capacity = max(len(keys), 2 * len(cached[1]) if cached else 0, 256)
             d_keys = wp.empty(capacity, dtype=wp.int64, device=self.device)
+            d_cells = wp.empty(capacity, dtype=wp.uint64, device=self.device)
             count = wp.zeros(1, dtype=wp.int32, device=self.device)
             flags = wp.empty(capacity, dtype=wp.int32, device=self.device)
             replay = Replay(levels.fill_levels_above_blocks, self.device)
-            cached = (replay, d_keys.numpy(), count.numpy(), flags.numpy(), (d_keys, count, flags))
+            host = (d_keys.numpy(), d_cells.numpy(), count.numpy(), flags.numpy())
+            cached = (replay, *host, (d_keys, d_cells, count, flags))
             self._launches[level] = cached
-        replay, host_keys, host_count, host_flags, (d_keys, count, flags) = cached
+        replay, host_keys, host_cells, host_count, host_flags, (d_keys, d_cells, count, flags) = cached
         host_keys[: len(keys)] = keys
+        host_cells[: len(keys)] = ALL_CELLS if cells is None else cells
         host_count[0] = len(keys)
         # threads past count[0] return at once: a dimension rounded up to a power of two is
         # rarely set anew, where setting it costs as much as a few dozen idle threads
         dim = min(1 << (len(keys) - 1).bit_length(), len(host_keys))
-        replay(dim, [d_keys, count, depth, *arrays], [flags])
+        replay(dim, [d_keys, d_cells, count, depth, *arrays], [flags])
         return host_flags[: len(keys)]
 
     def _release_empty(self, store: BlockStore, keys: np.ndarray) -> None:
@@ -300,6 +317,23 @@ class Levels:
         empty = holds.numpy() == 0
         if empty.any():
             store.release(store.find(d_keys).numpy()[empty])
+
+
+def _merge_noted(noted: list) -> tuple[np.ndarray, np.ndarray | None]:
+    """The distinct keys (sorted, EMPTY_KEY dropped) of noted (keys, cells) pairs, each with
+    the union of its cells (None when no pair had cells: all of them)."""
+    keys = np.concatenate([k for k, _ in noted]) if len(noted) > 1 else noted[0][0]
+    if all(c is None for _, c in noted):
+        distinct, cells = np.unique(keys), None
+    else:
+        every = np.concatenate([np.full(len(k), ALL_CELLS) if c is None else c for k, c in noted])
+        distinct, inverse = np.unique(keys, return_inverse=True)
+        cells = np.zeros(len(distinct), np.uint64)
+        np.bitwise_or.at(cells, inverse, every)
+    if len(distinct) and distinct[0] == EMPTY_KEY:  # sorted: EMPTY_KEY (-1) first, at most once
+        distinct = distinct[1:]
+        cells = None if cells is None else cells[1:]
+    return distinct, cells
 
 
 def _live_keys(store: BlockStore) -> np.ndarray:

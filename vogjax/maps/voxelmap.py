@@ -147,10 +147,13 @@ class VoxelMap(BlockMap):
                 touched,
             )
             self.revision += 1
-            if touched and len(touched) == 1:  # one pass: its blocks are distinct
-                self._values_changed(touched[0], distinct=True)
+            if not touched:  # no levels kept, or nothing written
+                self._values_changed(np.zeros(0, np.int64))
+            elif len(touched) == 1:  # one pass: its blocks are distinct
+                self._values_changed(*touched[0], distinct=True)
             else:
-                self._values_changed(np.concatenate(touched) if touched else np.zeros(0, np.int64))
+                keys, cells = zip(*touched)
+                self._values_changed(np.concatenate(keys), np.concatenate(cells))
 
     # ---------------------------------------------------------------- files
     def save(self, path: str | os.PathLike) -> None:
