@@ -24,7 +24,7 @@ are plain read-modify-writes. The replay ORs the parts' marks of a block before 
 import warp as wp
 
 from .hashing import BLOCK_VOXELS, EMPTY_KEY, block_of, first_probe, index_in_block, observed, pack_block
-from .levels import same_value
+from .levels import cell_bit, same_value
 from .traversal import VoxelWalk, norm_like_octomap, segment_continues, segment_walk_begin, voxel_key, walk_step
 
 wp.set_module_options({"enable_backward": False})
@@ -364,12 +364,11 @@ def value_before(slot: int, log_odds: wp.array(dtype=wp.float32)) -> wp.float32:
 def note_changed_cell(
     u: int, voxel: int, before: wp.float32, after: wp.float32, record: int, cell_masks: wp.array(dtype=wp.uint64)
 ):
-    """With `record`, set in cell_masks[u] the bit of the voxel's 2x2x2 cell (bit
-    (x >> 1) * 16 + (y >> 1) * 4 + (z >> 1)) when its log-odds changed bits: the cells the
-    coarse levels must recompute (`kernels/levels.py`)."""
+    """With `record`, set in cell_masks[u] the bit of the 2x2x2 cell of voxel number `voxel`
+    (`index_in_block`) when its log-odds changed bits: the cells the coarse levels must
+    recompute (`levels.cell_bit`)."""
     if record != 0 and not same_value(before, after):
-        cell = ((voxel >> 7) << 4) | (((voxel >> 4) & 3) << 2) | ((voxel >> 1) & 3)
-        wp.atomic_or(cell_masks, u, wp.uint64(1) << wp.uint64(cell))
+        wp.atomic_or(cell_masks, u, cell_bit(wp.vec3i(voxel >> 6, (voxel >> 3) & 7, voxel & 7)))
 
 
 @wp.func

@@ -66,9 +66,11 @@ def octant(corner: wp.vec3i, o: int, size: int) -> wp.vec3i:
 
 
 @wp.func
-def cell_bit(cube: wp.vec3i) -> wp.uint64:
-    """The bit of the 2x2x2 cell at voxel `cube` (even coordinates) in a block's cell mask."""
-    return wp.uint64(1) << wp.uint64((cube[0] >> 1) * 16 + (cube[1] >> 1) * 4 + (cube[2] >> 1))
+def cell_bit(voxel: wp.vec3i) -> wp.uint64:
+    """The bit, in a block's cell mask, of the 2x2x2 cell holding `voxel` (coordinates in the
+    block, 0-7): (x >> 1) * 16 + (y >> 1) * 4 + (z >> 1). Integration sets it
+    (`integration.note_changed_cell`), the fill reads it."""
+    return wp.uint64(1) << wp.uint64((voxel[0] >> 1) * 16 + (voxel[1] >> 1) * 4 + (voxel[2] >> 1))
 
 
 @wp.func
@@ -111,9 +113,8 @@ def fill_levels_above_blocks(
     """From the blocks with packed keys `keys` (distinct; a key absent from the table: a block of
     unobserved voxels), the voxels they decide in the `depth` (1-3) levels above, whose blocks are
     all in their tables (_1: one level up, ...; a level beyond `depth` is not read or written).
-    cells[tid]: the block's 2x2x2 cells whose voxels may have changed (bit (x >> 1) * 16 +
-    (y >> 1) * 4 + (z >> 1), as `integration.note_changed_cell` sets them); the voxels above
-    the others hold their values already and are read, not recomputed.
+    cells[tid]: the block's 2x2x2 cells whose voxels may have changed (`cell_bit`); the voxels
+    above the others hold their values already and are read, not recomputed.
     One thread per block, for the first count[0] keys (a launch recorded once serves any
     number up to its size); flags[tid] as REGION_OBSERVED and LEVEL_CHANGED say, or, when a
     parent block is missing, -1 - m with bit i - 1 of m set where the one i levels up is: nothing

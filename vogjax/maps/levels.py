@@ -119,7 +119,7 @@ class Levels:
         self.device = device
         self.releases = releases
         self.stores: list[BlockStore] = []
-        self._noted: list[np.ndarray] = []
+        self._noted: list[tuple[np.ndarray, np.ndarray | None]] = []  # (keys, cells) per note
         self._noted_keys = 0
         self._noted_distinct = False  # the one array noted is vouched distinct (`note`)
         self._launches: dict = {}  # group's first level -> its replayed launch and buffers (_recorded_fill)
