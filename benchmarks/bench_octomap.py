@@ -137,26 +137,38 @@ def maintenance(origins, points, scan, device, chunk: int) -> tuple[dict, list]:
     return row, maps
 
 
-def rays_by_level(vmap, count: int, repeats: int, lengths=RAY_LENGTHS_M) -> list:
+def rays_by_level(vmap, count: int, repeats: int, lengths=RAY_LENGTHS_M, levels=range(4)) -> list:
+    """The same rays cast at each level: the levels take turns within each of `repeats` rounds
+    (the first level rotating), so a change of load on the machine hits every level alike; the
+    speed-up is the median over rounds of each round's level-0 time over the level's."""
     origins, directions = planner_rays(vmap, count, rng=0)
+    levels = list(levels)
     rows = []
     for length in lengths:
-        fine = None
-        for level in range(4):
+        results, runs = {}, {level: [] for level in levels}
+        for level in levels:
             vmap.raycast(origins[:16], directions[:16], length, level=level)  # kernels loaded, tables built
-            seconds, runs, result = timed(lambda: vmap.raycast(origins, directions, length, level=level), repeats)
-            if level == 0:
-                fine = result
-            hits = fine.hit
+        for round_ in range(repeats):
+            for k in range(len(levels)):
+                level = levels[(k + round_) % len(levels)]
+                cast = lambda level=level: vmap.raycast(origins, directions, length, level=level)  # noqa: E731
+                seconds, _, results[level] = timed(cast)
+                runs[level].append(seconds)
+        fine = results[0]
+        hits = fine.hit
+        for level in levels:
+            result = results[level]
             later = hits & (~result.hit | (result.distance > fine.distance + 1e-5))
+            ratios = [a / b for a, b in zip(runs[0], runs[level])]
             rows.append(
                 {
                     "ray_length_m": length,
                     "level": level,
                     "voxel_m": vmap.config.voxel_size * 2**level,
-                    "seconds": seconds,
-                    "runs_s": runs,
-                    "speedup_vs_level_0": None,
+                    "seconds": statistics.median(runs[level]),
+                    "runs_s": runs[level],
+                    "speedup_vs_level_0": statistics.median(ratios),
+                    "speedup_range": [min(ratios), max(ratios)],
                     "same_hit_or_miss": float(np.mean(result.hit == fine.hit)),
                     "hit_fraction": float(result.hit.mean()),
                     "level_0_hits_missed_or_later": int(later.sum()),
@@ -166,10 +178,6 @@ def rays_by_level(vmap, count: int, repeats: int, lengths=RAY_LENGTHS_M) -> list
                     "mean_voxels_walked": float(np.mean(result.num_free + result.num_unknown)),
                 }
             )
-        base = next(r["seconds"] for r in rows if r["ray_length_m"] == length and r["level"] == 0)
-        for r in rows:
-            if r["ray_length_m"] == length:
-                r["speedup_vs_level_0"] = base / r["seconds"]
     return rows
 
 
