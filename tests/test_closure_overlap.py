@@ -100,3 +100,40 @@ def test_an_unrelated_cloud_fails_the_self_referenced_overlap_with_its_figure():
     accepted, rejected = _detect(room, clutter, config)
     assert not accepted and [r.reason for r in rejected] == ["overlap"]
     assert rejected[0].value < 0.5 and rejected[0].limit == 0.5
+
+
+def test_self_scores_kept_across_detections_give_the_same_closures(monkeypatch):
+    """A detector scores each cloud once (by its values) however often it is a candidate, and
+    finds what a fresh detector finds each time; a cloud whose values change is scored again."""
+    from vogjax.slam import loop_closure
+
+    rng = np.random.default_rng(6)
+    room = structured_cloud(rng, 3000)
+    clouds = [room, room[:1], room[room[:, 0] < 3.0], room[:1], room[room[:, 1] < 3.0]]
+    bounds = [(c.min(axis=0) - 0.1, c.max(axis=0) + 0.1) for c in clouds]
+    poses = np.stack([np.eye(4)] * len(clouds))
+    poses[[1, 3], :3, 3] = [50.0, 0.0, 0.0]  # far away: never candidates
+    times = np.arange(len(clouds), dtype=float)
+    noise = NavNoise(sigma2_x=1e-4, sigma2_y=1e-4, sigma2_yaw=1e-6)
+    config = slam.LoopClosureConfig(
+        overlap_reference="self", min_overlap_score=0.5, icp=slam.IcpConfig(free="yaw"), max_fitness_m2=1.0
+    )
+    scored = []
+    real = loop_closure.self_score
+    monkeypatch.setattr(loop_closure, "self_score", lambda cloud, cfg: scored.append(len(cloud)) or real(cloud, cfg))
+    keeping = slam.LoopClosureDetector(noise, config)
+
+    def figures(found):
+        return [(c.i, c.k, c.overlap, c.T_i_k.tobytes()) for c in found[0]], [(r.i, r.k, r.value) for r in found[1]]
+
+    for k, moved, scores in ((2, False, 2), (4, False, 1), (4, True, 1)):
+        if moved:  # the target shared by every call: its values moved by a micrometre
+            clouds[0] = clouds[0] + 1e-6
+        found = keeping.candidates(k, clouds, bounds, poses)
+        assert 0 in found
+        before = len(scored)
+        kept = keeping.detect(k, clouds, bounds, poses, poses, times)
+        assert len(scored) - before == scores  # only the clouds it has not scored yet
+        fresh = slam.LoopClosureDetector(noise, config).detect(k, clouds, bounds, poses, poses, times)
+        assert len(scored) - before - scores == 1 + len(found)  # the source and every target
+        assert figures(kept) == figures(fresh) and kept[0]

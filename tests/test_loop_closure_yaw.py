@@ -101,7 +101,8 @@ def test_a_yaw_further_off_than_the_yaw_noise_allows_is_rejected_with_its_figure
     assert rejected[0].value == pytest.approx(0.03, abs=5e-3)
 
 
-@pytest.mark.parametrize("spread_m", [5.0, 1e17])  # packed keys, and keys too far apart to pack
+# counted into the keys' box, packed keys sorted, and keys too far apart to pack
+@pytest.mark.parametrize("spread_m", [5.0, 500.0, 1e17])
 def test_registration_clouds_are_the_voxel_means_bit_for_bit(spread_m):
     from vogjax.pipeline.mapper import voxel_means
 

@@ -546,3 +546,46 @@ def test_align_xy_yaw_recovers_a_rigid_motion_and_beats_every_other_yaw(seed):
         turned = noisy[:, :2] @ R.T
         shift = reference[:, :2].mean(axis=0) - turned.mean(axis=0)  # the best shift for this yaw
         assert np.sum((turned + shift - reference[:, :2]) ** 2) >= best - 1e-9
+
+
+@pytest.mark.parametrize("shape", [(7, 3), (4, 50, 3)])
+def test_point_to_plane_jacobian_equals_the_cross_product_form_bit_for_bit(shape):
+    """ICP's J = [p x R^T n, R^T n]: written out component by component, the same bits as
+    np.cross and np.concatenate give (which ICP used before), for one pair and a batch."""
+    import importlib
+
+    icp_module = importlib.import_module("vogjax.slam.icp")
+    rng = np.random.default_rng(11)
+    source, moved, matched, normals = (rng.normal(size=shape) * 10.0 for _ in range(4))
+    rotation = Rotation.random(shape[0] if len(shape) == 3 else None, random_state=3).as_matrix()
+    J, residuals = icp_module._plane_system(moved, rotation, source, matched, normals)
+    n_rotated = np.einsum("...ni,...ij->...nj", normals, rotation)
+    expected = np.concatenate([np.cross(source, n_rotated), n_rotated], axis=-1)
+    assert J.shape == expected.shape
+    np.testing.assert_array_equal(J, expected)
+    np.testing.assert_array_equal(residuals, np.einsum("...ni,...ni->...n", normals, moved - matched))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fft_windows_equal_the_transforms_padded_by_scipy_bit_for_bit(seed):
+    """The source's counts laid out on the padded grid give the windows scipy's own zero padding
+    (`s=`) gives, to the bit, at every yaw."""
+    from scipy import fft
+
+    from vogjax.slam import correlative
+
+    rng = np.random.default_rng(seed)
+    target = structured_cloud(rng, 1500)
+    source = target[rng.random(len(target)) < 0.5] + [*rng.uniform(-0.3, 0.3, 2), 0.0]
+    config = slam.CorrelativeConfig(yaw_step_rad=0.004)
+    plan = correlative._plan(source, target, np.eye(4), 0.8, 0.01, config)
+    shape = plan.field.shape
+    fft_shape = (fft.next_fast_len(shape[0]), fft.next_fast_len(shape[1], real=True))
+    field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
+    windows = list(correlative._fft_windows(plan))
+    assert len(windows) == len(plan.yaws) > 1
+    for n, window in enumerate(windows):
+        counts = np.zeros(shape, np.float32)
+        np.add.at(counts, tuple(plan.cells(n).T), 1.0)
+        spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1))) * field_spectrum).sum(axis=2)
+        np.testing.assert_array_equal(window, correlative._window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells))

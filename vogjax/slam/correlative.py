@@ -303,11 +303,13 @@ def _fft_windows(plan: _Plan):
     layer_shape = plan.field.shape
     fft_shape = (fft.next_fast_len(layer_shape[0]), fft.next_fast_len(layer_shape[1], real=True))
     field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
+    # the source's counts laid out on the padded grid at once: the same zeros the FFT would pad
+    counts_shape = (*fft_shape, layer_shape[2])
     for n in range(len(plan.yaws)):
         cells = plan.cells(n)
-        counts = np.bincount(np.ravel_multi_index(cells.T, layer_shape), minlength=int(np.prod(layer_shape)))
-        counts = counts.reshape(layer_shape).astype(np.float32)
-        spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1))) * field_spectrum).sum(axis=2)
+        counts = np.bincount(np.ravel_multi_index(cells.T, counts_shape), minlength=int(np.prod(counts_shape)))
+        counts = counts.reshape(counts_shape).astype(np.float32)
+        spectrum = (np.conj(fft.rfft2(counts, axes=(0, 1))) * field_spectrum).sum(axis=2)
         yield _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
 
 

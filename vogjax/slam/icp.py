@@ -173,8 +173,16 @@ def _plane_system(moved, rotation, source, matched, normals):
     (..., 3, 3) is T's."""
     residuals = np.einsum("...ni,...ni->...n", normals, moved - matched)
     n_rotated = np.einsum("...ni,...ij->...nj", normals, rotation)  # n^T R
-    d_omega = np.cross(source, n_rotated)  # n^T R (-[p]x) = (p x R^T n)^T
-    return np.concatenate([d_omega, n_rotated], axis=-1), residuals
+    J = np.empty((*n_rotated.shape[:-1], 6))
+    # n^T R (-[p]x) = (p x R^T n)^T, the cross product as np.cross forms it (the same bits,
+    # without its axis handling, which cost a sonar run's ICP a tenth of its time)
+    p0, p1, p2 = source[..., 0], source[..., 1], source[..., 2]
+    r0, r1, r2 = n_rotated[..., 0], n_rotated[..., 1], n_rotated[..., 2]
+    J[..., 0] = p1 * r2 - p2 * r1
+    J[..., 1] = p2 * r0 - p0 * r2
+    J[..., 2] = p0 * r1 - p1 * r0
+    J[..., 3:] = n_rotated
+    return J, residuals
 
 
 def icp(

@@ -3,9 +3,10 @@
 For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
 centroid of k's cloud (moved by the current relative estimate) is a candidate; the nearest few
 are aligned. The aligner (`ALIGNERS`, chosen by `LoopClosureConfig.aligner`; called with the
-pairs, the settings, a dict for its phases' seconds and the detector's device) turns a candidate
-pair into an `Alignment`; the default, `correlative_then_icp`, searches x, y and yaw over the
-navigation's possible drift first (`correlative.py`: navigation can drift metres between two
+pairs, the settings, a dict for its phases' seconds, the detector's device and a dict it may keep
+figures of clouds in from one call to the next) turns a candidate pair into an `Alignment`;
+the default, `correlative_then_icp`, searches x, y and yaw over the navigation's possible drift
+first (`correlative.py`: navigation can drift metres between two
 visits, beyond ICP's reach) and refines the peak with ICP. The detector then accepts or
 rejects each alignment by the same criteria whatever the aligner: enough overlap, an
 unambiguous peak, ICP converged near it with a low fitness and enough of the source matched,
@@ -26,6 +27,7 @@ too large to call the closure right or wrong.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import time
 from collections.abc import Sequence
 
@@ -82,6 +84,9 @@ class LoopClosure:
     ambiguity: float = np.nan
     distance: float = np.nan
 
+
+# The self-scores a detector keeps for its aligner before it starts afresh (one per submap cloud)
+MAX_KEPT_SCORES = 4096
 
 REASONS = (
     "overlap",
@@ -146,11 +151,15 @@ class Alignment:
     ambiguity: float
 
 
-def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, device=None) -> list[Alignment]:
+def correlative_then_icp(
+    pairs: list, config: LoopClosureConfig, seconds: dict, device=None, kept: dict | None = None
+) -> list[Alignment]:
     """The default aligner. pairs: (source (N,3), target (an IcpTarget: submap i's cloud
     prepared once for every alignment it takes part in), T_init (4,4), radius_m,
     yaw_radius_rad) per candidate, source = submap k's cloud; `seconds` collects the time per
-    phase; device: where the searches and ICP's neighbour queries run (None: on the host)."""
+    phase; device: where the searches and ICP's neighbour queries run (None: on the host);
+    `kept`: the clouds' self-scores by content, kept across calls (a submap's cloud is a target
+    for many later ones)."""
     start = time.perf_counter()
     seeds = correlative_xyh_batch(
         [
@@ -160,7 +169,7 @@ def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, 
         config.correlative,
         device,
     )
-    overlaps = _overlaps(pairs, seeds, config)
+    overlaps = _overlaps(pairs, seeds, config, kept)
     seconds["correlative_search"] = seconds.get("correlative_search", 0.0) + time.perf_counter() - start
     # too little overlap, or as good a match elsewhere: nothing trustworthy for ICP to refine
     refine = [
@@ -186,20 +195,26 @@ def correlative_then_icp(pairs: list, config: LoopClosureConfig, seconds: dict, 
     return [Alignment(refined.get(n), seed.T_target_source, overlaps[n], seed.ratio) for n, seed in enumerate(seeds)]
 
 
-def _overlaps(pairs: list, seeds: list, config: LoopClosureConfig) -> list[float]:
+def _overlaps(pairs: list, seeds: list, config: LoopClosureConfig, kept: dict | None = None) -> list[float]:
     """Each pair's overlap, the figure `min_overlap_score` gates: its peak's score as it is
     ("absolute"), or ("self") the larger of the shares of a complete overlap each cloud reaches
     on the other at the peak: the peak's score over the source's self-score, and the target's
     points scored on the source's field over the target's self-score (a short submap's cloud
-    explains little of a long one's, however well the two match where they overlap)."""
+    explains little of a long one's, however well the two match where they overlap). A cloud's
+    self-score is looked up in `kept` by its values and the search's settings, and kept there."""
     if config.overlap_reference == "absolute":
         return [seed.score for seed in seeds]
-    references: dict[int, float] = {}
+    references = {} if kept is None else kept
+    if len(references) > MAX_KEPT_SCORES:
+        references.clear()
 
     def reference(cloud: np.ndarray) -> float:
-        if id(cloud) not in references:
-            references[id(cloud)] = self_score(cloud, config.correlative)
-        return references[id(cloud)]
+        values = np.ascontiguousarray(cloud)
+        key = (values.dtype.str, values.shape, hashlib.blake2b(values.tobytes(), digest_size=16).digest())
+        key += (config.correlative,)
+        if key not in references:
+            references[key] = self_score(cloud, config.correlative)
+        return references[key]
 
     out = []
     for (source, target, *_), seed in zip(pairs, seeds):
@@ -263,6 +278,7 @@ class LoopClosureDetector:
         self.device = None if device is None else devices.resolve(device)
         self.seconds = {"correlative_search": 0.0, "icp": 0.0}  # per phase, in the last detect call
         self._targets: dict[int, IcpTarget] = {}  # submap -> its cloud, prepared for ICP
+        self._kept: dict = {}  # the aligner's figures of clouds, from one detect call to the next
 
     def _target(self, i: int, cloud: np.ndarray) -> IcpTarget:
         """Submap i's cloud prepared for ICP once: kept while the same values (compared point by
@@ -385,7 +401,7 @@ class LoopClosureDetector:
                     yaw_radius,
                 )
             )
-        alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device)
+        alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device, self._kept)
         for i, alignment, bound in zip(found, alignments, bounds_m):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
             result = alignment.icp
