@@ -589,3 +589,50 @@ def test_fft_windows_equal_the_transforms_padded_by_scipy_bit_for_bit(seed):
         np.add.at(counts, tuple(plan.cells(n).T), 1.0)
         spectrum = (np.conj(fft.rfft2(counts, s=fft_shape, axes=(0, 1))) * field_spectrum).sum(axis=2)
         np.testing.assert_array_equal(window, correlative._window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells))
+
+
+def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
+    """The yaws of a search and the pairs of an ICP iteration on two threads (every search and
+    batch, however small): the same matches and alignments, bit for bit, as one at a time."""
+    import importlib
+
+    from vogjax.slam import correlative, threads
+
+    icp_module = importlib.import_module("vogjax.slam.icp")
+    rng = np.random.default_rng(12)
+    target = structured_cloud(rng, 2000)
+    sources, T_inits = [], []
+    for _ in range(4):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", rng.uniform(-0.02, 0.02)).as_matrix()
+        T[:3, 3] = [*rng.uniform(-0.3, 0.3, 2), 0.0]
+        sources.append((target[rng.random(len(target)) < 0.4] - T[:3, 3]) @ T[:3, :3])
+        T_inits.append(np.eye(4))
+    searches = [(s, target, T, 0.6, 0.03) for s, T in zip(sources, T_inits)]
+    config = slam.CorrelativeConfig(yaw_step_rad=0.004)
+    calls = []
+
+    def run(two_threads: bool):
+        monkeypatch.setattr(threads, "THREADS", 2 if two_threads else 1)
+        monkeypatch.setattr(correlative, "THREADED_GRID_CELLS", 0)
+        monkeypatch.setattr(icp_module, "THREADED_QUERY_POINTS", 0)
+        matches = slam.correlative_xyh_batch(searches, config)
+        seeds = [m.T_target_source for m in matches]
+        return matches, slam.icp_batch(sources, [target] * len(sources), seeds, config=slam.IcpConfig(free="all"))
+
+    real = threads.ordered_map
+
+    def counted(function, items, parallel=True):
+        calls.append(threads.THREADS)
+        return real(function, items, parallel)
+
+    monkeypatch.setattr(threads, "ordered_map", counted)
+    one, two = run(False), run(True)
+    assert 2 in calls and 1 in calls
+    for a, b in zip(one[0], two[0], strict=True):
+        assert np.array_equal(a.T_target_source, b.T_target_source)
+        assert (a.score, a.runner_up) == (b.score, b.runner_up)
+    for a, b in zip(one[1], two[1], strict=True):
+        assert np.array_equal(a.T_target_source, b.T_target_source)
+        assert (a.fitness, a.iterations) == (b.fitness, b.iterations)
+    assert list(threads.ordered_map(lambda x: x * x, range(50))) == [x * x for x in range(50)]

@@ -21,6 +21,7 @@ from vogjax import devices
 from vogjax.config import CorrelativeConfig
 from vogjax.geometry import rigid_pose, rotation_from_ypr
 from vogjax.kernels import registration
+from vogjax.slam import threads
 from vogjax.validation import real_array
 
 # Bounds on one search: its grid (float32, plus its FFT), and its work, grid cells times yaw
@@ -294,23 +295,31 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
     )
 
 
+# A search's yaws are scored on two threads from this many cells of the padded grid
+THREADED_GRID_CELLS = 1 << 18
+
+
 def _fft_windows(plan: _Plan):
     """Each yaw's scores over the offsets, by FFT: score(d) = sum_x counts(x) field(x + d) for
     every x-y offset d at once. The transforms run on x-y sizes FFTs are fast at: the padding
     only adds zeros beyond a grid whose margins already keep every window offset from wrapping.
     One thread per transform: on grids of these sizes more threads cost more than they save (the
-    bits are the same)."""
+    bits are the same); the yaws take two threads (`threads.ordered_map`), in order."""
     layer_shape = plan.field.shape
     fft_shape = (fft.next_fast_len(layer_shape[0]), fft.next_fast_len(layer_shape[1], real=True))
     field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
     # the source's counts laid out on the padded grid at once: the same zeros the FFT would pad
     counts_shape = (*fft_shape, layer_shape[2])
-    for n in range(len(plan.yaws)):
+
+    def window(n: int) -> np.ndarray:
         cells = plan.cells(n)
         counts = np.bincount(np.ravel_multi_index(cells.T, counts_shape), minlength=int(np.prod(counts_shape)))
         counts = counts.reshape(counts_shape).astype(np.float32)
         spectrum = (np.conj(fft.rfft2(counts, axes=(0, 1))) * field_spectrum).sum(axis=2)
-        yield _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
+        return _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
+
+    large = float(np.prod(counts_shape)) >= THREADED_GRID_CELLS
+    return threads.ordered_map(window, range(len(plan.yaws)), parallel=large)
 
 
 def _device_windows(plans: list[_Plan], device):

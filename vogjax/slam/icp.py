@@ -25,6 +25,7 @@ from vogjax import devices
 from vogjax.config import IcpConfig
 from vogjax.geometry import exp_se3, rigid_poses
 from vogjax.kernels import registration
+from vogjax.slam import threads
 from vogjax.validation import real_array
 
 MAX_COORDINATE_M = 1e7  # clouds farther out lose their metres in float64 squares
@@ -381,14 +382,24 @@ def _returned(
     return back
 
 
+# An ICP iteration's neighbour queries run on two threads from this many points in all
+THREADED_QUERY_POINTS = 16_384
+
+
 def _tree_neighbours(trees: list, max_distance_m: float):
     """nearest(pairs, moved): per pair, the index of each moved point's nearest target point
     within max_distance_m, -1 where there is none, from the pair's k-d tree."""
 
+    def one(pair_points):
+        pair, points = pair_points
+        distance, index = trees[pair].query(points, distance_upper_bound=max_distance_m)
+        return np.where(np.isfinite(distance), index, -1)
+
     def nearest(pairs, moved):
-        for pair, points in zip(pairs, moved):
-            distance, index = trees[pair].query(points, distance_upper_bound=max_distance_m)
-            yield np.where(np.isfinite(distance), index, -1)
+        # the pairs' queries two at a time where they are large (a lidar submap's tens of
+        # thousands of points; a sonar swath's few hundred query faster than a hand-off)
+        large = sum(len(points) for points in moved) >= THREADED_QUERY_POINTS
+        return threads.ordered_map(one, zip(pairs, moved), parallel=large)
 
     return nearest
 
