@@ -73,3 +73,28 @@ def test_a_part_that_splits_again_runs_its_parts_without_deadlocking_the_pool():
     worker.start()
     assert done.wait(timeout=30), "nested split launches deadlocked"
     assert sorted(seen) == sorted([(2 * i, 2 * i + 2) for i in range(4)] * outer)
+
+
+def _covered_in_child(count: int) -> list:
+    covered = []
+    lock = threading.Lock()
+
+    def launch(part, lo, hi):
+        with lock:
+            covered.extend(range(lo, hi))
+
+    parallel.split_launch(launch, count, 4)
+    return sorted(covered)
+
+
+def test_a_forked_child_splits_launches_on_threads_of_its_own():
+    """A parent's launch threads do not survive a fork: a child (multiprocessing's default on
+    Linux) splits its launches on a pool of its own instead of waiting on dead threads."""
+    import multiprocessing
+    import sys
+
+    if sys.platform == "win32":
+        pytest.skip("no fork")
+    assert _covered_in_child(100) == list(range(100))  # the parent's pool exists now
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply_async(_covered_in_child, (100,)).get(timeout=60) == list(range(100))

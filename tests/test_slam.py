@@ -636,3 +636,23 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
         assert np.array_equal(a.T_target_source, b.T_target_source)
         assert (a.fitness, a.iterations) == (b.fitness, b.iterations)
     assert list(threads.ordered_map(lambda x: x * x, range(50))) == [x * x for x in range(50)]
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="fork")
+def test_a_forked_child_registers_on_threads_of_its_own():
+    """The registration threads of a parent that forks are not the child's: a child's two-thread
+    map runs (on a pool of its own) and returns in order, instead of waiting on dead threads."""
+    import multiprocessing
+
+    from vogjax.slam import threads
+
+    assert list(threads.ordered_map(abs, [-1, -2, -3])) == [1, 2, 3]  # the parent's pool exists
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        assert pool.apply_async(_squares_on_threads, (6,)).get(timeout=60) == [0, 1, 4, 9, 16, 25]
+
+
+def _squares_on_threads(count: int) -> list:
+    from vogjax.slam import threads
+
+    return list(threads.ordered_map(lambda x: x * x, range(count)))

@@ -21,6 +21,15 @@ CPU_THREADS = min(os.cpu_count() or 1, 8)
 _executor: concurrent.futures.ThreadPoolExecutor | None = None
 
 
+def _forget_executor() -> None:
+    # a forked child inherits the pool but not its threads (its launches would wait forever)
+    global _executor
+    _executor = None
+
+
+os.register_at_fork(after_in_child=_forget_executor)
+
+
 def num_parts(device, count: int) -> int:
     """How many parts a launch over `count` items is split into on `device`."""
     if device.is_cuda:

@@ -3,11 +3,11 @@
 For a new submap k, each earlier non-adjacent submap i with enough points whose box holds the
 centroid of k's cloud (moved by the current relative estimate) is a candidate; the nearest few
 are aligned. The aligner (`ALIGNERS`, chosen by `LoopClosureConfig.aligner`; called with the
-pairs, the settings, a dict for its phases' seconds, the detector's device and a dict it may keep
-figures of clouds in from one call to the next) turns a candidate pair into an `Alignment`;
-the default, `correlative_then_icp`, searches x, y and yaw over the navigation's possible drift
-first (`correlative.py`: navigation can drift metres between two
-visits, beyond ICP's reach) and refines the peak with ICP. The detector then accepts or
+pairs, the settings, a dict for its phases' seconds, the detector's device and a dict it may
+keep figures of clouds in from one call to the next) turns a candidate pair into an
+`Alignment`; the default, `correlative_then_icp`, searches x, y and yaw over the navigation's
+possible drift first (`correlative.py`: navigation can drift metres between two visits, beyond
+ICP's reach) and refines the peak with ICP. The detector then accepts or
 rejects each alignment by the same criteria whatever the aligner: enough overlap, an
 unambiguous peak, ICP converged near it with a low fitness and enough of the source matched,
 and a result within the navigation's possible drift of the odometry relative pose. Degenerate

@@ -20,6 +20,15 @@ _pool: concurrent.futures.ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
+def _forget_pool() -> None:
+    # a forked child inherits the pool but not its threads: it makes its own
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
 def ordered_map(function: Callable, items: Iterable, parallel: bool = True) -> Iterator:
     """function(item) for each item, in order, two at a time where there are two cores, two
     items or more and `parallel` (the caller's judgement that each item is worth a hand-off to a
