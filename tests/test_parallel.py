@@ -87,6 +87,8 @@ def _covered_in_child(count: int) -> list:
     return sorted(covered)
 
 
+# the child runs plain Python threads, none of JAX's, which the warning is about
+@pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
 def test_a_forked_child_splits_launches_on_threads_of_its_own():
     """A parent's launch threads do not survive a fork: a child (multiprocessing's default on
     Linux) splits its launches on a pool of its own instead of waiting on dead threads."""

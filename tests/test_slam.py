@@ -639,6 +639,8 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="fork")
+# the child runs plain Python threads, none of JAX's, which the warning is about
+@pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
 def test_a_forked_child_registers_on_threads_of_its_own():
     """The registration threads of a parent that forks are not the child's: a child's two-thread
     map runs (on a pool of its own) and returns in order, instead of waiting on dead threads."""
