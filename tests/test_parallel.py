@@ -75,7 +75,7 @@ def test_a_part_that_splits_again_runs_its_parts_without_deadlocking_the_pool():
     assert sorted(seen) == sorted([(2 * i, 2 * i + 2) for i in range(4)] * outer)
 
 
-def _covered_in_child(count: int) -> list:
+def _covered_in_child(count: int) -> tuple:
     covered = []
     lock = threading.Lock()
 
@@ -84,19 +84,36 @@ def _covered_in_child(count: int) -> list:
             covered.extend(range(lo, hi))
 
     parallel.split_launch(launch, count, 4)
-    return sorted(covered)
+    return sorted(covered), list(parallel.ordered_map(abs, range(-count, 0)))
 
 
 # the child runs plain Python threads, none of JAX's, which the warning is about
 @pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
 def test_a_forked_child_splits_launches_on_threads_of_its_own():
     """A parent's launch threads do not survive a fork: a child (multiprocessing's default on
-    Linux) splits its launches on a pool of its own instead of waiting on dead threads."""
+    Linux) splits its launches and maps its work on a pool of its own instead of waiting on dead
+    threads."""
     import multiprocessing
     import sys
 
     if sys.platform == "win32":
         pytest.skip("no fork")
-    assert _covered_in_child(100) == list(range(100))  # the parent's pool exists now
+    expected = (list(range(100)), list(range(100, 0, -1)))
+    assert _covered_in_child(100) == expected  # the parent's pool exists now
     with multiprocessing.get_context("fork").Pool(1) as pool:
-        assert pool.apply_async(_covered_in_child, (100,)).get(timeout=60) == list(range(100))
+        assert pool.apply_async(_covered_in_child, (100,)).get(timeout=60) == expected
+
+
+def test_ordered_map_gives_a_loops_results_in_order_and_runs_on_the_pool_when_asked(monkeypatch):
+    monkeypatch.setattr(parallel, "CPU_THREADS", 2)
+    items = list(range(40))
+    for threaded in (True, False):
+        where = []
+
+        def square(x, where=where):
+            time.sleep(0.001 * (x % 3))  # finishing out of order
+            where.append(threading.current_thread() is threading.main_thread())
+            return x * x
+
+        assert list(parallel.ordered_map(square, items, threaded)) == [x * x for x in items]
+        assert (not any(where)) if threaded else all(where)

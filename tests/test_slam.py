@@ -592,11 +592,12 @@ def test_fft_windows_equal_the_transforms_padded_by_scipy_bit_for_bit(seed):
 
 
 def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
-    """The yaws of a search and the pairs of an ICP iteration on two threads (every search and
-    batch, however small): the same matches and alignments, bit for bit, as one at a time."""
+    """The yaws of a search and the pairs of an ICP iteration on the launch pool's threads (every
+    search and batch, however small): the same matches and alignments, bit for bit, as one at a time."""
     import importlib
 
-    from vogjax.slam import correlative, threads
+    from vogjax.maps import parallel
+    from vogjax.slam import correlative
 
     icp_module = importlib.import_module("vogjax.slam.icp")
     rng = np.random.default_rng(12)
@@ -613,20 +614,20 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
     calls = []
 
     def run(two_threads: bool):
-        monkeypatch.setattr(threads, "THREADS", 2 if two_threads else 1)
+        monkeypatch.setattr(parallel, "CPU_THREADS", 2 if two_threads else 1)
         monkeypatch.setattr(correlative, "THREADED_GRID_CELLS", 0)
         monkeypatch.setattr(icp_module, "THREADED_QUERY_POINTS", 0)
         matches = slam.correlative_xyh_batch(searches, config)
         seeds = [m.T_target_source for m in matches]
         return matches, slam.icp_batch(sources, [target] * len(sources), seeds, config=slam.IcpConfig(free="all"))
 
-    real = threads.ordered_map
+    real = parallel.ordered_map
 
-    def counted(function, items, parallel=True):
-        calls.append(threads.THREADS)
-        return real(function, items, parallel)
+    def counted(function, items, threaded=True):
+        calls.append(parallel.CPU_THREADS)
+        return real(function, items, threaded)
 
-    monkeypatch.setattr(threads, "ordered_map", counted)
+    monkeypatch.setattr(parallel, "ordered_map", counted)
     one, two = run(False), run(True)
     assert 2 in calls and 1 in calls
     for a, b in zip(one[0], two[0], strict=True):
@@ -635,26 +636,3 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
     for a, b in zip(one[1], two[1], strict=True):
         assert np.array_equal(a.T_target_source, b.T_target_source)
         assert (a.fitness, a.iterations) == (b.fitness, b.iterations)
-    assert list(threads.ordered_map(lambda x: x * x, range(50))) == [x * x for x in range(50)]
-
-
-@pytest.mark.skipif(sys.platform == "win32", reason="fork")
-# the child runs plain Python threads, none of JAX's, which the warning is about
-@pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
-def test_a_forked_child_registers_on_threads_of_its_own():
-    """The registration threads of a parent that forks are not the child's: a child's two-thread
-    map runs (on a pool of its own) and returns in order, instead of waiting on dead threads."""
-    import multiprocessing
-
-    from vogjax.slam import threads
-
-    assert list(threads.ordered_map(abs, [-1, -2, -3])) == [1, 2, 3]  # the parent's pool exists
-    context = multiprocessing.get_context("fork")
-    with context.Pool(1) as pool:
-        assert pool.apply_async(_squares_on_threads, (6,)).get(timeout=60) == [0, 1, 4, 9, 16, 25]
-
-
-def _squares_on_threads(count: int) -> list:
-    from vogjax.slam import threads
-
-    return list(threads.ordered_map(lambda x: x * x, range(count)))

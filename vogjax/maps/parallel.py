@@ -1,8 +1,10 @@
-"""Splitting CPU launches across threads.
+"""Splitting CPU launches across threads, and mapping other GIL-free work over them.
 
 A Warp launch on the CPU runs on one thread and releases the GIL, so independent ranges of a
 launch can run on several threads at once. Their CPU "atomics" are plain read-modify-writes:
 only split launches whose ranges write disjoint memory (or give each part its own output).
+The same pool serves `ordered_map`: the loop-closure detector's FFTs and k-d tree queries
+(which release the GIL too) while the map work waits for SLAM.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import concurrent.futures
 import os
 import threading
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -19,12 +22,21 @@ MIN_ITEMS_PER_PART = 2048
 CPU_THREADS = min(os.cpu_count() or 1, 8)
 
 _executor: concurrent.futures.ThreadPoolExecutor | None = None
+_executor_lock = threading.Lock()
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    global _executor
+    with _executor_lock:
+        if _executor is None:
+            _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
+        return _executor
 
 
 def _forget_executor() -> None:
     # a forked child inherits the pool but not its threads (its launches would wait forever)
-    global _executor
-    _executor = None
+    global _executor, _executor_lock
+    _executor, _executor_lock = None, threading.Lock()
 
 
 os.register_at_fork(after_in_child=_forget_executor)
@@ -57,16 +69,13 @@ def _run(launch, ranges: list) -> None:
     the pool. Every one has finished when this returns, also when one raised. Called from a pool
     thread (a part that splits again), every range runs on that thread: waiting there for parts
     queued behind busy workers could deadlock the pool."""
-    global _executor
     if not ranges:
         return
     if len(ranges) == 1 or getattr(_worker, "active", False):
         for r in ranges:
             launch(*r)
         return
-    if _executor is None:
-        _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
-    futures = [_executor.submit(_on_worker, launch, r) for r in ranges[1:]]
+    futures = [_pool().submit(_on_worker, launch, r) for r in ranges[1:]]
     try:
         launch(*ranges[0])
     finally:
@@ -75,13 +84,25 @@ def _run(launch, ranges: list) -> None:
         future.result()
 
 
+def ordered_map(function, items, threaded: bool = True) -> Iterator:
+    """function(item) for each item, the results in order, on the pool's threads where the
+    machine has more than one core, there are two items or more and `threaded` (the caller's
+    judgement that an item is worth a hand-off to a thread, some tens of microseconds); on the
+    calling thread otherwise, and from a pool thread (as `_run`). Each item computes as it would
+    in a loop, so the results are a loop's, bit for bit."""
+    items = list(items)
+    if CPU_THREADS < 2 or len(items) < 2 or not threaded or getattr(_worker, "active", False):
+        return map(function, items)
+    return _pool().map(lambda item: _on_worker(function, (item,)), items)
+
+
 _worker = threading.local()
 
 
-def _on_worker(launch, r: tuple) -> None:
+def _on_worker(launch, r: tuple):
     _worker.active = True
     try:
-        launch(*r)
+        return launch(*r)
     finally:
         _worker.active = False
 

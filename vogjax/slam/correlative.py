@@ -21,7 +21,7 @@ from vogjax import devices
 from vogjax.config import CorrelativeConfig
 from vogjax.geometry import rigid_pose, rotation_from_ypr
 from vogjax.kernels import registration
-from vogjax.slam import threads
+from vogjax.maps import parallel
 from vogjax.validation import real_array
 
 # Bounds on one search: its grid (float32, plus its FFT), and its work, grid cells times yaw
@@ -295,7 +295,7 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
     )
 
 
-# A search's yaws are scored on two threads from this many cells of the padded grid
+# A search's yaws are scored on several threads from this many cells of the padded grid
 THREADED_GRID_CELLS = 1 << 18
 
 
@@ -304,7 +304,8 @@ def _fft_windows(plan: _Plan):
     every x-y offset d at once. The transforms run on x-y sizes FFTs are fast at: the padding
     only adds zeros beyond a grid whose margins already keep every window offset from wrapping.
     One thread per transform: on grids of these sizes more threads cost more than they save (the
-    bits are the same); the yaws take two threads (`threads.ordered_map`), in order."""
+    bits are the same); the yaws share the launch pool's threads (`parallel.ordered_map`), in
+    order."""
     layer_shape = plan.field.shape
     fft_shape = (fft.next_fast_len(layer_shape[0]), fft.next_fast_len(layer_shape[1], real=True))
     field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
@@ -319,7 +320,7 @@ def _fft_windows(plan: _Plan):
         return _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
 
     large = float(np.prod(counts_shape)) >= THREADED_GRID_CELLS
-    return threads.ordered_map(window, range(len(plan.yaws)), parallel=large)
+    return parallel.ordered_map(window, range(len(plan.yaws)), threaded=large)
 
 
 def _device_windows(plans: list[_Plan], device):

@@ -25,7 +25,7 @@ from vogjax import devices
 from vogjax.config import IcpConfig
 from vogjax.geometry import exp_se3, rigid_poses
 from vogjax.kernels import registration
-from vogjax.slam import threads
+from vogjax.maps import parallel
 from vogjax.validation import real_array
 
 MAX_COORDINATE_M = 1e7  # clouds farther out lose their metres in float64 squares
@@ -382,7 +382,7 @@ def _returned(
     return back
 
 
-# An ICP iteration's neighbour queries run on two threads from this many points in all
+# An ICP iteration's neighbour queries run on several threads from this many points in all
 THREADED_QUERY_POINTS = 16_384
 
 
@@ -396,10 +396,10 @@ def _tree_neighbours(trees: list, max_distance_m: float):
         return np.where(np.isfinite(distance), index, -1)
 
     def nearest(pairs, moved):
-        # the pairs' queries two at a time where they are large (a lidar submap's tens of
-        # thousands of points; a sonar swath's few hundred query faster than a hand-off)
+        # the pairs' queries on the launch pool's threads where they are large (a lidar
+        # submap's tens of thousands of points; a sonar swath's few hundred query faster alone)
         large = sum(len(points) for points in moved) >= THREADED_QUERY_POINTS
-        return threads.ordered_map(one, zip(pairs, moved), parallel=large)
+        return parallel.ordered_map(one, zip(pairs, moved), threaded=large)
 
     return nearest
 
