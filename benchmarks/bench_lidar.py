@@ -108,7 +108,7 @@ def map_one(path: Path, seed: int, scans: int | None, sweep: str = "deskewed") -
         # graph cannot observe: the heading and position its first base pose took from odometry)
         "trajectory_rmse_m": {
             k: metrics["trajectory_rmse_m"].get(k)
-            for k in ("navigation", "optimized", "navigation_aligned", "optimized_aligned")
+            for k in ("odometry", "navigation", "optimized", "navigation_aligned", "optimized_aligned")
         },
         "map": map_accuracy(result),
         "pipeline_s": pipeline_s,

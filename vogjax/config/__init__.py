@@ -12,7 +12,7 @@ from vogjax.config.point_cloud import PointCloudConfig
 from vogjax.config.schema import Config, Rule
 from vogjax.config.sensing import NavNoise, SonarConfig
 from vogjax.config.sim import ControllerConfig
-from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
+from vogjax.config.slam import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig, ScanMatchingConfig
 
 __all__ = [
     "Config",
@@ -28,6 +28,7 @@ __all__ = [
     "PRESETS",
     "PipelineConfig",
     "PoseGraphConfig",
+    "ScanMatchingConfig",
     "PointCloudConfig",
     "ReportConfig",
     "Rule",

@@ -8,7 +8,7 @@ from typing import Any
 from vogjax.config.maps import MapConfig
 from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
 from vogjax.config.sensing import NavNoise
-from vogjax.config.slam import LoopClosureConfig, PoseGraphConfig
+from vogjax.config.slam import LoopClosureConfig, PoseGraphConfig, ScanMatchingConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +55,8 @@ class PipelineConfig(Config):
     pose_graph : PoseGraphConfig
         How closures enter the pose graph: the screen against the graph's own uncertainty and
         the robust loss.
+    scan_matching : ScanMatchingConfig
+        Scan matching over the recorded odometry (off by default; on in the lidar preset).
     timing : TimingConfig
         The timing probes taken while mapping.
     scans_per_submap : int or None
@@ -98,6 +100,7 @@ class PipelineConfig(Config):
     nav_noise: NavNoise = section(NavNoise())
     loop_closure: LoopClosureConfig = section(LoopClosureConfig())
     pose_graph: PoseGraphConfig = section(PoseGraphConfig())
+    scan_matching: ScanMatchingConfig = section(ScanMatchingConfig())
     timing: TimingConfig = section(TimingConfig())
     scans_per_submap: int | None = integer(100, low=2, none_spelled="covariance")
     max_xy_variance_m2: float = positive(0.0276)  # 20 s of the paper's drift
@@ -161,7 +164,8 @@ class JobConfig(Config):
     """Everything `vogjax map` reads from its settings file.
 
     The tables ``[map]``, ``[nav_noise]``, ``[loop_closure]`` (with ``[loop_closure.icp]``,
-    ``[loop_closure.correlative]``), ``[pose_graph]``, ``[timing]`` and ``[pipeline]`` set
+    ``[loop_closure.correlative]``), ``[pose_graph]``, ``[scan_matching]`` (with
+    ``[scan_matching.icp]``), ``[timing]`` and ``[pipeline]`` set
     `pipeline`; ``[report]`` sets `report`.
 
     Attributes

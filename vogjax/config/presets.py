@@ -12,7 +12,7 @@ Sensors (the run's `sensor`, and for an imported cloud its `sensor_config.messag
 | preset | sensor | settings |
 | --- | --- | --- |
 | `sonar` | `profiling_sonar` | none: the papers' (Sodhi et al., Ho), the defaults |
-| `lidar` | `spinning_lidar`, imported PointCloud2 | 0.2 m voxels, the sensor's reach, 10 s submaps, 0.3/0.4 m grids |
+| `lidar` | `spinning_lidar`, PointCloud2 | 0.2 m voxels, its reach, 10 s submaps, 0.3/0.4 m grids, scan matching |
 | `depth_camera` | an imported depth Image | 0.05 m voxels, reach capped at 8 m, 10 s submaps, 0.1 m grids |
 | `laser_scan` | an imported LaserScan | 0.05 m voxels, the sensor's reach, 10 s submaps, 0.1 m grids |
 
@@ -29,7 +29,8 @@ imported run has none either and its odometry is `unknown`):
 | `wheel` | `WHEEL_ODOMETRY`: x, y and yaw drift (yaw 1e-5 rad^2/s); z, pitch, roll absolute |
 | `unknown` | as `wheel` in x, y and yaw, and z, pitch and roll weak too (nothing known absolutely) |
 
-Loop-closure directions (`[loop_closure.icp] free`), from the navigation noise in effect (the
+Loop-closure directions (`[loop_closure.icp] free`, and `[scan_matching.icp] free` where scan
+matching is on), from the navigation noise in effect (the
 preset's or the settings file's): "translation" (the rotation kept from the estimate, as the
 papers do) while the yaw drifts at most `WEAK_YAW_RAD2_PER_S`; "yaw" (x, y, z and yaw; pitch
 and roll held) when the yaw drifts faster; "all" six when pitch or roll drifts faster than
@@ -300,7 +301,7 @@ def _sensor_settings(sensor: str, reach_m: float, rate_hz: float, beams: int) ->
     reach = min(math.ceil(reach * 10) / 10, MAX_RANGE_VOXELS * voxel)  # up to a decimetre, within the map's bound
     grid = {"lidar": 0.3, "depth_camera": 0.1, "laser_scan": 0.1}[sensor]
     cloud = {"lidar": 0.4, "depth_camera": 0.1, "laser_scan": 0.1}[sensor]
-    return {
+    settings = {
         "map.voxel_size": voxel,
         "map.max_range": float(reach),
         "pipeline.scans_per_submap": max(10, int(round(SUBMAP_S * rate_hz))),
@@ -321,6 +322,9 @@ def _sensor_settings(sensor: str, reach_m: float, rate_hz: float, beams: int) ->
         "loop_closure.overlap_reference": "self",
         "loop_closure.min_overlap_score": 0.5,
     }
+    if sensor == "lidar":  # a spinning lidar's scans overlap scan to scan: they correct the odometry
+        settings["scan_matching.enabled"] = True
+    return settings
 
 
 def closure_directions(noise: NavNoise) -> tuple[str, str]:
@@ -473,11 +477,13 @@ def derive(metadata: dict, config: JobConfig, given: Iterable[str] | None = None
             applied[key] = value
             origins[key] = (literal, "preset")
     config = with_settings(config, applied) if applied else config
-    key = "loop_closure.icp.free"
     free, why = closure_directions(config.pipeline.nav_noise)
-    if key not in given and config.pipeline.loop_closure.icp.free != free:
-        config = with_settings(config, {key: free})
-        origins[key] = (toml_value(rules[key], free), f"navigation noise: {why}")
+    keys = ["loop_closure.icp.free"] + (["scan_matching.icp.free"] if config.pipeline.scan_matching.enabled else [])
+    for key in keys:
+        section = config.pipeline.loop_closure if key.startswith("loop") else config.pipeline.scan_matching
+        if key not in given and section.icp.free != free:
+            config = with_settings(config, {key: free})
+            origins[key] = (toml_value(rules[key], free), f"navigation noise: {why}")
     return Derived(preset, config, origins, _reach_notes(metadata, config, given))
 
 

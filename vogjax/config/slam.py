@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from vogjax.config.schema import Config, integer, non_negative, number, positive, section, text
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
 
 ICP_METHODS = ("point_to_plane", "point_to_point_xyh")
 ALIGNERS = ("correlative_icp",)  # vogjax.slam.loop_closure.ALIGNERS
@@ -247,3 +247,47 @@ class PoseGraphConfig(Config):
     screen_sigmas: float = number(3.0, low=0.5, high=100.0)
     robust_loss: str = text("cauchy", ROBUST_LOSSES)
     robust_width: float = number(3.0, low=0.1, high=1000.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanMatchingConfig(Config):
+    """Scan matching over the recorded odometry (`vogjax.slam.ScanMatcher`): every `every_s`
+    seconds a scan is registered by ICP to a local map of the scans registered over the last
+    `window_s`, starting from the odometry's motion since the last registered scan; the scans in
+    between keep that registration's correction of the odometry. A lidar's own geometry holds
+    the heading far better than wheel odometry does (on the warehouse runs: 0.07 against 1.1 m
+    rms of trajectory before any loop closure), and the first submap, which anchors the pose
+    graph, is no longer bent by the odometry's first seconds of drift.
+
+    Off by default and in the sonar preset (a profiling sonar's one fan holds too little to
+    register scan against scan); on in the lidar preset.
+
+    Attributes
+    ----------
+    enabled : bool
+        Correct the odometry by scan matching before the scans reach the maps and the graph.
+    every_s : float
+        Seconds of scans between registered scans.
+    window_s : float
+        The local map holds the scans registered over the last this many seconds.
+    refresh_s : float
+        The local map's k-d tree and normals are rebuilt when this many seconds of registered
+        scans have joined it since the last rebuild.
+    voxel_m : float
+        Scans and the local map are registered as the means of their points per voxel of this
+        size, metres.
+    icp : IcpConfig
+        ICP's settings; `free` follows the navigation noise as the loop closures' does.
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of its range.
+    """
+
+    enabled: bool = flag(False)
+    every_s: float = positive(0.5)
+    window_s: float = positive(10.0)
+    refresh_s: float = positive(2.5)
+    voxel_m: float = number(0.5, low=1e-3, high=1e3)
+    icp: IcpConfig = section(IcpConfig(max_iterations=30, max_correspondence_m=1.0, tolerance=1e-4, free="yaw"))

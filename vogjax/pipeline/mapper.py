@@ -2,6 +2,8 @@
 
 Feed it scans batch by batch (`add`), from a recorded run or live from a vehicle, and ask for
 the `result()` at any time. Per batch it:
+0. with scan matching on (`ScanMatchingConfig`), corrects the batch's odometry by registering
+   its scans to a local map: the corrected poses are the navigation from here on,
 1. integrates the batch into the standard map at the navigation poses (the no-SLAM baseline),
 2. cuts the stream into submaps, holding each submap's scans until it is complete.
 Per finished submap it:
@@ -44,7 +46,8 @@ from vogjax.pipeline.cutter import SubmapCutter
 from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
 from vogjax.sensors import mapped_beams
-from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection
+from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection, ScanMatcher
+from vogjax.slam.clouds import voxel_means
 
 
 class Mapper:
@@ -92,6 +95,7 @@ class Mapper:
         front_end = self.global_map.device if on_gpu else None
         self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure, front_end)
         self.cutter = SubmapCutter(config)
+        self.scan_matcher = ScanMatcher(config.scan_matching, self.reach_m) if config.scan_matching.enabled else None
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam") if overlap else None
         self._slam_future: Future | None = None
         self._bounds: list = []  # per finished submap: its observed box (SubmapRecord order)
@@ -104,6 +108,7 @@ class Mapper:
         self.returns = {"total": 0, "beyond_reach": 0}  # returns read, and those past reach_m
         self._pending: list[ScanBatch] = []  # the scans of the submap being filled
         self._scan_time, self._scan_nav, self._scan_truth = [], [], []
+        self._scan_odometry = []  # the poses as recorded, when scan matching corrects them
         self._beams = 0  # per scan, set by the first batch
 
     @property
@@ -132,6 +137,11 @@ class Mapper:
         self._check(batch)
         if not len(batch):
             return
+        if self.scan_matcher is not None:  # the odometry corrected first: everything below uses it
+            start = time.perf_counter()
+            self._scan_odometry.append(batch.pose_nav)
+            batch = dataclasses.replace(batch, pose_nav=self.scan_matcher.correct(batch))
+            self.timings["scan_matching"].append(time.perf_counter() - start)
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
@@ -340,6 +350,7 @@ class Mapper:
             metadata=self.metadata,
             scan_time_s=np.concatenate(self._scan_time) if self._scan_time else np.zeros(0),
             scan_navigation=_stack(self._scan_nav),
+            scan_odometry=_stack(self._scan_odometry) if self.scan_matcher is not None else None,
             scan_truth=_stack(self._scan_truth) if has_truth else None,
             truth_vog=self.truth_vog if has_truth else None,
             probes=tuple(self.probes),
@@ -401,45 +412,6 @@ def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndar
     if len(built):
         T[:3, 3] += T[:3, :3] @ np.mean(true - built, axis=0)
     return T
-
-
-# voxel_means counts into every cell of the keys' box when it holds at most this many cells per
-# point, or this many cells in all: two int64 per cell, at most 64 bytes a point beside the
-# 48 of its coordinates and keys
-DENSE_CELLS_PER_POINT = 4
-DENSE_CELLS_MIN = 1 << 20
-
-
-def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:
-    """The mean of the points in each voxel (K,3), sorted by voxel (x, then y, then z): a cloud as
-    dense as the map, as precise as the sensor (loop closures align these, not voxel centres).
-
-    The voxels' keys are packed into one integer each (in the same order), and each voxel's sum
-    runs over its points in their order (`np.bincount`, as `np.add.at` did): the same bits as
-    sorting the key rows, 20 times faster on a lidar submap's million points. Where the box of
-    keys holds few cells for the points (a submap's cloud), the voxels are found by counting
-    into every cell of the box instead of sorting the keys: the same voxels in the same order."""
-    if len(points) == 0:
-        return np.zeros((0, 3))
-    keys = np.floor(points / voxel_size).astype(np.int64)
-    low = keys.min(axis=0)
-    spans = keys.max(axis=0) - low + 1
-    cells = float(np.prod(spans.astype(np.float64)))
-    if cells <= max(DENSE_CELLS_PER_POINT * len(points), DENSE_CELLS_MIN):
-        packed = ((keys[:, 0] - low[0]) * spans[1] + (keys[:, 1] - low[1])) * spans[2] + (keys[:, 2] - low[2])
-        per_cell = np.bincount(packed, minlength=int(cells))
-        occupied = np.flatnonzero(per_cell)  # ascending: the sorted order np.unique gives
-        rank = np.zeros(len(per_cell), np.int64)
-        rank[occupied] = np.arange(len(occupied))
-        inverse_index, counts = rank[packed], per_cell[occupied]
-    elif cells < 2.0**62:
-        packed = ((keys[:, 0] - low[0]) * spans[1] + (keys[:, 1] - low[1])) * spans[2] + (keys[:, 2] - low[2])
-        _, inverse_index, counts = np.unique(packed, return_inverse=True, return_counts=True)
-    else:  # keys too far apart to pack: sort the rows
-        _, inverse_index, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse_index = inverse_index.reshape(-1)
-    sums = np.stack([np.bincount(inverse_index, points[:, d], len(counts)) for d in range(3)], axis=1)
-    return sums / counts[:, None]
 
 
 def _deviation_m(T_world_i_nav: np.ndarray, T_world_k_nav: np.ndarray, T_i_k: np.ndarray) -> float:

@@ -89,7 +89,7 @@ class Result:
     scan_time_s : (S,) ndarray of float64
         Every scan's time.
     scan_navigation : (S, 4, 4) ndarray of float64
-        Every scan's navigation pose.
+        Every scan's navigation pose (corrected by scan matching, when that is on).
     scan_truth : (S, 4, 4) ndarray of float64 or None
         Every scan's true pose (None without ground truth).
     truth_vog : VogMap or None
@@ -98,6 +98,9 @@ class Result:
         The timing probes.
     returns : dict
         ``total``, ``beyond_reach`` and ``reach_m``.
+    scan_odometry : (S, 4, 4) ndarray of float64 or None
+        Every scan's pose as the run recorded it, when scan matching corrected it (None when
+        scan matching is off: then it is `scan_navigation`).
     """
 
     config: PipelineConfig
@@ -117,6 +120,7 @@ class Result:
     truth_vog: VogMap | None = None
     probes: tuple = ()
     returns: dict = dataclasses.field(default_factory=dict)
+    scan_odometry: np.ndarray | None = None
 
     @property
     def scans(self) -> int:
@@ -161,12 +165,15 @@ class Result:
     @property
     def metrics(self) -> dict:
         """What needs no ground-truth map: base-pose RMS error of navigation and optimised poses
-        (m; when the run has true poses), as they are and after the best x-y-yaw rigid fit to
+        (m; when the run has true poses; with scan matching on, also of the odometry as
+        recorded), as they are and after the best x-y-yaw rigid fit to
         the truth (`*_aligned`), and loop closures by verdict."""
         errors = {}
         truth = self.truth
         if truth is not None:
             pairs = {"navigation": (self.navigation, truth), "optimized": (self.optimized, truth)}
+            if self.scan_odometry is not None:  # the odometry as recorded, before scan matching
+                pairs["odometry"] = (self.scan_odometry[self.submap_base_scan], truth)
             rigid = self.rigid_truth
             if rigid is not None:  # how far the bends move the rigid truths, and SLAM from them
                 pairs.update(rigid_truth=(rigid, truth), optimized_vs_rigid_truth=(self.optimized, rigid))

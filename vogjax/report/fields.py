@@ -49,7 +49,8 @@ FIELDS: dict[str, str] = {
     "agreement.misclassified": "Voxels whose state differs (0 when every eps of Algorithm 1 is 0).",
     "agreement.occupied_disagreements": "Of those, voxels occupied in one map and not in the other.",
     "trajectory_rmse_m": "RMS position error of the submap base poses against the truth, metres.",
-    "trajectory_rmse_m.navigation": "Navigation (dead reckoning) poses.",
+    "trajectory_rmse_m.navigation": "Navigation (dead reckoning) poses; with scan matching on, as it corrected them.",
+    "trajectory_rmse_m.odometry": "The odometry as the run recorded it, before scan matching (with scan matching on).",
     "trajectory_rmse_m.optimized": "Poses optimised by the pose graph.",
     "trajectory_rmse_m.rigid_truth": "Each submap's rigid truth (true rotation, the translation that puts "
     "its returns closest to where they truly are) against its base's true pose: how bent the submaps are.",

@@ -6,6 +6,8 @@
   (`LoopClosure`, `Rejection`);
 - `correlative_xyh`: the x-y-yaw search over the navigation's drift that seeds ICP
   (`CorrelativeMatch`), and `self_score`, what a complete overlap scores;
+- `ScanMatcher`: the odometry corrected by registering each scan to a local map of the last
+  few seconds' scans (a lidar's own heading);
 - `icp`: point-to-plane (degeneracy-aware) and 2D point-to-point ICP, batched (`IcpResult`,
   `IcpTarget`).
 
@@ -13,12 +15,13 @@ Poses are (4, 4) rigid transforms named by their frames (``T_world_submap``, ``T
 covariances and tangents follow GTSAM's Pose3 order, rotation then translation.
 """
 
-from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig
+from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseGraphConfig, ScanMatchingConfig
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import ClosureCheck, PoseGraph
 from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
+from vogjax.slam.odometry import ScanMatcher
 
 __all__ = [
     "ClosureCheck",
@@ -33,6 +36,8 @@ __all__ = [
     "PoseGraph",
     "PoseGraphConfig",
     "Rejection",
+    "ScanMatcher",
+    "ScanMatchingConfig",
     "correlative_xyh",
     "correlative_xyh_batch",
     "icp",
