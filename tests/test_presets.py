@@ -151,3 +151,23 @@ def test_map_prints_the_preset_and_warns_of_returns_past_the_maps_reach(lidar_ru
     share = report["returns"]["beyond_reach_share"]
     assert f"{share:.1%} of the returns reach past the map's range (10 m)" in captured.err
     assert report["preset"]["settings"]["map.max_range"] == {"value": "10.0", "from": "your settings: preset 50.0"}
+
+
+def test_map_reports_scan_matching_and_warns_when_its_registrations_fail(lidar_run, tmp_path, capsys):
+    """12 scans at 10 Hz: registered at 0.5 and 1.0 s after the anchor. One ICP iteration with a
+    tolerance no step meets converges nowhere: both kept the odometry's motion, and map says so."""
+    settings = tmp_path / "settings.toml"
+    settings.write_text("[scan_matching.icp]\nmax_iterations = 1\ntolerance = 1e-12\n")
+    out = tmp_path / "maps"
+    assert cli.main(["map", str(lidar_run), "--out", str(out), "--config", str(settings)]) == 0
+    err = capsys.readouterr().err
+    report = json.loads((out / lidar_run.stem / "report.json").read_text())
+    assert report["scan_matching"] == {"enabled": True, "registered": 2, "failed": 2}
+    assert "2 of 2 scan registrations did not converge" in err
+    # with the preset's own settings they converge, and nothing is said
+    assert cli.main(["map", str(lidar_run), "--out", str(tmp_path / "plain")]) == 0
+    assert "scan registrations" not in capsys.readouterr().err
+    plain = json.loads((tmp_path / "plain" / lidar_run.stem / "report.json").read_text())
+    assert plain["scan_matching"] == {"enabled": True, "registered": 2, "failed": 0}
+    odometry = plain["trajectory_rmse_m"]
+    assert odometry["odometry"] > 0 and odometry["navigation"] > 0

@@ -100,11 +100,13 @@ def test_the_mapper_maps_with_the_matched_poses_and_keeps_the_recorded_odometry(
     errors = result.metrics["trajectory_rmse_m"]
     assert errors["navigation"] < 0.5 * errors["odometry"]
     assert len(result.timings["scan_matching"]) == 3
+    assert result.scan_matching == {"enabled": True, "registered": 11, "failed": 0}  # 6 s: every 0.5 s
     # off, the recorded odometry is the navigation and no odometry is kept apart
     off = Mapper(dataclasses.replace(config, scan_matching=ScanMatchingConfig()), runs["metadata"])
     off.add(batch)
     plain = off.result()
     assert plain.scan_odometry is None and "odometry" not in plain.metrics["trajectory_rmse_m"]
+    assert plain.scan_matching == {"enabled": False, "registered": 0, "failed": 0}
     np.testing.assert_array_equal(plain.scan_navigation, batch.pose_nav)
 
 

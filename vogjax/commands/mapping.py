@@ -182,8 +182,9 @@ def _file_settings(path: Path) -> set[str]:
 
 
 def _warn(reports: list[dict], quiet: bool) -> None:
-    """On stderr, per run: the share of returns past the map's reach, and (unless quiet) a hint
-    when most closure candidates failed one gate."""
+    """On stderr, per run: the share of returns past the map's reach, scan registrations that
+    failed (more than a tenth), and (unless quiet) a hint when most closure candidates failed
+    one gate."""
     from vogjax.report.summary import closure_hint
 
     for r in reports:
@@ -194,6 +195,13 @@ def _warn(reports: list[dict], quiet: bool) -> None:
                 f"vogjax map: warning: {name}: {returns['beyond_reach_share']:.1%} of the returns reach past the map's "
                 f"range ({returns['reach_m']:g} m): they cleared free space up to it and marked nothing "
                 "([map] max_range)",
+                file=sys.stderr,
+            )
+        matching = r.get("scan_matching", {})
+        if matching.get("registered") and matching["failed"] > 0.1 * matching["registered"]:
+            print(
+                f"vogjax map: warning: {name}: {matching['failed']} of {matching['registered']} scan registrations "
+                "did not converge: those scans kept the odometry's motion ([scan_matching])",
                 file=sys.stderr,
             )
         hint = None if quiet else closure_hint(r)

@@ -355,6 +355,11 @@ class Mapper:
             truth_vog=self.truth_vog if has_truth else None,
             probes=tuple(self.probes),
             returns={**self.returns, "reach_m": self.reach_m},
+            scan_matching={
+                "enabled": self.scan_matcher is not None,
+                "registered": self.scan_matcher.registered if self.scan_matcher else 0,
+                "failed": self.scan_matcher.failed if self.scan_matcher else 0,
+            },
         )
 
     def _confidence_map(self) -> ConfidenceMap:

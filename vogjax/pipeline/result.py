@@ -101,6 +101,9 @@ class Result:
     scan_odometry : (S, 4, 4) ndarray of float64 or None
         Every scan's pose as the run recorded it, when scan matching corrected it (None when
         scan matching is off: then it is `scan_navigation`).
+    scan_matching : dict
+        ``enabled``, and the scans ``registered`` (after the first) and the registrations that
+        ``failed`` (did not converge: the odometry's motion kept).
     """
 
     config: PipelineConfig
@@ -121,6 +124,7 @@ class Result:
     probes: tuple = ()
     returns: dict = dataclasses.field(default_factory=dict)
     scan_odometry: np.ndarray | None = None
+    scan_matching: dict = dataclasses.field(default_factory=dict)
 
     @property
     def scans(self) -> int:

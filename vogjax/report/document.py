@@ -60,6 +60,12 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         "agreement": metrics.get("agreement"),
         **result.metrics,
         "returns": _returns(result),
+        "scan_matching": {
+            "enabled": False,
+            "registered": 0,
+            "failed": 0,
+            **(getattr(result, "scan_matching", {}) or {}),
+        },
         "timing_s": timing_s,
         "fig9": curves.fig9() if curves is not None else None,
         "config": dataclasses.asdict(config),
