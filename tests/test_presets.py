@@ -162,12 +162,13 @@ def test_map_reports_scan_matching_and_warns_when_its_registrations_fail(lidar_r
     assert cli.main(["map", str(lidar_run), "--out", str(out), "--config", str(settings)]) == 0
     err = capsys.readouterr().err
     report = json.loads((out / lidar_run.stem / "report.json").read_text())
-    assert report["scan_matching"] == {"enabled": True, "registered": 2, "failed": 2}
-    assert "2 of 2 scan registrations did not converge" in err
+    assert report["scan_matching"] == {"enabled": True, "registered": 0, "failed": 2}
+    assert "2 of 2 scans due for scan matching were not registered" in err
     # with the preset's own settings they converge, and nothing is said
     assert cli.main(["map", str(lidar_run), "--out", str(tmp_path / "plain")]) == 0
-    assert "scan registrations" not in capsys.readouterr().err
+    assert "were not registered" not in capsys.readouterr().err
     plain = json.loads((tmp_path / "plain" / lidar_run.stem / "report.json").read_text())
     assert plain["scan_matching"] == {"enabled": True, "registered": 2, "failed": 0}
-    odometry = plain["trajectory_rmse_m"]
-    assert odometry["odometry"] > 0 and odometry["navigation"] > 0
+    errors = plain["trajectory_rmse_m"]
+    assert errors["navigation"] < errors["odometry"]  # 1.2 s: already a little drift to undo
+    assert (tmp_path / "plain" / lidar_run.stem / "odometry.tum").is_file()

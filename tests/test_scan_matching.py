@@ -10,7 +10,7 @@ from vogjax import sensors
 from vogjax.config import JobConfig, LidarConfig, NavNoise, PipelineConfig, ScanMatchingConfig, presets
 from vogjax.config.presets import WHEEL_ODOMETRY
 from vogjax.io.dataset import Dataset, ScanBatch
-from vogjax.pipeline.mapper import Mapper
+from vogjax.pipeline.mapper import Mapper, vehicle_returns
 from vogjax.sim.lidar_mission import simulate_lidar_run
 from vogjax.slam import ScanMatcher
 
@@ -43,9 +43,13 @@ def _errors(poses: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return rms, float(np.degrees(np.abs(np.angle(np.exp(1j * heading)))).max())
 
 
+def _correct(matcher: ScanMatcher, batch: ScanBatch, reach_m: float = 50.0) -> np.ndarray:
+    return matcher.correct(batch.time_s, batch.pose_nav, lambda j: vehicle_returns(batch, j, reach_m))
+
+
 def _matched(batch: ScanBatch, size: int, config: ScanMatchingConfig = CONFIG) -> tuple[np.ndarray, ScanMatcher]:
-    matcher = ScanMatcher(config, 50.0)
-    parts = [matcher.correct(batch.rows(lo, min(lo + size, len(batch)))) for lo in range(0, len(batch), size)]
+    matcher = ScanMatcher(config)
+    parts = [_correct(matcher, batch.rows(lo, min(lo + size, len(batch)))) for lo in range(0, len(batch), size)]
     return np.concatenate(parts), matcher
 
 
@@ -133,8 +137,61 @@ def test_bad_settings_are_refused_by_name(changes, name):
         ScanMatchingConfig(**changes)
 
 
-def test_bad_arguments_are_refused_by_name():
+def test_bad_arguments_are_refused_by_name_before_anything_changes(runs):
     with pytest.raises(ValueError, match="config"):
-        ScanMatcher("lidar", 50.0)
-    with pytest.raises(ValueError, match="reach_m"):
-        ScanMatcher(CONFIG, 0.0)
+        ScanMatcher("lidar")
+    batch = runs["still"].rows(0, 3)
+    matcher = ScanMatcher(CONFIG)
+    returns = lambda j: vehicle_returns(batch, j, 50.0)  # noqa: E731
+    bad = [
+        ("time_s", (batch.time_s[:, None], batch.pose_nav, returns)),
+        ("time_s", (np.array([0.0, np.nan, 0.2]), batch.pose_nav, returns)),
+        ("time_s", (batch.time_s[::-1].copy(), batch.pose_nav, returns)),
+        ("T_world_vehicle", (batch.time_s, batch.pose_nav[:2], returns)),
+        ("returns_of", (batch.time_s, batch.pose_nav, None)),
+        ("returns_of", (batch.time_s, batch.pose_nav, lambda j: np.full((4, 3), np.nan))),
+    ]
+    for name, arguments in bad:
+        with pytest.raises(ValueError, match=name):
+            matcher.correct(*arguments)
+    assert (matcher.registered, matcher.failed) == (0, 0)
+    np.testing.assert_array_equal(_correct(matcher, batch), batch.pose_nav)  # the anchor and its slot
+    with pytest.raises(ValueError, match="increase"):  # scans already corrected
+        _correct(matcher, batch)
+
+
+def test_returns_past_the_reach_are_left_out_as_the_maps_leave_them(runs):
+    batch = runs["still"].rows(0, 1)
+    near = vehicle_returns(batch, 0, 10.0)
+    ranges = batch.ranges[0][batch.returned[0]]
+    assert 0 < len(near) == np.count_nonzero(ranges <= 10.0) < len(ranges)
+    origin = batch.sonar_origin[0]
+    assert np.linalg.norm(near - origin, axis=1).max() <= 10.0 + 1e-5
+
+
+def test_scans_without_returns_keep_the_odometry_and_are_counted(runs):
+    batch = runs["drifting"].rows(0, 30)
+    matcher = ScanMatcher(CONFIG)
+    poses = matcher.correct(batch.time_s, batch.pose_nav, lambda j: np.zeros((0, 3)))
+    np.testing.assert_array_equal(poses, batch.pose_nav)
+    assert (matcher.registered, matcher.failed) == (0, 6)  # every 0.5 s of 3 s: nothing to register
+
+
+def test_registrations_that_do_not_converge_keep_the_odometrys_motion(runs):
+    batch = runs["drifting"].rows(0, 30)
+    never = CONFIG.replace(icp=CONFIG.icp.replace(max_iterations=1, tolerance=1e-12))
+    poses, matcher = _matched(batch, 30, never)
+    np.testing.assert_allclose(poses, batch.pose_nav, atol=1e-12)  # the anchor's correction, the identity
+    assert (matcher.registered, matcher.failed) == (0, 5)
+
+
+def test_jittered_scan_times_keep_one_registration_per_slot(runs):
+    """A driver's stamps jitter by a fraction of a millisecond: registrations stay on the
+    every_s grid (one per slot), not drifting to every sixth scan."""
+    batch = runs["still"]
+    jitter = np.random.default_rng(0).uniform(-2e-4, 2e-4, len(batch))
+    jitter[0] = 0.0
+    jittered = dataclasses.replace(batch, time_s=batch.time_s + jitter)
+    _, matcher = _matched(jittered, 50)
+    slots = np.floor((jittered.time_s - jittered.time_s[0]) / CONFIG.every_s + 1e-6)
+    assert matcher.registered + matcher.failed == len(np.unique(slots)) - 1 == 29

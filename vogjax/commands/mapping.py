@@ -198,10 +198,12 @@ def _warn(reports: list[dict], quiet: bool) -> None:
                 file=sys.stderr,
             )
         matching = r.get("scan_matching", {})
-        if matching.get("registered") and matching["failed"] > 0.1 * matching["registered"]:
+        due = matching.get("registered", 0) + matching.get("failed", 0)
+        if matching.get("failed", 0) > 0.1 * due:
             print(
-                f"vogjax map: warning: {name}: {matching['failed']} of {matching['registered']} scan registrations "
-                "did not converge: those scans kept the odometry's motion ([scan_matching])",
+                f"vogjax map: warning: {name}: {matching['failed']} of {due} scans due for scan matching were not "
+                "registered (no local map, too few returns or no convergence): they kept the odometry's motion "
+                "([scan_matching])",
                 file=sys.stderr,
             )
         hint = None if quiet else closure_hint(r)

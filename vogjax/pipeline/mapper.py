@@ -95,7 +95,7 @@ class Mapper:
         front_end = self.global_map.device if on_gpu else None
         self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure, front_end)
         self.cutter = SubmapCutter(config)
-        self.scan_matcher = ScanMatcher(config.scan_matching, self.reach_m) if config.scan_matching.enabled else None
+        self.scan_matcher = ScanMatcher(config.scan_matching) if config.scan_matching.enabled else None
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam") if overlap else None
         self._slam_future: Future | None = None
         self._bounds: list = []  # per finished submap: its observed box (SubmapRecord order)
@@ -139,8 +139,11 @@ class Mapper:
             return
         if self.scan_matcher is not None:  # the odometry corrected first: everything below uses it
             start = time.perf_counter()
+            corrected = self.scan_matcher.correct(
+                batch.time_s, batch.pose_nav, lambda j: vehicle_returns(batch, j, self.reach_m)
+            )
             self._scan_odometry.append(batch.pose_nav)
-            batch = dataclasses.replace(batch, pose_nav=self.scan_matcher.correct(batch))
+            batch = dataclasses.replace(batch, pose_nav=corrected)
             self.timings["scan_matching"].append(time.perf_counter() - start)
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
@@ -417,6 +420,13 @@ def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndar
     if len(built):
         T[:3, 3] += T[:3, :3] @ np.mean(true - built, axis=0)
     return T
+
+
+def vehicle_returns(batch: ScanBatch, j: int, reach_m: float) -> np.ndarray:
+    """Scan j's returns within `reach_m` (as the maps take them), in the vehicle frame (N, 3)."""
+    scan = batch.rows(j, j + 1)
+    _, endpoints = scan.world(np.eye(4)[None], reach_m)
+    return endpoints[0][scan.returned[0] & (scan.ranges[0] <= reach_m)]
 
 
 def _deviation_m(T_world_i_nav: np.ndarray, T_world_k_nav: np.ndarray, T_i_k: np.ndarray) -> float:

@@ -102,8 +102,9 @@ class Result:
         Every scan's pose as the run recorded it, when scan matching corrected it (None when
         scan matching is off: then it is `scan_navigation`).
     scan_matching : dict
-        ``enabled``, and the scans ``registered`` (after the first) and the registrations that
-        ``failed`` (did not converge: the odometry's motion kept).
+        ``enabled``, the scans ``registered`` to the local map, and those due for registration
+        that ``failed`` (no local map yet, too few returns, no convergence or too large a
+        move: they kept the odometry's motion).
     """
 
     config: PipelineConfig
@@ -356,13 +357,15 @@ class Result:
         Parameters
         ----------
         which : str
-            "navigation", "truth" or "optimized" (each scan moved rigidly with its submap's
-            base pose, as the maps place it).
+            "navigation", "odometry" (as the run recorded it, before scan matching), "truth"
+            or "optimized" (each scan moved rigidly with its submap's base pose, as the maps
+            place it).
 
         Returns
         -------
         (S, 4, 4) ndarray of float64 or None
-            The poses; None for "truth" without ground truth.
+            The poses; None for "truth" without ground truth and for "odometry" without scan
+            matching.
 
         Raises
         ------
@@ -371,10 +374,12 @@ class Result:
         """
         if which == "navigation":
             return self.scan_navigation
+        if which == "odometry":
+            return self.scan_odometry
         if which == "truth":
             return self.scan_truth
         if which != "optimized":
-            raise ValueError(f"which must be 'navigation', 'truth' or 'optimized', got {which!r}")
+            raise ValueError(f"which must be 'navigation', 'odometry', 'truth' or 'optimized', got {which!r}")
         submap = np.searchsorted(self.submap_first_scan, np.arange(self.scans), side="right") - 1
         correction = self.optimized @ np.linalg.inv(self.navigation)
         return correction[submap] @ self.scan_navigation

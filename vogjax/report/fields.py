@@ -110,9 +110,10 @@ FIELDS: dict[str, str] = {
     "returns.reach_m": "The map's reach: `[map] max_range`, or the sensor's range if shorter.",
     "scan_matching": "Scan matching over the recorded odometry (`[scan_matching]`, on in the lidar preset).",
     "scan_matching.enabled": "Whether the odometry was corrected by scan matching before mapping.",
-    "scan_matching.registered": "Scans registered to the local map (every `every_s`, after the first).",
-    "scan_matching.failed": "Registrations that did not converge: those scans kept the odometry's motion "
-    "(`vogjax map` warns when they are more than a tenth).",
+    "scan_matching.registered": "Scans registered to the local map (one every `every_s`).",
+    "scan_matching.failed": "Scans due for registration that were not (no local map yet, too few returns, no "
+    "convergence, or a move past ICP's pair distance): they kept the odometry's motion (`vogjax map` warns when "
+    "they are more than a tenth of those due).",
     "preset": "The sensor and platform preset the run was mapped with (`vogjax map --sensor-preset`), chosen "
     "from its metadata; `name` null when presets were off.",
     "preset.name": "The preset's name: `sonar` (the papers' settings), or e.g. `lidar + wheel odometry`.",

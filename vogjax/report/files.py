@@ -87,9 +87,9 @@ def save_loop_closures(result, path) -> None:
 
 
 def save_tum_trajectories(result, folder) -> None:
-    """navigation.tum, optimized.tum and (with ground truth) truth.tum: every scan's pose in
-    TUM's format, for evo."""
-    for name in ("navigation", "optimized", "truth"):
+    """navigation.tum, optimized.tum, (with ground truth) truth.tum and (with scan matching)
+    odometry.tum, the poses as recorded: every scan's pose in TUM's format, for evo."""
+    for name in ("navigation", "optimized", "truth", "odometry"):
         poses = result.scan_poses(name)
         if poses is not None:
             save_tum(folder / f"{name}.tum", result.scan_time_s, poses)

@@ -14,112 +14,174 @@ poses however they are split into batches.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 
 from vogjax.config import ScanMatchingConfig
 from vogjax.geometry import inverse
-from vogjax.io.dataset import ScanBatch
 from vogjax.slam.clouds import voxel_means
 from vogjax.slam.icp import MIN_POINTS, icp, prepare_target
+
+# a scan time within this share of a registration slot of the slot's start counts as in it:
+# times that are running sums of 0.1 s reach 0.4999...9 s
+SLOT_TOLERANCE = 1e-6
 
 
 class ScanMatcher:
     """Corrects a run's odometry by registering its scans to a local map (`ScanMatchingConfig`).
 
-    Every `every_s` seconds a scan's returns (their means per `voxel_m` voxel, in the vehicle
-    frame) are aligned by ICP to the local map, starting where the odometry's motion since the
-    last registered scan puts them; the correction this gives (``T_world_matched @
+    Time is cut into slots of `every_s` from the first scan; the first scan of each slot is
+    due for registration: its returns (their means per `voxel_m` voxel, in the vehicle frame)
+    are aligned by ICP to the local map, starting where the odometry's motion since the last
+    registration puts them. The correction this gives (``T_world_matched @
     inverse(T_world_odometry)``) moves every scan until the next registration. The first scan
-    keeps its odometry pose: it anchors the run. A registration that does not converge keeps
-    the odometry's motion (counted in `failed`).
+    with returns keeps its odometry pose and starts the local map: it anchors the run.
+
+    A due scan that is not registered keeps the odometry's motion and is counted in `failed`:
+    no local map yet, too few returns, ICP did not converge, or it moved the scan farther than
+    ICP's pair distance (`icp.max_correspondence_m`) from where the odometry put it (a wrong
+    convergence: over `every_s` odometry is good to centimetres).
 
     Parameters
     ----------
     config : ScanMatchingConfig
         The matcher's settings.
-    reach_m : float
-        Returns farther than this are left out (as the maps leave them).
+
+    Attributes
+    ----------
+    registered : int
+        Scans registered to the local map.
+    failed : int
+        Scans due for registration that were not.
 
     Raises
     ------
     ValueError
-        If config is not a ScanMatchingConfig or reach_m is not positive.
+        If config is not a ScanMatchingConfig.
     """
 
-    def __init__(self, config: ScanMatchingConfig, reach_m: float):
+    def __init__(self, config: ScanMatchingConfig):
         if not isinstance(config, ScanMatchingConfig):
             raise ValueError(f"config must be a ScanMatchingConfig, got {type(config).__name__}")
-        if not reach_m > 0:
-            raise ValueError(f"reach_m must be positive, got {reach_m}")
         self.config = config
-        self.reach_m = float(reach_m)
         self.correction = np.eye(4)  # T_world_matched @ inverse(T_world_odometry) of the last registration
         self.registered = 0
         self.failed = 0
-        self._last_s = -np.inf  # time of the last registered scan
-        self._local: deque = deque()  # (time_s, (K,3) world points) of the registered scans
+        self._first_s: float | None = None  # the first scan's time: slot 0 starts there
+        self._last_s = -np.inf  # the last scan's time
+        self._last_slot = -1
+        self._local: deque = deque()  # (time_s, (K,3) world points) of the scans in the local map
         self._target = None
-        self._target_s = -np.inf  # time of the newest scan in the target
+        self._since_rebuild = 0  # scans added to the local map since its tree was rebuilt
 
-    def correct(self, batch: ScanBatch) -> np.ndarray:
-        """The batch's poses corrected by scan matching, in order; the matcher moves on past it.
+    def correct(
+        self,
+        time_s: npt.ArrayLike,
+        T_world_vehicle: npt.ArrayLike,
+        returns_of: Callable[[int], np.ndarray],
+    ) -> np.ndarray:
+        """The next scans' poses corrected by scan matching, in order; the matcher moves on past them.
 
         Parameters
         ----------
-        batch : ScanBatch
-            The next scans of the run (checked, times increasing from the last batch's).
+        time_s : (S,) array_like of float
+            The scans' times, seconds, increasing (from the last call's too).
+        T_world_vehicle : (S, 4, 4) array_like of float
+            Their odometry poses, rigid.
+        returns_of : callable
+            ``returns_of(j)``: scan j's returns (N, 3), metres, in the vehicle frame; called
+            only for the scans due for registration.
 
         Returns
         -------
         (S, 4, 4) ndarray of float64
-            ``T_world_vehicle`` of each scan.
-        """
-        cfg = self.config
-        poses = np.empty_like(batch.pose_nav, dtype=np.float64)
-        for j in range(len(batch)):
-            odometry = batch.pose_nav[j].astype(np.float64)
-            t = float(batch.time_s[j])
-            if t - self._last_s < cfg.every_s * (1 - 1e-9):  # scan times 0.1 s apart sum to 0.4999...9 s
-                poses[j] = self.correction @ odometry
-                continue
-            source = self._returns(batch, j)
-            pose = self._register(source, self.correction @ odometry)
-            self.correction = pose @ inverse(odometry)
-            self._last_s = t
-            poses[j] = pose
-            self._remember(t, source, pose)
-        return poses
+            ``T_world_vehicle`` of each scan, corrected.
 
-    def _returns(self, batch: ScanBatch, j: int) -> np.ndarray:
-        """Scan j's returns within reach, their means per voxel, in the vehicle frame."""
-        scan = batch.rows(j, j + 1)
-        _, endpoints = scan.world(np.eye(4)[None], self.reach_m)
-        points = endpoints[0][scan.returned[0]]
-        return voxel_means(points, self.config.voxel_m)
+        Raises
+        ------
+        ValueError
+            Naming the argument: times or poses of the wrong shape or not finite, times not
+            increasing, returns_of not callable or giving anything but an (N, 3) finite array;
+            the matcher is then as it was before the call.
+        """
+        time_s = np.asarray(time_s, dtype=np.float64)
+        poses = np.asarray(T_world_vehicle, dtype=np.float64)
+        if time_s.ndim != 1 or not np.all(np.isfinite(time_s)):
+            raise ValueError(f"time_s must be a finite 1-D array, got shape {time_s.shape}")
+        if poses.shape != (len(time_s), 4, 4) or not np.all(np.isfinite(poses)):
+            raise ValueError(f"T_world_vehicle must be finite of shape ({len(time_s)}, 4, 4), got {poses.shape}")
+        if not callable(returns_of):
+            raise ValueError("returns_of must be callable: scan index -> (N, 3) returns")
+        if len(time_s) and (np.any(np.diff(time_s) <= 0) or time_s[0] <= self._last_s):
+            raise ValueError("time_s must increase, from the scans corrected before too")
+        before = {**vars(self), "_local": deque(self._local)}  # a bad cloud midway undoes the call
+        try:
+            return self._correct(time_s, poses, returns_of)
+        except Exception:
+            vars(self).update(before)
+            raise
+
+    def _correct(self, time_s: np.ndarray, poses: np.ndarray, returns_of: Callable[[int], np.ndarray]) -> np.ndarray:
+        corrected = np.empty_like(poses)
+        for j, (t, odometry) in enumerate(zip(time_s, poses)):
+            if self._first_s is None:
+                self._first_s = float(t)
+            self._last_s = float(t)
+            slot = int(np.floor((t - self._first_s) / self.config.every_s + SLOT_TOLERANCE))
+            guess = self.correction @ odometry
+            if slot <= self._last_slot:
+                corrected[j] = guess
+                continue
+            self._last_slot = slot
+            source = voxel_means(_points("returns_of", returns_of(j)), self.config.voxel_m)
+            pose = self._register(source, guess)
+            corrected[j] = pose
+            if pose is not guess:  # registered
+                self.correction = pose @ inverse(odometry)
+            if pose is not guess or self._target is None:  # registered, or the local map's start
+                self._remember(float(t), source, pose)
+        return corrected
 
     def _register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        if self._target is None:  # the first scan: the anchor
+        """The pose ICP registers `source` at from `guess`, or `guess` itself (counted failed)."""
+        icp_config = self.config.icp
+        if self._target is None:
+            if len(source) < max(MIN_POINTS, icp_config.normal_neighbours):
+                self.failed += 1  # nothing to anchor the local map with yet
+            return guess
+        if len(source) < max(MIN_POINTS, icp_config.min_inliers):
+            self.failed += 1
+            return guess
+        result = icp(source, self._target, guess, config=icp_config)
+        T = result.T_target_source
+        moved = np.linalg.norm(T[:3, 3] - guess[:3, 3]) if np.all(np.isfinite(T)) else np.inf
+        if not (result.converged and moved <= icp_config.max_correspondence_m):
+            self.failed += 1
             return guess
         self.registered += 1
-        if len(source) < max(MIN_POINTS, self.config.icp.min_inliers):
-            self.failed += 1
-            return guess
-        result = icp(source, self._target, guess, config=self.config.icp)
-        if not (result.converged and np.all(np.isfinite(result.T_target_source))):
-            self.failed += 1
-            return guess
-        return result.T_target_source
+        return T
 
     def _remember(self, t: float, source: np.ndarray, pose: np.ndarray) -> None:
-        """The registered scan into the local map; the map's tree rebuilt when due."""
+        """The scan into the local map; the map's tree and normals rebuilt when due."""
         cfg = self.config
-        self._local.append((t, source @ pose[:3, :3].T + pose[:3, 3]))
-        while self._local[0][0] < t - cfg.window_s:
+        if len(source):
+            self._local.append((t, source @ pose[:3, :3].T + pose[:3, 3]))
+            self._since_rebuild += 1
+        while self._local and self._local[0][0] < t - cfg.window_s:
             self._local.popleft()
-        if self._target is not None and t - self._target_s < cfg.refresh_s:
+        every = max(1, round(cfg.refresh_s / cfg.every_s))  # registrations between rebuilds
+        if not self._local or (self._target is not None and self._since_rebuild < every):
             return
         points = voxel_means(np.concatenate([cloud for _, cloud in self._local]), cfg.voxel_m)
         if len(points) >= max(MIN_POINTS, cfg.icp.normal_neighbours):
             self._target = prepare_target(points, cfg.icp)
-            self._target_s = t
+            self._since_rebuild = 0
+
+
+def _points(name: str, value) -> np.ndarray:
+    points = np.asarray(value, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
+        raise ValueError(f"{name} must give finite (N, 3) points, got shape {points.shape}")
+    return points
