@@ -202,8 +202,8 @@ def _warn(reports: list[dict], quiet: bool) -> None:
         if matching.get("failed", 0) > 0.1 * due:
             print(
                 f"vogjax map: warning: {name}: {matching['failed']} of {due} scans due for scan matching were not "
-                "registered (no local map, too few returns or no convergence): they kept the odometry's motion "
-                "([scan_matching])",
+                "registered (no local map, too few returns, no convergence or too large a move): they kept the "
+                "odometry's motion ([scan_matching])",
                 file=sys.stderr,
             )
         hint = None if quiet else closure_hint(r)
