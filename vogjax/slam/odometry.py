@@ -23,6 +23,7 @@ from vogjax.config import ScanMatchingConfig
 from vogjax.geometry import inverse
 from vogjax.slam.clouds import voxel_means
 from vogjax.slam.icp import MIN_POINTS, icp, prepare_target
+from vogjax.validation import float_array
 
 # a scan time within this share of a registration slot of the slot's start counts as in it:
 # times that are running sums of 0.1 s reach 0.4999...9 s
@@ -106,12 +107,8 @@ class ScanMatcher:
             increasing, returns_of not callable or giving anything but an (N, 3) finite array;
             the matcher is then as it was before the call.
         """
-        time_s = np.asarray(time_s, dtype=np.float64)
-        poses = np.asarray(T_world_vehicle, dtype=np.float64)
-        if time_s.ndim != 1 or not np.all(np.isfinite(time_s)):
-            raise ValueError(f"time_s must be a finite 1-D array, got shape {time_s.shape}")
-        if poses.shape != (len(time_s), 4, 4) or not np.all(np.isfinite(poses)):
-            raise ValueError(f"T_world_vehicle must be finite of shape ({len(time_s)}, 4, 4), got {poses.shape}")
+        time_s = float_array("time_s", time_s, (-1,), np.float64)
+        poses = float_array("T_world_vehicle", T_world_vehicle, (len(time_s), 4, 4), np.float64)
         if not callable(returns_of):
             raise ValueError("returns_of must be callable: scan index -> (N, 3) returns")
         if len(time_s) and (np.any(np.diff(time_s) <= 0) or time_s[0] <= self._last_s):
@@ -135,7 +132,7 @@ class ScanMatcher:
                 corrected[j] = guess
                 continue
             self._last_slot = slot
-            source = voxel_means(_points("returns_of", returns_of(j)), self.config.voxel_m)
+            source = voxel_means(float_array("returns_of", returns_of(j), (-1, 3), np.float64), self.config.voxel_m)
             pose = self._register(source, guess)
             corrected[j] = pose
             if pose is not guess:  # registered
@@ -178,10 +175,3 @@ class ScanMatcher:
         if len(points) >= max(MIN_POINTS, cfg.icp.normal_neighbours):
             self._target = prepare_target(points, cfg.icp)
             self._since_rebuild = 0
-
-
-def _points(name: str, value) -> np.ndarray:
-    points = np.asarray(value, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
-        raise ValueError(f"{name} must give finite (N, 3) points, got shape {points.shape}")
-    return points
