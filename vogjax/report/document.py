@@ -64,7 +64,7 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
             "enabled": False,
             "registered": 0,
             "failed": 0,
-            **(getattr(result, "scan_matching", {}) or {}),
+            **result.scan_matching,
         },
         "timing_s": timing_s,
         "fig9": curves.fig9() if curves is not None else None,

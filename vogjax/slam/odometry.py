@@ -133,32 +133,33 @@ class ScanMatcher:
                 continue
             self._last_slot = slot
             source = voxel_means(float_array("returns_of", returns_of(j), (-1, 3), np.float64), self.config.voxel_m)
+            if self._target is None:  # the local map's start: the scan keeps its pose
+                if len(source) < max(MIN_POINTS, self.config.icp.normal_neighbours):
+                    self.failed += 1  # nothing to anchor the local map with yet
+                corrected[j] = guess
+                self._remember(float(t), source, guess)
+                continue
             pose = self._register(source, guess)
+            if pose is None:
+                self.failed += 1
+                corrected[j] = guess
+                continue
+            self.registered += 1
             corrected[j] = pose
-            if pose is not guess:  # registered
-                self.correction = pose @ inverse(odometry)
-            if pose is not guess or self._target is None:  # registered, or the local map's start
-                self._remember(float(t), source, pose)
+            self.correction = pose @ inverse(odometry)
+            self._remember(float(t), source, pose)
         return corrected
 
-    def _register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """The pose ICP registers `source` at from `guess`, or `guess` itself (counted failed)."""
+    def _register(self, source: np.ndarray, guess: np.ndarray) -> np.ndarray | None:
+        """The pose ICP registers `source` at to the local map from `guess`; None when it has
+        too few points, does not converge or moves farther than ICP's pair distance."""
         icp_config = self.config.icp
-        if self._target is None:
-            if len(source) < max(MIN_POINTS, icp_config.normal_neighbours):
-                self.failed += 1  # nothing to anchor the local map with yet
-            return guess
         if len(source) < max(MIN_POINTS, icp_config.min_inliers):
-            self.failed += 1
-            return guess
+            return None
         result = icp(source, self._target, guess, config=icp_config)
         T = result.T_target_source
         moved = np.linalg.norm(T[:3, 3] - guess[:3, 3]) if np.all(np.isfinite(T)) else np.inf
-        if not (result.converged and moved <= icp_config.max_correspondence_m):
-            self.failed += 1
-            return guess
-        self.registered += 1
-        return T
+        return T if result.converged and moved <= icp_config.max_correspondence_m else None
 
     def _remember(self, t: float, source: np.ndarray, pose: np.ndarray) -> None:
         """The scan into the local map; the map's tree and normals rebuilt when due."""
