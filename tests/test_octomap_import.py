@@ -2,6 +2,7 @@
 voxel for voxel; every malformed file is a one-line ValueError naming it (fuzzed with
 hypothesis against a pure-Python reader written from OctoMap's format); maps from bags."""
 
+import decimal
 import math
 import subprocess
 import sys
@@ -497,3 +498,37 @@ def test_maps_in_a_bag_import_the_last_or_the_chosen_one(tmp_path, capsys, kind)
     with pytest.raises(SystemExit):
         cli.main(["import", str(bag), "--octomap", "/nothing", "--out", str(tmp_path / "x.vog")])
     assert "--octomap: the bag has no topic '/nothing'" in capsys.readouterr().err
+
+
+def test_a_time_picks_the_message_stamped_at_it_to_the_nanosecond(tmp_path, capsys):
+    """--time compares whole nanoseconds: a message stamped exactly at the time given is picked
+    (the float product stamp * 1e-9 puts 1700000000.1 s above 1700000000.1), one stamped a
+    nanosecond later is not, and stamps print with their nine decimals exactly."""
+    from vogjax.io.octomap_bag import read_octomap_message
+
+    t0 = 1_700_000_000_000_000_000
+    _, tree, _ = octomap_scans(seed=3, scans=1, beams=30)
+    stamps = [t0, t0 + 100_000_000, t0 + 200_000_000, t0 + 300_000_001]
+    bag = octomap_bag(tmp_path / "maps.bag", "ros1", [(stamp, False, tree) for stamp in stamps])
+    for time_s, chosen in ((1700000000.1, 1), (1700000000.2, 2), (1700000000.3, 2), (1700000000, 0), (2e9, 3)):
+        assert read_octomap_message(bag, "/octomap", time_s=time_s).index == chosen
+    for text, chosen in (("1700000000.300000001", 3), ("1700000000.300000000", 2), ("1700000000.0999999999", 0)):
+        out = tmp_path / "m.vog"
+        assert (
+            cli.main(["import", str(bag), "--octomap", "/octomap", "--out", str(out), "--overwrite", "--time", text])
+            == 0
+        )
+        stamp = stamps[chosen]
+        assert (
+            f"message {chosen} of 4 on /octomap (stamp {stamp // 10**9}.{stamp % 10**9:09d} s)"
+            in capsys.readouterr().out
+        )
+    with pytest.raises(ValueError, match=r"--time 1699999999\.999999999: .* stamped from 1700000000\.000000000 s on"):
+        read_octomap_message(bag, "/octomap", time_s=decimal.Decimal("1699999999.999999999"))
+    for bad in ("1700000000", True, [1.0], float("nan")):
+        with pytest.raises(ValueError, match="time_s must be a"):
+            read_octomap_message(bag, "/octomap", time_s=bad)
+    for text in ("soon", "nan", "inf"):
+        with pytest.raises(SystemExit):
+            cli.main(["import", str(bag), "--octomap", "/octomap", "--out", str(tmp_path / "x.vog"), "--time", text])
+        assert "--time" in capsys.readouterr().err

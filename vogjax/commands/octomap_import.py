@@ -4,7 +4,21 @@ takes for them."""
 
 from __future__ import annotations
 
+import decimal
+
 SUFFIXES = (".bt", ".ot")
+
+
+def seconds(text: str) -> decimal.Decimal:
+    """--time's value: the digits as typed, as a Decimal (a stamp's nine decimals do not fit a
+    float's 16 digits next to 1.7e9 s)."""
+    try:
+        value = decimal.Decimal(text.strip())
+    except decimal.InvalidOperation:
+        raise ValueError(text) from None
+    if not value.is_finite():
+        raise ValueError(text)
+    return value
 
 
 def add_arguments(parser) -> None:
@@ -31,7 +45,7 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--time",
-        type=float,
+        type=seconds,
         default=None,
         metavar="SECONDS",
         help="with --octomap: the last message stamped at or before this time, header stamps in seconds "
@@ -81,10 +95,11 @@ def run(args) -> None:
         source = f"OctoMap file {args.bag}"
         vmap = vj.VoxelMap.from_octomap(args.bag, device="cpu")
     else:
-        from vogjax.io.octomap_bag import read_octomap_message
+        from vogjax.io.octomap_bag import format_stamp, read_octomap_message
 
         message = read_octomap_message(args.bag, args.octomap, index=args.index, time_s=args.time)
-        source = f"message {message.index} of {message.count} on {args.octomap} (stamp {message.stamp_ns * 1e-9:.9f} s)"
+        stamp = format_stamp(message.stamp_ns)
+        source = f"message {message.index} of {message.count} on {args.octomap} (stamp {stamp} s)"
         where = f"bag {str(args.bag)!r} topic {args.octomap!r} message {message.index}"
         vmap = vj.VoxelMap.from_octree(message.tree, device="cpu", where=where)
     vmap.save(args.out)

@@ -16,6 +16,7 @@ from its definition, so bags without embedded definitions read too.
 from __future__ import annotations
 
 import dataclasses
+import decimal
 from pathlib import Path
 
 import numpy as np
@@ -70,9 +71,10 @@ def read_octomap_message(bag, topic: str, index: int | None = None, time_s: floa
     index : int or None
         Which message: 0 the first, -1 the last (Python's indexing). None: the last, or the
         one `time_s` picks.
-    time_s : float or None
+    time_s : float, int, decimal.Decimal or None
         Pick the last message whose header stamp is at or before this time (seconds, the
-        stamps' clock). Not with `index`.
+        stamps' clock), compared in whole nanoseconds: a float as the decimal it prints as
+        (1700000000.1 is 1700000000100000000 ns), a Decimal exactly. Not with `index`.
 
     Returns
     -------
@@ -93,13 +95,12 @@ def read_octomap_message(bag, topic: str, index: int | None = None, time_s: floa
         raise ValueError("index and time_s pick a message each: give one of them")
     if index is not None and (isinstance(index, bool) or not isinstance(index, (int, np.integer))):
         raise ValueError(f"index must be an integer, got {index!r}")
-    if time_s is not None and not np.isfinite(time_s):
-        raise ValueError(f"time_s must be a finite number of seconds, got {time_s!r}")
+    time_ns = None if time_s is None else nanoseconds("time_s", time_s)
     if not bag.exists():
         raise ValueError(f"bag {str(bag)!r} does not exist")
     try:
         with AnyReader([bag], default_typestore=typestore()) as reader:
-            return _read(reader, bag, topic, index, time_s)
+            return _read(reader, bag, topic, index, time_ns)
     except (
         AnyReaderError,
         FileNotFoundError,
@@ -113,7 +114,37 @@ def read_octomap_message(bag, topic: str, index: int | None = None, time_s: floa
         raise ValueError(f"bag {str(bag)!r} is damaged: {damage}") from None
 
 
-def _read(reader, bag: Path, topic: str, index, time_s) -> OctomapMessage:
+def nanoseconds(name: str, time_s) -> int:
+    """A time in seconds as whole nanoseconds, rounded down (a stamp is at or before it exactly
+    when it is at or before this). A float is taken as the shortest decimal that reads back as
+    it (`repr`): the float product `time_s * 1e9` would put 1700000000.1 s at ...100000143 ns,
+    after a message stamped at 1700000000.1 s.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`: not a real number (a bool is not one), or not finite.
+    """
+    if isinstance(time_s, (float, np.floating)):
+        exact = decimal.Decimal(repr(float(time_s)))
+    elif isinstance(time_s, (int, np.integer)) and not isinstance(time_s, (bool, np.bool_)):
+        exact = decimal.Decimal(int(time_s))
+    elif isinstance(time_s, decimal.Decimal):
+        exact = time_s
+    else:
+        raise ValueError(f"{name} must be a number of seconds, got {time_s!r}")
+    if not exact.is_finite():
+        raise ValueError(f"{name} must be a finite number of seconds, got {time_s!r}")
+    return int((exact * 10**9).to_integral_value(rounding=decimal.ROUND_FLOOR))
+
+
+def format_stamp(stamp_ns: int) -> str:
+    """A stamp in nanoseconds as seconds with all nine decimals, exactly (no float rounding)."""
+    sign, magnitude = ("-" if stamp_ns < 0 else ""), abs(int(stamp_ns))
+    return f"{sign}{magnitude // 10**9}.{magnitude % 10**9:09d}"
+
+
+def _read(reader, bag: Path, topic: str, index, time_ns) -> OctomapMessage:
     from vogjax.io.rosbag import _messages, _stamp_ns, _topic
 
     connections, _ = _topic(reader, topic, "--octomap", {OCTOMAP})
@@ -121,12 +152,12 @@ def _read(reader, bag: Path, topic: str, index, time_s) -> OctomapMessage:
     count = len(stamps)
     if count == 0:
         raise ValueError(f"--octomap topic {topic!r} holds no messages")
-    if time_s is not None:
-        before = [k for k, stamp in enumerate(stamps) if stamp * 1e-9 <= time_s]
+    if time_ns is not None:
+        before = [k for k, stamp in enumerate(stamps) if stamp <= time_ns]
         if not before:
             raise ValueError(
-                f"--time {time_s!r}: the {count} messages on {topic!r} are stamped from "
-                f"{min(stamps) * 1e-9:.9f} s on; none at or before it"
+                f"--time {format_stamp(time_ns)}: the {count} messages on {topic!r} are stamped from "
+                f"{format_stamp(min(stamps))} s on; none at or before it"
             )
         chosen = max(before, key=lambda k: (stamps[k], k))
     elif index is not None:
