@@ -149,7 +149,10 @@ def malformed(name: str) -> tuple[bytes, str]:
         "no data line": (bt_head[:-5], "no 'data' line"),
         "no res": (bt_head.replace(b"res 0.1\n", b"") + bt_data, "header without res"),
         "res text": (bt_head.replace(b"res 0.1", b"res abc") + bt_data, "res 'abc' is no number"),
-        "res nan": (bt_head.replace(b"res 0.1", b"res nan") + bt_data, r"resolution nan m; vogjax reads trees of"),
+        "res nan": (bt_head.replace(b"res 0.1", b"res nan") + bt_data, "res 'nan' is no number"),
+        # Python's float() reads "0.1_5" as 0.15; OctoMap reads 0.1 and skips "_5" as a keyword
+        "res underscore": (bt_head.replace(b"res 0.1", b"res 0.1_5") + bt_data, "res '0.1_5' is no number"),
+        "res negative": (bt_head.replace(b"res 0.1", b"res -0.1") + bt_data, "resolution -0.1 m"),
         "res tiny": (bt_head.replace(b"res 0.1", b"res 1e-9") + bt_data, "resolution 1e-09 m"),
         "res huge": (bt_head.replace(b"res 0.1", b"res 1e9") + bt_data, "resolution 1000000000.0 m"),
         "size": (bt_head.replace(b"size 17", b"size -3") + bt_data, "size '-3' is no node count"),
@@ -179,6 +182,8 @@ MALFORMED = [
     "no res",
     "res text",
     "res nan",
+    "res underscore",
+    "res negative",
     "res tiny",
     "res huge",
     "size",
@@ -206,6 +211,21 @@ def test_a_malformed_file_is_a_one_line_error_naming_it(tmp_path, name):
         vj.VoxelMap.from_octomap(path)
     message = str(error.value)
     assert "\n" not in message and message.startswith(f"path {str(path)!r}")
+
+
+def test_a_path_that_cannot_be_opened_is_a_one_line_error_naming_it(tmp_path):
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    for path, match in (
+        (tmp_path / "missing.bt", "No such file"),
+        (tmp_path, "Is a directory"),
+        (tmp_path / "a", "symbolic links"),
+        (tmp_path / ("x" * 300 + ".bt"), "too long"),
+        (str(tmp_path / "nul\0.bt"), "null byte"),
+    ):
+        with pytest.raises(ValueError, match=match) as error:
+            vj.VoxelMap.from_octomap(path)
+        assert "\n" not in str(error.value) and str(error.value).startswith("path ")
 
 
 def test_the_single_voxel_files_are_well_formed():

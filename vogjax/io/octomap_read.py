@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,7 @@ from vogjax.kernels import octree
 BINARY_HEADER = "# Octomap OcTree binary file"
 FULL_HEADER = "# Octomap OcTree file"
 HEADER_BYTES = 1 << 16  # the header must end (its `data` line) within this many bytes
+DECIMAL = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)  # a header's res
 BINARY_TYPES = ("OcTree", "ColorOcTree", "OcTreeStamped")
 FULL_TYPES = ("OcTree",)
 MIN_RESOLUTION_M, MAX_RESOLUTION_M = 1e-4, 1e3  # MapConfig.voxel_size's range
@@ -119,8 +121,10 @@ def read_octree(path) -> OctreeLeaves:
     where = f"path {str(path)!r}"
     try:
         blob = path.read_bytes()
-    except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as error:
+    except OSError as error:  # missing, a folder, no permission, a symlink loop, an I/O error
         raise ValueError(f"{where} cannot be read: {error.strerror or error}") from None
+    except ValueError as error:  # a NUL byte in the name
+        raise ValueError(f"{where} cannot be read: {error}") from None
     binary, tree_type, size, resolution, offset = read_header(blob, where)
     data = np.frombuffer(blob, dtype=np.uint8, offset=offset)
     return decode(data, binary, tree_type, resolution, where, size)
@@ -182,11 +186,11 @@ def read_header(blob: bytes, where: str) -> tuple[bool, str, int, float, int]:
 
 
 def _resolution(text: str, where: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{where} has an OctoMap header whose res {text[:30]!r} is no number") from None
-    return check_resolution(value, where)
+    # a plain decimal, as C++'s stream extraction reads one whole: Python's float() also takes
+    # "0.1_5" (0.15, where OctoMap reads 0.1 and warns), "infinity" and full-width digits
+    if not DECIMAL.fullmatch(text):
+        raise ValueError(f"{where} has an OctoMap header whose res {text[:30]!r} is no number")
+    return check_resolution(float(text), where)
 
 
 def check_resolution(value: float, where: str) -> float:
