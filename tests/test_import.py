@@ -499,6 +499,8 @@ def test_a_cloud_larger_than_a_run_takes_is_refused_before_converting():
     [
         (lambda f: f.__setitem__(2, ("z", 100)), "is malformed"),  # z beyond point_step
         (lambda f: f.__setitem__(2, ("x", 8)), "has field x twice"),
+        (lambda f: f.__setitem__(1, ("y", 2)), "fields x and y share bytes"),  # y read from x's bytes
+        (lambda f: f.append(("intensity", 8)), "fields intensity and z share bytes"),
     ],
 )
 def test_cloud_layouts_are_checked_before_numpy_sees_them(change, match):
@@ -519,6 +521,29 @@ def test_cloud_layouts_are_checked_before_numpy_sees_them(change, match):
     )
     with pytest.raises(ValueError, match=match):
         cloud_points(msg, "/p")
+
+
+def test_cloud_data_must_hold_exactly_its_rows():
+    """data longer than height x row_step is refused too: read, its tail would be lost unseen."""
+    m = Messages(False)
+    Field = m.t["sensor_msgs/msg/PointField"]
+    for size, ok in ((24, True), (23, False), (48, False)):
+        msg = m.t["sensor_msgs/msg/PointCloud2"](
+            header=m.header(T0_NS, "lidar"),
+            height=1,
+            width=2,
+            is_bigendian=False,
+            point_step=12,
+            row_step=24,
+            fields=[Field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")],
+            data=np.arange(size, dtype=np.uint8),
+            is_dense=True,
+        )
+        if ok:
+            assert cloud_points(msg, "/p").shape == (2, 3)
+        else:
+            with pytest.raises(ValueError, match=f"{size} bytes of data \\(not 1 x 24\\)"):
+                cloud_points(msg, "/p")
 
 
 def test_odometry_that_disagrees_with_itself_is_refused(tmp_path, capsys):

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from vogjax import cli
 from vogjax.io.dataset import Dataset, ScanBatch
-from vogjax.io.depth_image import distort, undistort
+from vogjax.io.depth_image import camera_from_info, distort, undistort
 from vogjax.io.rosbag import import_bag
 
 pytest.importorskip("rosbags")
@@ -249,12 +249,29 @@ def test_malformed_cameras_and_images_are_one_line_errors_naming_the_flag(tmp_pa
         "size": (dict(info=info_message(m, 0, size=(WIDTH, HEIGHT + 1))), "but its CameraInfo says 64 x 49"),
         "k": (dict(info=info_message(m, 0, k=np.diag([0.0, 50.0, 1.0]))), "is not a camera matrix"),
         "frame": (dict(info=info_message(m, 0, frame="elsewhere")), "is in frame 'elsewhere'"),
+        # past the distortion's fold no pixel maps back: named with the camera's topic
+        "fold": (dict(info=info_message(m, 0, d=(-0.9, 0.0, 0.0, 0.0, 0.0))), "does not invert over the image"),
     }
     for name, (kwargs, expected) in cases.items():
         bag, _, _, _ = plane_bag(tmp_path / name, "mcap", "32FC1", images=2, **kwargs)
         message = run_cli(capsys, bag, "--depth", DEPTH, *base)
         assert expected in message and ("--camera-info" in message or "--depth" in message), message
+        assert name != "fold" or "--camera-info topic" in message, message
     assert not out.exists()
+
+
+def test_a_camera_matrix_of_the_wrong_size_and_a_zero_stride_are_refused_by_name():
+    m = Messages(False)
+    info = info_message(m, 0)
+    camera = camera_from_info(info, "--camera-info topic '/info'")
+    for stride in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="stride must be a positive whole number"):
+            camera.rays(stride)
+    assert camera.rays(2).shape == (((HEIGHT + 1) // 2) * ((WIDTH + 1) // 2), 3)
+    short = info_message(m, 0)
+    short.k = np.asarray(short.k)[:4]
+    with pytest.raises(ValueError, match="'/info': CameraInfo's K holds 4 numbers, not the 9"):
+        camera_from_info(short, "--camera-info topic '/info'")
 
 
 def image_bag(tmp_path, name, image, info):
@@ -281,6 +298,7 @@ def test_images_are_checked_before_their_pixels_are_read(tmp_path, capsys):
     cases = [
         (variant(encoding="rgb8"), info_message(m, 0), "Image encoding 'rgb8' is no depth encoding"),
         (variant(data=good.data[:-100]), info_message(m, 0), "Image is malformed"),
+        (variant(data=np.concatenate([good.data, good.data])), info_message(m, 0), "Image is malformed"),
         (variant(step=10), info_message(m, 0), "Image is malformed"),
         (variant(width=4096, height=2048, data=good.data[:64]), huge_info, "raise --stride"),
     ]

@@ -92,8 +92,10 @@ class Camera:
         Raises
         ------
         ValueError
-            If the distortion does not invert at some pixel (coefficients that fold the image).
+            If `stride` is not a positive integer, or the distortion does not invert at some
+            pixel (coefficients that fold the image).
         """
+        check_stride(stride)
         v, u = np.meshgrid(
             np.arange(0, self.height, stride, dtype=np.float64),
             np.arange(0, self.width, stride, dtype=np.float64),
@@ -201,7 +203,10 @@ def camera_from_info(msg: Any, where: str) -> Camera:
         with positive focal lengths, the image is binned or cropped (ROI), or the distortion
         is one vogjax does not undistort.
     """
-    K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+    K = np.asarray(_field(msg, "k"), dtype=np.float64)
+    if K.size != 9:
+        raise ValueError(f"{where}: CameraInfo's K holds {K.size} numbers, not the 9 of a 3 x 3 camera matrix")
+    K = K.reshape(3, 3)
     D = tuple(float(d) for d in np.asarray(_field(msg, "d"), dtype=np.float64).ravel())
     width, height = int(msg.width), int(msg.height)
     if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
@@ -234,6 +239,12 @@ def _frame(name: str) -> str:
     return name.lstrip("/")
 
 
+def check_stride(stride: int) -> None:
+    """Refuse a stride that is not a positive whole number of pixels (ValueError naming it)."""
+    if isinstance(stride, (bool, np.bool_)) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise ValueError(f"stride must be a positive whole number of pixels, got {stride!r}")
+
+
 def check_pixels(width: int, height: int, stride: int, where: str) -> int:
     """The pixels an image of this size gives at `stride`, refused past what a scan holds.
 
@@ -256,6 +267,7 @@ def check_pixels(width: int, height: int, stride: int, where: str) -> int:
     ValueError
         Naming `where` when more than 2^20 pixels would be taken (raise the stride).
     """
+    check_stride(stride)
     taken = -(-height // stride) * -(-width // stride)
     if taken > MAX_BEAMS:  # refused before any array of that size exists
         raise ValueError(
@@ -293,8 +305,8 @@ def depth_points(
     ------
     ValueError
         Naming `where` when the encoding is not a depth encoding, the image's size differs from
-        its CameraInfo's, more than 2^20 pixels would be taken (checked before converting), or
-        the rows or the data are shorter than the image says.
+        its CameraInfo's, more than 2^20 pixels would be taken (checked before converting), the
+        rows are shorter than the image says, or the data are not rows x step bytes.
     """
     encoding = str(msg.encoding)
     if encoding not in ENCODINGS:
@@ -310,10 +322,10 @@ def depth_points(
     sample, scale = ENCODINGS[encoding]
     size = np.dtype(sample).itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
-    if step < width * size or len(data) < height * step:
+    if step < width * size or len(data) != height * step:  # sensor_msgs/Image: data holds step * height
         raise ValueError(
             f"{where}: Image is malformed: {height} x {width} pixels of {encoding}, rows of {step} bytes, "
-            f"{len(data)} bytes of data"
+            f"{len(data)} bytes of data (not {height} x {step})"
         )
     order = ">" if msg.is_bigendian else "<"
     rows = np.ascontiguousarray(data[: height * step].reshape(height, step)[::stride, : width * size])

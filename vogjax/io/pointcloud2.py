@@ -4,8 +4,8 @@ A cloud carries x, y, z and, from most lidar drivers, more: a per-point time (`t
 Velodyne's driver, `t` from Ouster's, `timestamp` from Livox's and Hesai's), an `intensity`, a
 `ring` (the laser that fired), and fields vogjax has no use for (`reflectivity`, `ambient`,
 `range`, padding). `read_cloud` reads the ones it uses, reports what it did with every field,
-and refuses a layout whose fields overlap the point's end, repeat a used name, or carry a type
-the role cannot take.
+and refuses a layout whose used fields share bytes, overlap the point's end, repeat a used
+name, or carry a type the role cannot take.
 """
 
 from __future__ import annotations
@@ -82,9 +82,10 @@ def read_cloud(msg: Any, where: str, use_time: bool = True) -> Cloud:
     ------
     ValueError
         Naming `where` when x, y or z is missing, a used field is named twice, a field has a
-        type its role cannot take or more than one element, a field reaches past the point's
-        end, the rows or the data are shorter than the layout says, or the cloud holds more
-        than 2^20 points (checked before any point is converted).
+        type its role cannot take or more than one element, two used fields share bytes, a
+        field reaches past the point's end, the rows are shorter than the layout says, the
+        data are not rows x row_step bytes, or the cloud holds more than 2^20 points (checked
+        before any point is converted).
     """
     where = f"{where}: PointCloud2"
     names = [f.name for f in msg.fields]
@@ -121,17 +122,22 @@ def read_cloud(msg: Any, where: str, use_time: bool = True) -> Cloud:
     width, height, row_step = int(msg.width), int(msg.height), int(msg.row_step)
     if width * height > MAX_BEAMS:  # a run holds no more beams per scan; refused before converting
         raise ValueError(f"{where} holds {height} x {width} points, more than the {MAX_BEAMS} beams a scan may have")
-    data = np.asarray(msg.data, dtype=np.uint8)
+    data = msg.data
+    data = np.frombuffer(data, np.uint8) if isinstance(data, (bytes, bytearray)) else np.asarray(data, np.uint8)
+    spans = sorted((o, o + np.dtype(f).itemsize, n) for o, f, n in zip(offsets, formats, roles))
+    overlap = next(((a[2], b[2]) for a, b in zip(spans, spans[1:]) if b[0] < a[1]), None)
+    if overlap is not None:  # one field's bytes read as another's: a silent wrong value
+        raise ValueError(f"{where} is malformed: fields {overlap[0]} and {overlap[1]} share bytes")
     if (
         step <= 0
         or any(o < 0 or o + np.dtype(f).itemsize > step for o, f in zip(offsets, formats))
         or row_step < width * step
-        or len(data) < height * row_step
+        or len(data) != height * row_step  # sensor_msgs/PointCloud2: data holds row_step * height
     ):
         layout = ", ".join(f"{n} at byte {o}" for n, o in zip(roles, offsets))
         raise ValueError(
             f"{where} is malformed: {height} x {width} points of {step} bytes, rows of {row_step} "
-            f"bytes, fields {layout}, {len(data)} bytes of data"
+            f"bytes, fields {layout}, {len(data)} bytes of data (not {height} x {row_step})"
         )
     dtype = np.dtype({"names": list(roles), "formats": formats, "offsets": offsets, "itemsize": step})
     rows = data[: height * row_step].reshape(height, row_step)[:, : width * step]

@@ -609,7 +609,10 @@ class _ScanStream:
     def __init__(self, reader, connections: list, message: str, options: _Options, camera: Camera | None):
         self.reader, self.connections, self.message, self.options = reader, connections, message, options
         self.camera = camera
-        self.rays = None if camera is None else camera.rays(options.stride)
+        try:
+            self.rays = None if camera is None else camera.rays(options.stride)
+        except ValueError as error:  # a distortion that does not invert over the image
+            raise ValueError(f"--camera-info topic {options.camera_info_topic!r}: {error}") from None
         self.layout: str | None = None
         self.fields: dict[str, dict[str, str]] = {}
         self.kept_fields: set[str] = set()
