@@ -8,8 +8,6 @@ import warp as wp
 from .hashing import (
     BLOCK_VOXELS,
     EMPTY_KEY,
-    VOXEL_KEY_LIMIT,
-    VOXEL_KEY_LIMIT_C,
     find_voxel_slot,
     grid_slot,
     index_in_block,
@@ -133,8 +131,6 @@ def check_rays(
         wp.atomic_min(first_bad, BAD_RANGE, tid)
 
 
-# The key range's half-width in voxels, as a float64 (ray_cast_start).
-KEY_LIMIT_VOXELS = wp.constant(wp.float64(VOXEL_KEY_LIMIT))
 # A stretch of unknown voxels longer than this is skipped and counted in closed form, not
 # walked. Past the map's box, where nothing can be hit, a coarse level counts a stretch of more
 # than SKIP_VOXELS_COARSE (the host passes it as count_after): its voxels are 2^k times as long,
@@ -170,11 +166,14 @@ def ray_cast_start(
     inv_resolution: wp.float64,
     known_lo: wp.vec3i,
     known_hi: wp.vec3i,
+    key_limit: int,
 ) -> RayCastStart:
     """The start of a ray cast along unit `direction` over a map whose known voxels all lie in
     [known_lo, known_hi] (voxel coordinates; hi < lo: none). Every voxel outside that box
     (widened by a voxel) is unknown, so a stretch of more than SKIP_VOXELS voxels before it is
-    skipped and counted.
+    skipped and counted. The walk ends where the ray leaves the key range, [-key_limit,
+    key_limit) voxels of this size per axis: VOXEL_KEY_LIMIT >> level, the same metres at every
+    level (no coarse walk counts voxels no level-0 key can name).
 
     Every ray pays this once, whatever it walks after, so the common cases take a shorter way
     to the same bits: a ray that cannot leave the key range within its range has its range as
@@ -197,10 +196,10 @@ def ray_cast_start(
     # each distance to one exceeds the range (a unit direction's components are at most 1 + a
     # few ulps): ray_key_range could only give a larger end, and the minimum is the range.
     reach = wp.max(wp.max(wp.abs(origin[0]), wp.abs(origin[1])), wp.abs(origin[2])) + max_range
-    if reach + reach < KEY_LIMIT_VOXELS * resolution:
+    if reach + reach < wp.float64(key_limit) * resolution:
         s.t_end = max_range
     else:
-        s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, VOXEL_KEY_LIMIT_C))
+        s.t_end = wp.min(max_range, ray_key_range(origin, direction, resolution, key_limit))
     inside = (
         known_hi[0] >= known_lo[0]
         and origin[0] >= lo[0]
@@ -245,6 +244,7 @@ def cast_rays(
     known_lo: wp.vec3i,
     known_hi: wp.vec3i,
     count_after: int,
+    key_limit: int,
     grid_dims: wp.vec3i,
     grid: wp.array(dtype=wp.int32),
     states: wp.array(dtype=wp.uint32),
@@ -268,7 +268,7 @@ def cast_rays(
     tid = wp.tid()
     origin, direction = origins[tid], unit_direction(directions[tid])
     max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi)
+    s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, key_limit)
     # walk_step's choice, on scalars (a struct copied every step costs several times the step)
     voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
     x, y, z = voxel[0], voxel[1], voxel[2]
@@ -413,6 +413,7 @@ def _cast_rays_for_cpu(dense: bool):
         known_lo: wp.vec3i,
         known_hi: wp.vec3i,
         count_after: int,
+        key_limit: int,
         padded_dims: wp.vec3i,
         columns: wp.array(dtype=wp.uint16),
         bases: wp.array(dtype=wp.int32),
@@ -425,7 +426,7 @@ def _cast_rays_for_cpu(dense: bool):
         tid = wp.tid()
         origin, direction = origins[tid], unit_direction(directions[tid])
         max_range = max_ranges[wp.where(max_ranges.shape[0] == 1, 0, tid)]  # one range: for every ray
-        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi)
+        s = ray_cast_start(origin, direction, max_range, resolution, inv_resolution, known_lo, known_hi, key_limit)
         voxel, t_max, t_delta, step = s.voxel, s.t_max, s.t_delta, s.step
         ox, oy, oz = (grid_lo[0] - 1) * 8, (grid_lo[1] - 1) * 8, (grid_lo[2] - 1) * 8
         x, y, z = voxel[0] - ox, voxel[1] - oy, voxel[2] - oz  # from the box's corner

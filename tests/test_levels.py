@@ -366,6 +366,73 @@ def test_a_virtual_maps_coarse_levels_follow_its_poses_and_submaps(monkeypatch):
 block_coordinate = st.integers(-(1 << 20), (1 << 20) - 1)
 
 
+def test_a_virtual_maps_coarse_queries_check_their_arguments_before_merging():
+    vog = random_vog(np.random.default_rng(4), 2)
+    calls = [
+        lambda: vog.state(np.zeros((2, 2)), level=2),
+        lambda: vog.log_odds([[np.nan, 0.0, 0.0]], level=1),
+        lambda: vog.raycast(np.zeros((1, 3)), np.zeros((1, 3)), 5.0, level=2),
+        lambda: vog.raycast(np.zeros((1, 3)), np.ones((1, 3)), -1.0, level=2),
+        lambda: vog.line_query(np.zeros((1, 3)), [[np.inf, 0.0, 0.0]], level=3),
+    ]
+    for call in calls:
+        with pytest.raises(ValueError):
+            call()
+        assert vog._coarse is None  # refused before the coarse map was built
+    assert vog.state(np.zeros((1, 3)), level=2).shape == (1,) and vog._coarse is not None
+
+
+def test_a_coarse_ray_stops_counting_where_the_key_range_ends_as_level_0_does():
+    """The key range is 2^23 level-0 voxels each way: a coarse walk ends at the same metres,
+    not 2^k times farther (it counted voxels no key can name as unknown)."""
+    cfg = vj.MapConfig(voxel_size=0.1)
+    vmap = vj.VoxelMap(cfg)
+    vmap.integrate_scans(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]), np.zeros(1, int))
+    for direction in ([-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]):
+        walked_m = []
+        for level in range(6):
+            r = vmap.raycast(np.array([[-2.0, 0.05, 0.05]]), np.array([direction]), 5e6, level=level)
+            walked_m.append((int(r.num_unknown[0]) + int(r.num_free[0])) * cfg.voxel_size * 2**level)
+        reach_m = 2**23 * cfg.voxel_size - np.dot([-2.0, 0.05, 0.05], direction)  # to the key range's face
+        for level, metres in enumerate(walked_m):
+            assert abs(metres - reach_m) <= 2 * cfg.voxel_size * 2**level, (direction, level, metres)
+
+
+def test_a_coarse_query_during_a_scan_of_a_moved_submap_waits_for_it_and_stays_exact():
+    """A planner's coarse query while SLAM writes the newest submap, whose pose just changed:
+    the coarse map must not judge the submap by its revision before the write and then undo
+    what the write put in (it did: the sums went negative, and stayed wrong)."""
+    import threading
+    import time
+
+    rng = np.random.default_rng(0)
+    vog = random_vog(rng, 2)
+    last = vog.add_submap(random_pose(rng))
+    vog.submap(last).integrate_scans(*ref.random_scans(rng, 1, 60, spread=2.0))
+    vog.state(np.zeros((1, 3)), level=2)  # the coarse map made, the submaps applied
+    poses = vog.poses([last])
+    poses[0, :3, 3] += 0.3
+    vog.set_poses([last], poses)
+    submap = vog.submap(last)
+    scans = ref.random_scans(np.random.default_rng(1), 4, 100_000, spread=3.0)
+    writer = threading.Thread(target=lambda: submap.integrate_scans(*scans))
+    writer.start()
+    deadline = time.monotonic() + 30
+    while not submap._lock._writing and writer.is_alive() and time.monotonic() < deadline:
+        time.sleep(1e-4)
+    in_flight = submap._lock._writing
+    vog.state(np.zeros((1, 3)), level=2)
+    writer.join()
+    assert in_flight, "the scan finished before the query: the case was not exercised"
+    keys, sums, counts = vog.coarse_map().sums()
+    fresh = vj.GlobalMap(vog.config)
+    fresh.merge(vog)
+    want = fresh.sums()
+    assert np.array_equal(keys, want[0]) and np.array_equal(sums, want[1]) and np.array_equal(counts, want[2])
+    centres, _ = fresh.voxels(2)
+    np.testing.assert_array_equal(vog.state(centres, level=2), fresh.state(centres, level=2))
+
+
 @settings(max_examples=200, deadline=None)
 @given(blocks=st.lists(st.tuples(block_coordinate, block_coordinate, block_coordinate), min_size=1, max_size=20))
 def test_shifting_packed_keys_equals_shifting_the_coordinates(blocks):

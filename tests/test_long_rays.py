@@ -80,14 +80,15 @@ def test_ranges_either_side_of_the_key_range_shortcut_count_the_same_walk(level)
     # over that bound, and past the key range's face, against the count of voxels -1, -2, ...
     # along -x entered before the range (voxel -k at 0.05 + s (k - 1) m, s the level's edge).
     size = 0.1 * 2**level
-    bound = hashing.VOXEL_KEY_LIMIT * size  # the key range's half-width, metres
+    limit = hashing.VOXEL_KEY_LIMIT >> level  # the key range's half-width in this level's voxels
+    bound = limit * size  # the same metres at every level
     under, over = bound / 2 - 0.05 - 0.5 * size, bound / 2 - 0.05 + 0.5 * size
     vmap = wall_map(vj.VoxelMap)
     ranges = [under, over, bound + 1.0]
     origins, directions = [[0.05, 0.05, 0.05]] * 3, [[-1.0, 0.0, 0.0]] * 3
     r = vmap.raycast(origins, directions, ranges, level=level)
     # voxel 0 of every level holds the origin and starts at x = 0, so voxel -1 is entered at 0.05
-    expected = [int(np.ceil((x - 0.05) / size)) for x in ranges[:2]] + [hashing.VOXEL_KEY_LIMIT]
+    expected = [int(np.ceil((x - 0.05) / size)) for x in ranges[:2]] + [limit]
     assert r.hit.tolist() == [False] * 3
     assert (r.num_free + r.num_unknown).tolist() == [e + 1 for e in expected]
 

@@ -536,6 +536,7 @@ class BlockMap:
                         *rays,
                         grid_lo,
                         *known,
+                        key_limit,
                         wp.vec3i(*tables.padded_dims),
                         tables.columns,
                         tables.bases,
@@ -554,6 +555,7 @@ class BlockMap:
                         tables.store.table_slots,
                         grid_lo,
                         *known,
+                        key_limit,
                         wp.vec3i(*tables.grid.dims),
                         tables.grid.cells,
                         tables.states,
@@ -562,6 +564,7 @@ class BlockMap:
                     device=device,
                 )
 
+        key_limit = hashing.VOXEL_KEY_LIMIT >> level  # the key range's half-width in this level's voxels
         with self._lock.reading():
             tables = self._ray_tables(level)
             grid_lo = wp.vec3i(*tables.grid.lo)

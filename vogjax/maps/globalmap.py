@@ -311,19 +311,24 @@ class GlobalMap(BlockMap):
             uncertain = set(np.flatnonzero(np.maximum(volumes, was) > threshold).tolist())
         moved = self._moved(vog, eps_rot, eps_trans, eps_move_m)
         reapply = [i for i in moved if uncertain is None or i in uncertain]
-        stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
-        if stale:
-            raise ValueError(
-                f"vog: submaps {stale} changed since they were added; their old "
-                "contribution cannot be undone (add submaps once they are complete)"
-            )
-        self._check_key_range(vog, reapply)
-        with self._lock.writing():
-            touched = []
-            # integer sums commute: every undo first, then every redo, gives the same bits
-            pulls = self._contribute([(vog.submap(i), self._applied[i].pose) for i in reapply], -1, touched)
-            pulls += self._apply(vog, reapply, touched, volumes)
-            self._refresh(touched, release=True)
+        with contextlib.ExitStack() as stack:
+            # read-locked from the revision check to the redo: a scan written in between would
+            # be undone without ever having been added
+            for i in reapply:
+                stack.enter_context(vog.submap(i).reading())
+            stale = [i for i in reapply if vog.submap(i).revision != self._applied[i].revision]
+            if stale:
+                raise ValueError(
+                    f"vog: submaps {stale} changed since they were added; their old "
+                    "contribution cannot be undone (add submaps once they are complete)"
+                )
+            self._check_key_range(vog, reapply)
+            with self._lock.writing():
+                touched = []
+                # integer sums commute: every undo first, then every redo, gives the same bits
+                pulls = self._contribute([(vog.submap(i), self._applied[i].pose) for i in reapply], -1, touched)
+                pulls += self._apply(vog, reapply, touched, volumes)
+                self._refresh(touched, release=True)
         return UpdateReport(
             tuple(reapply),
             moved,
@@ -342,6 +347,15 @@ class GlobalMap(BlockMap):
         self._check_vog(vog)
         count = vog.num_submaps
         submaps = vog.submaps(range(count))
+        with contextlib.ExitStack() as stack:
+            # every submap read-locked from judging its revision to recording it: a scan written
+            # in between would be undone without ever having been added, or added unrecorded
+            for submap in submaps:
+                stack.enter_context(submap.reading())
+            self._follow_locked(vog, submaps)
+
+    def _follow_locked(self, vog: VogMap, submaps: list) -> None:
+        count = len(submaps)
         snapshots = self._snapshots
         stale = not self._applied or any(
             i >= count
@@ -492,14 +506,17 @@ class GlobalMap(BlockMap):
 
     # ---------------------------------------------------------------- contributions
     def _apply(self, vog: VogMap, ids, touched: list, volumes: np.ndarray | None) -> int:
-        """Add submaps `ids` at their current poses and record them as applied."""
+        """Add submaps `ids` at their current poses and record them as applied (each revision
+        read under the lock its contents were read under)."""
         ids = [int(i) for i in ids]
         submaps, poses = vog.submaps(ids), vog.poses(ids)
-        pulls = self._contribute(list(zip(submaps, poses)), +1, touched)
-        for i, submap, pose in zip(ids, submaps, poses):
-            self._applied[i] = Applied(
-                pose.copy(), submap.revision, uid=submap.uid, volume=math.inf if volumes is None else float(volumes[i])
-            )
+        with contextlib.ExitStack() as stack:
+            for submap in {id(submap): submap for submap in submaps}.values():
+                stack.enter_context(submap.reading())
+            pulls = self._contribute(list(zip(submaps, poses)), +1, touched)
+            for i, submap, pose in zip(ids, submaps, poses):
+                volume = math.inf if volumes is None else float(volumes[i])
+                self._applied[i] = Applied(pose.copy(), submap.revision, uid=submap.uid, volume=volume)
         return pulls
 
     def _contribute(self, items: list, sign: int, touched: list) -> int:

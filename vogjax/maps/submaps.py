@@ -21,6 +21,7 @@ from vogjax.maps.blockmap import (
     RaycastResult,
     check_extent,
     classify,
+    line_arguments,
     line_voxels,
     probability_from_log_odds,
     ray_arguments,
@@ -139,7 +140,9 @@ class VogMap:
     so they come from a GlobalMap this map keeps beside its submaps, made on the first coarse
     query and brought to the current poses on each one after (submaps that moved undone and
     redone, as `GlobalMap.update_poses` does; a submap written since forces a full merge). It
-    equals `GlobalMap.merge(vog)` bit for bit, and at voxel centres the virtual map.
+    equals `GlobalMap.merge(vog)` bit for bit, and at voxel centres the virtual map. (So a coarse
+    point query is conservative against the values at world voxel centres, not against a
+    level-0 point query elsewhere in the voxel: the submaps' voxels there may differ.)
 
     Parameters
     ----------
@@ -455,9 +458,9 @@ class VogMap:
             If `points` is not (M, 3), holds NaN or infinite values, or `level` is no integer
             in [0, 15].
         """
+        points = float_array("points", points, (-1, 3), np.float64)  # checked before any merge
         if check_level(level):
             return self.coarse_map().log_odds(points, level)
-        points = float_array("points", points, (-1, 3), np.float64)
         return np.nan_to_num(self._values_at(points), nan=0.0)
 
     def probability(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
@@ -503,9 +506,9 @@ class VogMap:
         ValueError
             As for `log_odds`.
         """
+        points = float_array("points", points, (-1, 3), np.float64)  # checked before any merge
         if check_level(level):
             return self.coarse_map().state(points, level)
-        points = float_array("points", points, (-1, 3), np.float64)
         return classify(self._values_at(points), self.config)
 
     def raycast(
@@ -543,7 +546,9 @@ class VogMap:
         if check_level(level):
             if any(isinstance(a, wp.array) for a in (origins, directions, max_range)):
                 raise ValueError("origins, directions and max_range must be NumPy arrays or numbers for a VogMap")
-            return self.coarse_map().raycast(origins, directions, max_range, level)
+            checked = ray_arguments(origins, directions, max_range, normalise=False)  # before any merge
+            check_extent(self.config, origins=checked[0])
+            return self.coarse_map().raycast(*checked[:2], max_range, level)
         origins, directions, ranges = ray_arguments(origins, directions, max_range)
         check_extent(self.config, origins=origins)
         cfg, device, count = self.config, self.device, origins.shape[0]
@@ -645,6 +650,7 @@ class VogMap:
             As for `VoxelMap.line_query`.
         """
         if check_level(level):
+            starts, ends = line_arguments(self.config, starts, ends, level)  # before any merge
             return self.coarse_map().line_query(starts, ends, level)
         keys, lengths = line_voxels(self.config, self.device, starts, ends)
         values = np.full(keys.shape[:2], np.nan, np.float32)
