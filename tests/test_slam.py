@@ -638,3 +638,30 @@ def test_registration_on_two_threads_gives_the_bits_of_one(monkeypatch):
     for a, b in zip(one[1], two[1], strict=True):
         assert np.array_equal(a.T_target_source, b.T_target_source)
         assert (a.fitness, a.iterations) == (b.fitness, b.iterations)
+
+
+def test_log_so3_keeps_the_angle_of_rotations_at_and_near_a_half_turn():
+    """Against scipy's rotation vectors: exact half turns (where arccos resolves the angle only
+    to ~1.5e-8 rad, and R - R^T is round-off) and turns 1e-12 to 1e-1 rad short of one."""
+    from vogjax.geometry import log_so3
+
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(4000, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    short = np.concatenate([np.zeros(1000), 10.0 ** rng.uniform(-12, -1, 3000)])
+    vectors = axes * (np.pi - short)[:, None]
+    got = log_so3(Rotation.from_rotvec(vectors).as_matrix())
+    angle = np.linalg.norm(got, axis=1)
+    np.testing.assert_allclose(angle, np.pi - short, atol=1e-7)
+    # the axis up to the sign a half turn leaves free, and the rotation itself exactly
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", got / angle[:, None], axes)), 1.0, atol=1e-7)
+    np.testing.assert_allclose(
+        Rotation.from_rotvec(got).as_matrix(), Rotation.from_rotvec(vectors).as_matrix(), atol=1e-9
+    )
+    # away from a half turn: the same as scipy's
+    generic = rng.normal(size=(1000, 3))
+    np.testing.assert_allclose(
+        log_so3(Rotation.from_rotvec(generic).as_matrix()),
+        Rotation.from_matrix(Rotation.from_rotvec(generic).as_matrix()).as_rotvec(),
+        atol=1e-9,
+    )

@@ -127,10 +127,14 @@ def inverse(poses: npt.NDArray[np.floating]) -> npt.NDArray[np.floating]:
     return out
 
 
+NEAR_HALF_TURN = 1e-6  # 1 + cos below which log_so3 reads the axis off R's symmetric part
+
+
 def log_so3(rotations: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
     """SO(3) logarithm: the rotation vectors of rotation matrices.
 
-    Stable near the identity and near a half turn (where the axis comes from (R + I) / 2).
+    Stable near the identity and near a half turn (where the axis comes from R's symmetric
+    part: within about 1.4e-3 rad of pi, R - R^T holds little but round-off).
 
     Parameters
     ----------
@@ -156,13 +160,19 @@ def log_so3(rotations: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
     small = sin < 1e-9
     scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, sin)))
     vector = skew * scale[..., None]
-    near_pi = small & (angle > 1.0)
-    if np.any(near_pi):  # angle ~ pi: the axis is the dominant column of (R + I) / 2
-        b = (rotations[near_pi] + np.eye(3)) / 2.0
-        column = np.argmax(np.diagonal(b, axis1=-2, axis2=-1), axis=-1)
-        axis = b[np.arange(len(b)), :, column]
+    # Within about 1.4e-3 rad of a half turn, R - R^T is round-off over sin ~ 1e-8 (arccos
+    # resolves cos near -1 only to ~1.5e-8 rad): the axis comes from the symmetric part instead,
+    # (R + R^T) / 2 - cos I = (1 - cos) a a^T, its sign from R - R^T, and the angle from atan2.
+    near_pi = cos < -1.0 + NEAR_HALF_TURN
+    if np.any(near_pi):
+        R, c, w = rotations[near_pi], cos[near_pi], skew[near_pi]
+        outer = ((R + np.swapaxes(R, -1, -2)) / 2.0 - c[:, None, None] * np.eye(3)) / (1.0 - c)[:, None, None]
+        column = np.argmax(np.diagonal(outer, axis1=-2, axis2=-1), axis=-1)
+        axis = outer[np.arange(len(outer)), :, column]
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-        vector[near_pi] = axis * angle[near_pi, None]
+        axis *= np.where(np.einsum("ij,ij->i", axis, w) < 0.0, -1.0, 1.0)[:, None]
+        theta = np.arctan2(np.linalg.norm(w, axis=-1) / 2.0, c)
+        vector[near_pi] = axis * theta[:, None]
     return vector
 
 
