@@ -346,6 +346,25 @@ def test_detector_accepts_true_and_rejects_wrong_loop_closures():
     assert not accepted and rejected[0].reason in ("overlap", "fitness", "not converged")
 
 
+def test_an_alignment_that_constrains_no_direction_is_rejected_and_no_submap_closes_with_itself():
+    rng = np.random.default_rng(3)
+    cloud = structured_cloud(rng, 2000)
+    bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
+    truth_k = small_motion(rng, 0.02, 0.1)
+    poses = np.stack([np.eye(4), np.eye(4), truth_k])
+    poses[1, :3, 3] = [20.0, 0, 0]
+    clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
+    times = np.array([0.0, 600.0, 1200.0])
+    # every direction of this scene holds well under 0.6 per inlier: a factor of rank 0, which
+    # the pose graph refuses, was returned as accepted
+    strict = slam.LoopClosureDetector(config=slam.LoopClosureConfig(min_information=0.6))
+    accepted, rejected = strict.detect(2, clouds, [bounds, None, bounds], poses, poses, times)
+    assert not accepted and [(r.i, r.reason) for r in rejected] == [(0, "information")]
+    assert rejected[0].value < rejected[0].limit == 0.6
+    with pytest.raises(ValueError, match="min_separation must be a positive integer"):
+        slam.LoopClosureConfig(min_separation=0)
+
+
 def test_default_closures_constrain_translation_only_with_the_estimated_rotation():
     rng = np.random.default_rng(3)
     cloud = structured_cloud(rng, 2000)

@@ -145,7 +145,8 @@ class LoopClosureConfig(Config):
     min_points : int
         Both clouds need at least this many occupied voxels (and 3, ICP's least).
     min_separation : int
-        Pairs are at least this many submaps apart: neighbours are tied by odometry already.
+        Pairs are at least this many submaps apart (at least 1: a submap is not closed with
+        itself): neighbours are tied by odometry already.
     max_candidates : int
         At most this many candidates are aligned, the earlier submaps nearest to k (aligning
         costs most of a submap's time).
@@ -191,7 +192,7 @@ class LoopClosureConfig(Config):
     min_inlier_fraction: float = number(0.0, low=0, high=1)
     max_refinement_m: float = non_negative(0.2)
     min_points: int = integer(50, low=0)
-    min_separation: int = integer(2, low=0)
+    min_separation: int = integer(2, low=1)
     max_candidates: int = integer(4, low=0)
     max_fitness_m2: float = non_negative(0.02)
     drift_sigmas: float = non_negative(3.0)

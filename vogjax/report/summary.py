@@ -18,6 +18,7 @@ GATE_SETTINGS = {
     "refinement": "[loop_closure] max_refinement_m, or a finer [loop_closure.correlative] resolution_m",
     "drift": "[nav_noise] sigma2_x and sigma2_y (the gate is drift_sigmas of their drift)",
     "yaw drift": "[nav_noise] sigma2_yaw (the gate is drift_sigmas of its drift)",
+    "information": "[loop_closure] min_information (and registration_sigma_m)",
     "inconsistent": "[pose_graph] screen and its threshold",
 }
 

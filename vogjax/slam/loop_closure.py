@@ -97,6 +97,7 @@ REASONS = (
     "refinement",
     "drift",
     "yaw drift",
+    "information",
     "inconsistent",
 )
 
@@ -116,7 +117,8 @@ class Rejection:
         (runner-up over peak), "not converged" (ICP), "fitness" (mean squared inlier distance),
         "inliers" (share of the source matched), "refinement" (how far ICP moved the peak),
         "drift" (x-y offset from the navigation), "yaw drift" (yaw offset from the navigation,
-        when ICP solves the yaw), "inconsistent" (the pose graph's screen).
+        when ICP solves the yaw), "information" (no direction holds `min_information` per
+        inlier: nothing to constrain), "inconsistent" (the pose graph's screen).
     fitness : float
         ICP's mean squared inlier distance, m^2; NaN when ICP did not run.
     deviation_m : float
@@ -455,13 +457,22 @@ class LoopClosureDetector:
             return "drift", deviation, bound_m
         if yaw[0] > yaw[1]:
             return "yaw drift", yaw[0], yaw[1]
+        floor, good = self._constrained(result)
+        if not good.any():  # a closure must constrain something: a factor of rank 0 is none
+            return "information", float(result.eigenvalues.max()) / max(result.num_inliers, 1), floor
         return None
+
+    def _constrained(self, result) -> tuple[float, np.ndarray]:
+        """The information per inlier a direction needs, and which of ICP's eigen-directions
+        hold it."""
+        cfg = self.config
+        floor = max(cfg.icp.lambda_min, cfg.min_information if cfg.registration_sigma_m > 0 else 0.0)
+        return floor, result.eigenvalues >= floor * max(result.num_inliers, 1)
 
     def _closure(self, i: int, k: int, alignment: Alignment) -> LoopClosure:
         cfg, result = self.config, alignment.icp
         inliers = max(result.num_inliers, 1)
-        floor_information = max(cfg.icp.lambda_min, cfg.min_information if cfg.registration_sigma_m > 0 else 0.0)
-        good = result.eigenvalues >= floor_information * inliers
+        _, good = self._constrained(result)
         vectors = result.eigenvectors
         # ICP's sigma^2 H^-1 (fitness as sigma^2) over the constrained directions, plus, with
         # registration_sigma_m, the misfit a bend or an alias moves all the swath's points by:
