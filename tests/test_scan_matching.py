@@ -148,6 +148,10 @@ def test_bad_arguments_are_refused_by_name_before_anything_changes(runs):
         ("time_s", (np.array([0.0, np.nan, 0.2]), batch.pose_nav, returns)),
         ("time_s", (batch.time_s[::-1].copy(), batch.pose_nav, returns)),
         ("T_world_vehicle", (batch.time_s, batch.pose_nav[:2], returns)),
+        (
+            "T_world_vehicle is not rigid",
+            (batch.time_s, batch.pose_nav * np.r_[[1.1, 1.1, 1.1, 1.0]][:, None], returns),
+        ),
         ("returns_of", (batch.time_s, batch.pose_nav, None)),
         ("returns_of", (batch.time_s, batch.pose_nav, lambda j: np.full((4, 3), np.nan))),
     ]

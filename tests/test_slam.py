@@ -511,6 +511,7 @@ def test_correlative_search_reports_ambiguity_along_a_wall():
         (lambda pg: pg.add_submap(np.diag([1, 1, 2, 1.0]), 1.0), "T_world_submap_nav"),
         (lambda pg: pg.add_submap(np.eye(4), 0.0), "duration_s"),
         (lambda pg: pg.add_loop_closure(0, 5, np.eye(4), np.eye(6)), "k"),
+        (lambda pg: pg.add_loop_closure(True, 0, np.eye(4), np.eye(6)), "i must be a submap id"),  # not a bool
         (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), -np.eye(6)), "covariance"),
         (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.triu(np.ones((6, 6)))), "covariance"),
         (lambda pg: pg.add_loop_closure(0, 1, np.eye(4), np.eye(5)), "covariance"),

@@ -324,7 +324,11 @@ class PoseGraph:
             that is not (6, r) orthonormal; nothing is changed then.
         """
         for name, value in (("i", i), ("k", k)):
-            if not isinstance(value, (int, np.integer)) or not 0 <= value < self.num_submaps:
+            if (
+                isinstance(value, (bool, np.bool_))
+                or not isinstance(value, (int, np.integer))
+                or not 0 <= value < self.num_submaps
+            ):
                 raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
         if i == k:
             raise ValueError("i and k must differ")

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from vogjax.config import ScanMatchingConfig
-from vogjax.geometry import inverse
+from vogjax.geometry import inverse, rigid_poses
 from vogjax.slam.clouds import voxel_means
 from vogjax.slam.icp import MIN_POINTS, icp, prepare_target
 from vogjax.validation import float_array
@@ -103,12 +103,13 @@ class ScanMatcher:
         Raises
         ------
         ValueError
-            Naming the argument: times or poses of the wrong shape or not finite, times not
+            Naming the argument: times or poses of the wrong shape or not finite, poses not
+            rigid, times not
             increasing, returns_of not callable or giving anything but an (N, 3) finite array;
             the matcher is then as it was before the call.
         """
         time_s = float_array("time_s", time_s, (-1,), np.float64)
-        poses = float_array("T_world_vehicle", T_world_vehicle, (len(time_s), 4, 4), np.float64)
+        poses = rigid_poses("T_world_vehicle", T_world_vehicle, len(time_s))
         if not callable(returns_of):
             raise ValueError("returns_of must be callable: scan index -> (N, 3) returns")
         if len(time_s) and (np.any(np.diff(time_s) <= 0) or time_s[0] <= self._last_s):
