@@ -497,6 +497,17 @@ def test_correlative_search_equals_direct_correlation(seed, blur):
     np.testing.assert_allclose(match.T_target_source, expected @ T_init, atol=1e-12)
 
 
+def test_a_search_that_scores_zero_everywhere_returns_its_start():
+    """Target points in the search's x-y box but on layers the source never reaches: every
+    offset scores 0, and the match is T_init (it was the window's first corner)."""
+    rng = np.random.default_rng(0)
+    source = np.c_[rng.uniform(0, 3, (500, 2)), rng.uniform(0, 0.3, 500)]
+    start = small_motion(rng, 0.02, 0.1, planar=True)
+    match = slam.correlative_xyh(source, source + [0.0, 0.0, 10.0], start, radius_m=1.0, yaw_radius_rad=0.05)
+    assert match.score == 0.0 and match.ratio == 1.0
+    np.testing.assert_array_equal(match.T_target_source, start)
+
+
 def test_correlative_search_reports_ambiguity_along_a_wall():
     rng = np.random.default_rng(5)
     wall = np.c_[rng.uniform(0, 8, 3000), np.zeros(3000), rng.uniform(0, 3, 3000)]

@@ -401,7 +401,11 @@ class _Peak:
             self.score, self.yaw, self.index, self.window = float(window[index]), yaw, index, window
 
     def match(self, plan: _Plan, config: CorrelativeConfig) -> CorrelativeMatch:
-        """The peak's pose and its runner-up: the best score at least exclusion_m away."""
+        """The peak's pose and its runner-up: the best score at least exclusion_m away. A peak
+        of 0 (no source point over any target cell) finds nothing: T_init, not the window's
+        first corner."""
+        if not self.score > 0.0:
+            return CorrelativeMatch(np.array(plan.T_init, dtype=np.float64), 0.0, 0.0)
         res, window, peak = plan.resolution_m, self.window, self.index
         offsets = (np.array(peak) - plan.shift_cells) * res
         ii, jj = np.meshgrid(np.arange(window.shape[0]), np.arange(window.shape[1]), indexing="ij")
