@@ -365,7 +365,7 @@ def test_icp_batch(data):
         "valid" if count_s == count_t else "invalid", "invalid" if T_inits in ("short", "junk") else "valid"
     )
     results = attempt(
-        lambda: slam.icp_batch(sources, targets, inits), ["sources", "targets", "T_init"], None, expect, "icp_batch"
+        lambda: slam.icp_batch(sources, targets, inits), ["sources", "targets", "T_inits"], None, expect, "icp_batch"
     )
     if results is REFUSED:
         return

@@ -9,7 +9,8 @@
 - `ScanMatcher`: the odometry corrected by registering each scan to a local map of the last
   few seconds' scans (a lidar's own heading);
 - `icp`: point-to-plane (degeneracy-aware) and 2D point-to-point ICP, batched (`IcpResult`,
-  `IcpTarget`).
+  `IcpTarget`), its directions judged at the source's centre (`centre_adjoint`,
+  `constrained_basis`).
 
 Poses are (4, 4) rigid transforms named by their frames (``T_world_submap``, ``T_i_k``);
 covariances and tangents follow GTSAM's Pose3 order, rotation then translation.
@@ -19,7 +20,7 @@ from vogjax.config import CorrelativeConfig, IcpConfig, LoopClosureConfig, PoseG
 from vogjax.geometry import pose_deltas
 from vogjax.slam.backend import ClosureCheck, PoseGraph
 from vogjax.slam.correlative import CorrelativeMatch, correlative_xyh, correlative_xyh_batch, self_score
-from vogjax.slam.icp import IcpResult, IcpTarget, icp, icp_batch, prepare_target
+from vogjax.slam.icp import IcpResult, IcpTarget, centre_adjoint, constrained_basis, icp, icp_batch, prepare_target
 from vogjax.slam.loop_closure import LoopClosure, LoopClosureDetector, Rejection
 from vogjax.slam.odometry import ScanMatcher
 
@@ -38,6 +39,8 @@ __all__ = [
     "Rejection",
     "ScanMatcher",
     "ScanMatchingConfig",
+    "centre_adjoint",
+    "constrained_basis",
     "correlative_xyh",
     "correlative_xyh_batch",
     "icp",

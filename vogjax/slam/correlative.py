@@ -53,7 +53,9 @@ class CorrelativeMatch:
         lands on a target voxel; 0 when no target point was in reach, T_target_source then
         being T_init).
     runner_up : float
-        The best score at least `CorrelativeConfig.exclusion_m` from the peak in x-y.
+        The best score at least `CorrelativeConfig.exclusion_m` from the peak in x-y; 0 where
+        the window searched holds no offset that far from the peak (a drift bound smaller than
+        exclusion_m: no offset the navigation allows could be confused with the peak).
     """
 
     T_target_source: npt.NDArray[np.float64]

@@ -37,9 +37,10 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
-from vogjax.geometry import inverse
+from vogjax.geometry import inverse, rigid_poses
 from vogjax.slam.correlative import correlative_xyh, correlative_xyh_batch, self_score
-from vogjax.slam.icp import IcpResult, IcpTarget, icp_batch, prepare_target
+from vogjax.slam.icp import IcpResult, IcpTarget, centre_adjoint, constrained_basis, icp_batch, prepare_target
+from vogjax.validation import float_array, real_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -325,18 +326,30 @@ class LoopClosureDetector:
         -------
         list of int
             The candidates' ids, ascending.
+
+        Raises
+        ------
+        ValueError
+            As for `detect`, naming the argument.
         """
+        clouds, poses = _checked_submaps(k, clouds, bounds, poses)
+        return self._candidates(k, clouds, bounds, poses)
+
+    def _candidates(self, k, clouds, bounds, poses) -> list[int]:
         cfg = self.config
         least = max(cfg.min_points, 3)  # ICP's least; fewer points are no cloud to align
         if len(clouds[k]) < least:
             return []
+        _finite_cloud(k, clouds[k])
         centroid = np.append(clouds[k].mean(axis=0), 1.0)
         found, distances = [], []
         for i in range(0, k - cfg.min_separation + 1):
             if len(clouds[i]) < least or bounds[i] is None:
                 continue
+            lo, hi = _box(i, bounds[i])
             in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
-            if np.all(in_i >= bounds[i][0]) and np.all(in_i <= bounds[i][1]):
+            if np.all(in_i >= lo) and np.all(in_i <= hi):
+                _finite_cloud(i, clouds[i])
                 found.append(i)
                 distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
         # aligning costs most of a submap's time: bound it by the best-placed few
@@ -379,10 +392,21 @@ class LoopClosureDetector:
             The accepted closures, for `PoseGraph.add_loop_closure`.
         rejections : list of Rejection
             The candidates that failed, with the figure that failed.
+
+        Raises
+        ------
+        ValueError
+            Naming the argument, before any work: `k` not an id of `clouds`, `bounds`, `poses`,
+            `nav_poses` or `times_s` not one per cloud, a cloud not (N, 3) real numbers (or,
+            where it is used, with NaN or infinite values), a box it uses not (lo, hi) with
+            lo <= hi, poses not rigid, or times not finite.
         """
+        clouds, poses = _checked_submaps(k, clouds, bounds, poses)
+        nav_poses = rigid_poses("nav_poses", nav_poses, count=len(clouds))
+        times_s = float_array("times_s", times_s, (len(clouds),), np.float64)
         accepted, rejected = [], []
         self.seconds = dict.fromkeys(self.seconds, 0.0)
-        found = self.candidates(k, clouds, bounds, poses)
+        found = self._candidates(k, clouds, bounds, poses)
         if not found:
             return accepted, rejected
         cfg = self.config
@@ -474,7 +498,8 @@ class LoopClosureDetector:
         inliers = max(result.num_inliers, 1)
         _, good = self._constrained(result)
         vectors = result.eigenvectors
-        # ICP's sigma^2 H^-1 (fitness as sigma^2) over the constrained directions, plus, with
+        # ICP's sigma^2 H^-1 (fitness as sigma^2) over the constrained directions (in the
+        # tangent at the source's centre, as ICP's eigen-directions are), plus, with
         # registration_sigma_m, the misfit a bend or an alias moves all the swath's points by:
         # registration_sigma_m^2 / lambda per inlier. Directions left out are the partial
         # factor's to drop (a full factor never sees them: r = 6 then); they get a variance of 1
@@ -488,7 +513,11 @@ class LoopClosureDetector:
         covariance = covariance + np.diag(floor)
         if cfg.registration_sigma_m > 0:
             covariance = (covariance + covariance.T) / 2
-        basis = None if good.all() else vectors[:, good]
+        if result.centre.any():  # from the tangent at the cloud's centre, where ICP judged it, to GTSAM's
+            A = centre_adjoint(result.centre)
+            covariance = A @ covariance @ A.T
+            covariance = (covariance + covariance.T) / 2
+        basis = None if good.all() else constrained_basis(result, good)
         return LoopClosure(
             i,
             k,
@@ -500,6 +529,38 @@ class LoopClosureDetector:
             alignment.overlap,
             alignment.ambiguity,
         )
+
+
+def _checked_submaps(k, clouds, bounds, poses) -> tuple[list, np.ndarray]:
+    """The detector's per-submap arguments, checked before any work (each cloud's values where
+    it is used: the new one, and each candidate's)."""
+    count = len(clouds)
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < count:
+        raise ValueError(f"k must be a submap id, an integer in [0, {count}), got {k!r}")
+    if len(bounds) != count:
+        raise ValueError(f"bounds must have one entry per cloud ({count}), got {len(bounds)}")
+    checked = []
+    for i, cloud in enumerate(clouds):
+        cloud = real_array(f"clouds[{i}]", cloud)
+        if cloud.ndim != 2 or cloud.shape[1] != 3:
+            raise ValueError(f"clouds[{i}] must have shape (N, 3), got {cloud.shape}")
+        checked.append(cloud)
+    return checked, rigid_poses("poses", poses, count=count)
+
+
+def _finite_cloud(i: int, cloud: np.ndarray) -> None:
+    if not np.all(np.isfinite(cloud)):
+        raise ValueError(f"clouds[{i}] contains NaN or infinite values")
+
+
+def _box(i: int, box) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        lo, hi = (np.asarray(corner, dtype=np.float64) for corner in box)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds[{i}] must be None or a (lo, hi) pair of (3,) corners") from None
+    if lo.shape != (3,) or hi.shape != (3,) or np.isnan(lo).any() or np.isnan(hi).any() or np.any(lo > hi):
+        raise ValueError(f"bounds[{i}] must be None or a (lo, hi) pair of (3,) corners with lo <= hi")
+    return lo, hi
 
 
 def _yaw_of(T: np.ndarray) -> float:
