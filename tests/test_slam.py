@@ -443,6 +443,44 @@ def test_icp_names_its_start_pose():
         slam.icp_batch([cloud], [cloud], np.stack([np.eye(4)] * 2))
 
 
+@pytest.mark.parametrize("scene", ["room", "floor"])
+@pytest.mark.parametrize("offset_m", [0.0, 30.0])
+def test_a_perfect_fit_without_registration_sigma_enters_the_graph(scene, offset_m):
+    """registration_sigma_m 0 and no floors: the closure's covariance is ICP's own, which for
+    an exact fit was below what GTSAM can invert (add_loop_closure refused it, and the run
+    stopped). Its variances stop at MIN_CLOSURE_VARIANCE, and a partial closure (a floor: x, y
+    and yaw free) stays positive definite; the graph then holds the closure's pose."""
+    rng = np.random.default_rng(11)
+    cloud = structured_cloud(rng, 2000)
+    if scene == "floor":
+        cloud = cloud[cloud[:, 2] == 0.0]
+    cloud = cloud + [offset_m, 0.0, 0.0]  # far from the frame's origin: the covariance moves there
+    truth_k = small_motion(rng, 0.0, 0.05, planar=True)
+    clouds = [cloud, cloud[:10], (cloud - truth_k[:3, 3]) @ truth_k[:3, :3]]
+    bounds = (cloud.min(axis=0) - 0.1, cloud.max(axis=0) + 0.1)
+    poses = np.stack([np.eye(4), np.eye(4), truth_k])
+    config = slam.LoopClosureConfig(
+        icp=slam.IcpConfig(max_correspondence_m=0.3, free="all"),
+        registration_sigma_m=0.0,
+        min_sigma_rotation_rad=0.0,
+        min_sigma_translation_m=0.0,
+    )
+    accepted, rejected = slam.LoopClosureDetector(config=config).detect(
+        2, clouds, [bounds, None, bounds], poses, poses, np.array([0.0, 600.0, 1200.0])
+    )
+    assert len(accepted) == 1 and not rejected, rejected
+    closure = accepted[0]
+    assert closure.fitness < 1e-20
+    assert (closure.basis is None) == (scene == "room")
+    assert np.linalg.eigvalsh(closure.covariance).min() >= 0.99 * slam.loop_closure.MIN_CLOSURE_VARIANCE
+    graph = slam.PoseGraph()
+    for T in poses:
+        graph.add_submap(T, 600.0)
+    graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+    estimate = graph.update()
+    np.testing.assert_allclose(inverse(estimate[0]) @ estimate[2], truth_k, atol=1e-6)
+
+
 def test_detector_accepts_true_and_rejects_wrong_loop_closures():
     rng = np.random.default_rng(3)
     cloud = structured_cloud(rng, 2000)

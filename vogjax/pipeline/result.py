@@ -296,10 +296,9 @@ class Result:
             for suffix, (poses, T_i_k) in measured.items():
                 if poses is None:
                     continue
-                twist = log_se3(inverse(relative(poses, c)) @ T_i_k)
-                constrained = basis @ (basis.T @ twist)
-                error["translation_m" + suffix] = float(np.linalg.norm(constrained[3:]))
-                error["rotation_deg" + suffix] = float(np.degrees(np.linalg.norm(constrained[:3])))
+                rotation, translation = dataclasses.replace(c, T_i_k=T_i_k).errors_at_centre(relative(poses, c))
+                error["translation_m" + suffix] = translation
+                error["rotation_deg" + suffix] = float(np.degrees(rotation))
             errors.append(error)
         out = {}
         for suffix, name, known in (

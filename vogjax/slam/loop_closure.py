@@ -37,7 +37,7 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
-from vogjax.geometry import inverse, rigid_poses
+from vogjax.geometry import inverse, log_se3, rigid_poses
 from vogjax.slam.correlative import correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, centre_adjoint, constrained_basis, icp_batch, prepare_target
 from vogjax.validation import float_array, real_array
@@ -72,6 +72,10 @@ class LoopClosure:
         Runner-up over peak score (0: unambiguous, 1: a tie); NaN when it has none.
     distance : float
         Mahalanobis distance from the graph's estimate at entry (NaN: not screened).
+    centre : (3,) ndarray of float64
+        Where in submap k's frame ICP judged the directions (`IcpResult.centre`: the cloud's
+        centroid; zero with the rotation held), metres: `errors_at_centre` measures an error
+        there.
     """
 
     i: int
@@ -84,6 +88,33 @@ class LoopClosure:
     overlap: float = np.nan
     ambiguity: float = np.nan
     distance: float = np.nan
+    centre: npt.NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros(3))
+
+    def errors_at_centre(self, T_i_k_true: npt.ArrayLike) -> tuple[float, float]:
+        """The closure's error against a true relative pose, in what it constrains: the
+        rotation (rad) and translation (m) of the error twist at `centre`, projected on the
+        constrained directions there (where a turn and a shift are told apart, as ICP judged
+        them; at the frame's origin a cloud 30 m off turns by a twist of rotation and 30 times
+        as much translation).
+
+        Parameters
+        ----------
+        T_i_k_true : (4, 4) array_like of float
+            The true pose of submap k's base in submap i's frame.
+
+        Returns
+        -------
+        rotation_rad, translation_m : float
+            The norms of the constrained error's rotation and translation parts.
+        """
+        twist = log_se3(inverse(np.asarray(T_i_k_true, dtype=np.float64)) @ self.T_i_k)
+        basis = np.eye(6) if self.basis is None else self.basis
+        if self.centre.any():  # to the tangent at the centre, and the basis's span with it
+            A = centre_adjoint(self.centre)
+            twist = np.linalg.solve(A, twist)
+            basis = np.linalg.qr(A.T @ basis)[0]
+        constrained = basis @ (basis.T @ twist)
+        return float(np.linalg.norm(constrained[:3])), float(np.linalg.norm(constrained[3:]))
 
 
 # The self-scores a detector keeps for its aligner before it starts afresh (one per submap cloud)
@@ -231,6 +262,12 @@ def _overlaps(pairs: list, seeds: list, config: LoopClosureConfig, kept: dict | 
 
 
 ALIGNERS = {"correlative_icp": correlative_then_icp}
+
+
+# A closure's least variance per direction: a 10 micrometre (or microradian) sigma, a hundred
+# times the pose graph's least (`backend.MIN_VARIANCE`), so the covariance's round-off, and its
+# move to GTSAM's tangent, stay clear of it
+MIN_CLOSURE_VARIANCE = 1e-10
 
 
 class LoopClosureDetector:
@@ -502,21 +539,24 @@ class LoopClosureDetector:
         # tangent at the source's centre, as ICP's eigen-directions are), plus, with
         # registration_sigma_m, the misfit a bend or an alias moves all the swath's points by:
         # registration_sigma_m^2 / lambda per inlier. Directions left out are the partial
-        # factor's to drop (a full factor never sees them: r = 6 then); they get a variance of 1
-        # so the matrix stays positive definite.
+        # factor's to drop (a full factor never sees them: r = 6 then); they get a variance of
+        # 1 so the matrix stays positive definite whatever the floors.
         values = result.eigenvalues[good]
         variance = max(result.fitness, 1e-12) / values + cfg.registration_sigma_m**2 * inliers / values
         covariance = vectors[:, good] @ np.diag(variance) @ vectors[:, good].T
-        if cfg.registration_sigma_m > 0:  # (without it, the floors keep the matrix definite, as they always did)
-            covariance = covariance + vectors[:, ~good] @ vectors[:, ~good].T
+        covariance = covariance + vectors[:, ~good] @ vectors[:, ~good].T
         floor = np.array([cfg.min_sigma_rotation_rad] * 3 + [cfg.min_sigma_translation_m] * 3) ** 2
         covariance = covariance + np.diag(floor)
-        if cfg.registration_sigma_m > 0:
-            covariance = (covariance + covariance.T) / 2
+        covariance = (covariance + covariance.T) / 2
         if result.centre.any():  # from the tangent at the cloud's centre, where ICP judged it, to GTSAM's
             A = centre_adjoint(result.centre)
             covariance = A @ covariance @ A.T
             covariance = (covariance + covariance.T) / 2
+        # a perfect fit without registration_sigma_m or floors gave variances GTSAM cannot
+        # invert, and the closure was refused: none below MIN_CLOSURE_VARIANCE
+        least = np.linalg.eigvalsh(covariance)[0]
+        if least < MIN_CLOSURE_VARIANCE:
+            covariance = covariance + (MIN_CLOSURE_VARIANCE - least) * np.eye(6)
         basis = None if good.all() else constrained_basis(result, good)
         return LoopClosure(
             i,
@@ -528,6 +568,7 @@ class LoopClosureDetector:
             result.num_inliers,
             alignment.overlap,
             alignment.ambiguity,
+            centre=result.centre,
         )
 
 
