@@ -116,3 +116,20 @@ def test_registration_clouds_are_the_voxel_means_bit_for_bit(spread_m):
     np.add.at(sums, inverse.reshape(-1), points)
     counts = np.bincount(inverse.reshape(-1), minlength=len(rows))
     np.testing.assert_array_equal(voxel_means(points, 0.4), sums / counts[:, None])
+
+
+@pytest.mark.parametrize(
+    "points, voxel_size, named",
+    [
+        ([[np.nan, 0.0, 0.0], [1.0, 1.0, 1.0]], 0.1, "points"),
+        ([[0.0, 0.0]], 0.1, "points"),
+        ([[1e300, 0.0, 0.0], [0.0, 0.0, 0.0]], 1e-300, "points"),  # keys past int64: wrapped, then crashed
+        ([[0.0, 0.0, 0.0]], 0.0, "voxel_size"),  # every point fell in one "voxel"
+        ([[0.0, 0.0, 0.0]], -0.4, "voxel_size"),
+    ],
+)
+def test_registration_clouds_refuse_bad_input_naming_it(points, voxel_size, named):
+    from vogjax.slam.clouds import voxel_means
+
+    with pytest.raises(ValueError, match=f"^{named} "):
+        voxel_means(np.asarray(points), voxel_size)

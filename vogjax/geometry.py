@@ -67,6 +67,8 @@ def rigid_poses(name: str, value: npt.ArrayLike, count: int | None = None) -> np
 
 def _proper_rotations(rotations: np.ndarray) -> bool:
     """Whether finite (n,3,3) matrices are orthonormal to RIGID_TOLERANCE with determinant +1."""
+    if np.abs(rotations).max(initial=0.0) > 1.0 + RIGID_TOLERANCE:  # no rotation's entry is; and no overflow below
+        return False
     gram_error = np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(initial=0.0)
     return not (gram_error > RIGID_TOLERANCE or np.any(np.linalg.det(rotations) < 0))
 

@@ -17,6 +17,7 @@ weight once other closures do.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from functools import partial
 
 import gtsam
@@ -186,6 +187,9 @@ class PoseGraph:
     factors : list of tuple
         (kind, keys) of every factor added, for inspection: kind "prior", "xyh", "zpr", "loop"
         or "partial_loop", keys the submap ids it ties.
+    factorization : str
+        iSAM2's: "CHOLESKY" (GTSAM's default), or "QR" from the first `update` that Cholesky
+        found indeterminate (sigmas spanning too many orders for it; a RuntimeWarning says so).
 
     Raises
     ------
@@ -217,6 +221,8 @@ class PoseGraph:
             )
         self._prior_noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
         self._isam = gtsam.ISAM2(gtsam.ISAM2Params())
+        self.factorization = "CHOLESKY"
+        self._committed = gtsam.NonlinearFactorGraph()  # every factor iSAM2 holds, to refactor from
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._nav: list[np.ndarray] = []
@@ -415,12 +421,47 @@ class PoseGraph:
             The optimised base poses ``T_world_submap`` of all N submaps, a copy.
         """
         if self._pending.size() or self._pending_values.size():
-            self._isam.update(self._pending, self._pending_values)
+            try:
+                self._isam.update(self._pending, self._pending_values)
+            except RuntimeError as error:
+                if self.factorization == "QR" or "ndetermina" not in str(error):
+                    raise
+                self._refactor_with_qr()
+            self._committed.push_back(self._pending)
             self._pending = gtsam.NonlinearFactorGraph()
             self._pending_values = gtsam.Values()
             estimate = self._isam.calculateEstimate()
             self._estimates = np.stack([estimate.atPose3(i).matrix() for i in range(self.num_submaps)])
         return self._estimates.copy()
+
+    def _refactor_with_qr(self) -> None:
+        """Start iSAM2 afresh on QR, with every factor so far and the pending ones.
+
+        iSAM2's default Cholesky factorization squares the whitened Jacobians, so a graph whose
+        sigmas span many orders (a loose prior beside tight odometry, a yaw drift of radians
+        over hundreds of metres: valid settings, each) leaves it a system it calls
+        indeterminate, and the failed update leaves the old iSAM2 unusable. QR works on the
+        Jacobians themselves and solves those graphs; the papers' graphs never get here, so
+        their poses keep Cholesky's bits. From here on the graph stays on QR
+        (`factorization`)."""
+        params = gtsam.ISAM2Params()
+        params.setFactorization("QR")
+        values = gtsam.Values()
+        for i, T in enumerate(self._estimates):
+            values.insert(i, _pose3(T))
+        values.insert(self._pending_values)
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(self._committed)
+        graph.push_back(self._pending)
+        self._isam = gtsam.ISAM2(params)
+        self.factorization = "QR"
+        warnings.warn(
+            "the pose graph's sigmas span too many orders for iSAM2's Cholesky factorization "
+            "(GTSAM: indeterminate linear system); it goes on with QR",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        self._isam.update(graph, values)
 
     def poses(self) -> npt.NDArray[np.float64]:
         """The optimised poses as of the last `update`.

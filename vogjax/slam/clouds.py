@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vogjax.validation import float_array, positive_number
+
 # voxel_means counts into every cell of the keys' box when it holds at most this many cells per
 # point, or this many cells in all: two int64 per cell, at most 64 bytes a point beside the
 # 48 of its coordinates and keys
@@ -19,10 +21,19 @@ def voxel_means(points: np.ndarray, voxel_size: float) -> np.ndarray:
     runs over its points in their order (`np.bincount`, as `np.add.at` did): the same bits as
     sorting the key rows, 20 times faster on a lidar submap's million points. Where the box of
     keys holds few cells for the points (a submap's cloud), the voxels are found by counting
-    into every cell of the box instead of sorting the keys: the same voxels in the same order."""
+    into every cell of the box instead of sorting the keys: the same voxels in the same order.
+
+    Raises ValueError naming `points` (not (N, 3) finite reals, or keys past +-2^62 voxels) or
+    `voxel_size` (not positive and finite)."""
+    points = float_array("points", points, (-1, 3), np.float64)
+    voxel_size = positive_number("voxel_size", voxel_size)
     if len(points) == 0:
         return np.zeros((0, 3))
-    keys = np.floor(points / voxel_size).astype(np.int64)
+    with np.errstate(over="ignore"):
+        scaled = np.floor(points / voxel_size)
+    if not np.all(np.abs(scaled) < 2.0**62):  # past it the keys' cast wraps
+        raise ValueError(f"points lie more than 2^62 voxels of {voxel_size} m from the origin")
+    keys = scaled.astype(np.int64)
     low = keys.min(axis=0)
     spans = keys.max(axis=0) - low + 1
     cells = float(np.prod(spans.astype(np.float64)))
