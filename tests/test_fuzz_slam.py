@@ -700,3 +700,49 @@ def test_the_papers_graph_stays_on_cholesky():
         graph.add_submap(exp_se3(np.array([0.0, 0.0, 0.1 * j, 5.0 * j, 0.0, 0.0])), 600.0)
         graph.update()
     assert graph.factorization == "CHOLESKY"
+
+
+@fuzz(25)
+@given(
+    seed=st.integers(0, 2**16),
+    offset_m=st.sampled_from([0.0, 40.0, 3e3]),
+    free=st.sampled_from(["translation", "yaw", "all"]),
+    registration_sigma_m=st.sampled_from([0.0, 0.025]),
+    floors=st.booleans(),
+    noise_m=st.sampled_from([0.0, 0.003]),
+    scene=st.sampled_from(["room", "floor", "wall"]),
+)
+def test_every_closure_the_detector_returns_enters_the_graph(
+    seed, offset_m, free, registration_sigma_m, floors, noise_m, scene
+):
+    """A closure the detector accepts is one the pose graph can take: its covariance within
+    the graph's bounds whatever the fit (exact, degenerate, far from the frame's origin) and
+    the settings (a perfect fit without registration_sigma_m or floors was refused, and the
+    run stopped)."""
+    from vogjax.config import LoopClosureConfig
+
+    rng = np.random.default_rng(seed)
+    parts = [
+        np.c_[rng.uniform(0, 6, 500), rng.uniform(0, 4, 500), np.zeros(500)],
+        np.c_[np.zeros(500), rng.uniform(0, 4, 500), rng.uniform(0, 3, 500)],
+        np.c_[rng.uniform(0, 6, 500), np.zeros(500), rng.uniform(0, 3, 500)],
+    ]
+    cloud = {"room": np.concatenate(parts), "floor": parts[0], "wall": parts[1]}[scene] + [offset_m, 0.0, 0.0]
+    truth = exp_se3(np.r_[0.0, 0.0, rng.normal(0, 0.02), rng.normal(0, 0.05, 2), 0.0])
+    seen = (cloud - truth[:3, 3]) @ truth[:3, :3] + rng.normal(0, noise_m, cloud.shape)
+    clouds = [cloud, cloud[:10], seen]
+    bounds = (cloud.min(axis=0) - 0.5, cloud.max(axis=0) + 0.5)
+    poses = np.stack([np.eye(4), np.eye(4), truth])
+    extra = {} if floors else {"min_sigma_rotation_rad": 0.0, "min_sigma_translation_m": 0.0}
+    config = LoopClosureConfig(
+        icp=IcpConfig(max_correspondence_m=0.3, free=free), registration_sigma_m=registration_sigma_m, **extra
+    )
+    accepted, _ = slam.LoopClosureDetector(config=config).detect(
+        2, clouds, [bounds, None, bounds], poses, poses, np.array([0.0, 600.0, 1200.0])
+    )
+    graph = slam.PoseGraph(config=vj.config.PoseGraphConfig(screen="none"))
+    for T in poses:
+        graph.add_submap(T, 600.0)
+    for closure in accepted:
+        graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
+    assert np.all(np.isfinite(graph.update()))
