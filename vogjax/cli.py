@@ -18,6 +18,7 @@ import os
 import re
 import sys
 import tempfile
+import warnings
 
 from vogjax.commands.common import HelpFormatter
 
@@ -33,7 +34,7 @@ COMMANDS = {
     "config": "settings",
 }
 # commands that run Warp: started before the command, so its start-up messages come first
-WARP_COMMANDS = ("simulate", "map", "demo", "export", "view", "explore")
+WARP_COMMANDS = ("simulate", "map", "demo", "export", "import", "view", "explore")
 # what Warp's native library prints to stderr when there is no NVIDIA driver (CPU-only machines)
 CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 
@@ -274,6 +275,28 @@ def start_libraries(verbose: bool) -> None:
             print(line, file=sys.stderr)
 
 
+@contextlib.contextmanager
+def _warnings_as_lines(command: str, verbose: bool):
+    """Python warnings as the command's other notes: one line on stderr (`vogjax CMD: warning:
+    ...`), each message once; the libraries' own (JAX's, Matplotlib's) only with --verbose."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        path = os.path.abspath(filename)
+        ours = path.startswith(package + os.sep)
+        library = not ours and ("site-packages" in path or "dist-packages" in path or path.startswith(sys.base_prefix))
+        text = " ".join(str(message).split())
+        if (verbose or not library) and text not in seen:
+            seen.add(text)
+            print(f"vogjax {command}: warning: {text}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")  # each message once, by `seen`, not once per line of code
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `vogjax` with `argv` (default: the process's arguments).
 
@@ -290,9 +313,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     module = importlib.import_module(f"vogjax.commands.{COMMANDS[args.command]}")
     try:
-        if args.command in WARP_COMMANDS:
-            start_libraries(getattr(args, "verbose", False))
-        module.run(args)
+        with _warnings_as_lines(args.command, getattr(args, "verbose", False)):
+            if args.command in WARP_COMMANDS:
+                start_libraries(getattr(args, "verbose", False))
+            module.run(args)
     except ValueError as error:
         print(f"vogjax {args.command}: error: {str(error).replace(chr(10), ' ')}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -59,9 +59,9 @@ def add_parser(commands) -> None:
     explore.add_argument(
         "--seed",
         type=ruled("integer", 0, 2**63 - 1),
-        default=0,
+        default=None,
         metavar="N",
-        help="seed of the planner, navigation and range noise",
+        help="seed of the planner, navigation and range noise (default: [planner] seed of --config, else 0)",
     )
     explore.add_argument(
         "--rule",
@@ -93,6 +93,8 @@ def run(args) -> None:
     """
     from vogjax.sim.explore import csv_path_of, explore, load_settings
 
+    if not args.out.name:  # '' or '/': no file to write, and no CSV name beside it
+        raise ValueError(f"--out must name a run file (RUN.h5), got {str(args.out)!r}")
     for path in (args.out, csv_path_of(args.out)):
         refuse_existing(path, args.overwrite, "--out" if path == args.out else "--out's CSV")
     planner_config, pipeline_config = load_settings(args.config, args.scene, args.seed, args.rule)
@@ -105,7 +107,7 @@ def run(args) -> None:
         args.out,
         args.submaps,
         map_kind=args.map,
-        seed=args.seed,
+        seed=planner_config.seed,
         planner_config=planner_config,
         pipeline_config=pipeline_config,
         progress=not args.quiet,

@@ -112,13 +112,20 @@ def run(args: argparse.Namespace) -> None:
     """
     from vogjax import report
     from vogjax.config import JobConfig, presets
+    from vogjax.config.schema import read_toml
     from vogjax.io.atomic import check_writable
+    from vogjax.report.job import refuse_inputs_inside
 
     for path in args.runs:
         refuse_existing(args.out / path.stem, args.overwrite, flag="--out", folder=True)
+    folders = [args.out / path.stem for path in args.runs]
+    refuse_inputs_inside(folders, args.runs)
+    if args.config:
+        refuse_inputs_inside(folders, [args.config], "--config")
     base = JobConfig.preset(args.preset)
-    config = JobConfig.from_toml(args.config, base) if args.config else base
-    given = presets.changed_settings(base) | (_file_settings(args.config) if args.config else set())
+    document = read_toml(args.config) if args.config else {}
+    config = JobConfig.from_document(document, base) if args.config else base
+    given = presets.changed_settings(base) | presets.given_settings(document)
     if args.crm:
         config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))
     progress = not args.quiet
@@ -169,16 +176,6 @@ def run(args: argparse.Namespace) -> None:
         print(f"vogjax map: error: {outcome.path}: {outcome.error}", file=sys.stderr)
     if failed:
         raise SystemExit(2)
-
-
-def _file_settings(path: Path) -> set[str]:
-    """The settings a settings file sets (it was read and checked by `JobConfig.from_toml`)."""
-    import tomllib
-
-    from vogjax.config.presets import given_settings
-
-    with open(path, "rb") as file:
-        return given_settings(tomllib.load(file))
 
 
 def _warn(reports: list[dict], quiet: bool) -> None:

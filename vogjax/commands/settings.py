@@ -156,16 +156,16 @@ def defaults_text(command: str, preset: str = "default", scene: str | None = Non
         title = "vogjax map" + (f" --preset {preset}" if preset != "default" else "")
         return settings_toml(config, title)
     if rule == "time":
-        note = "The time-aware rule's settings, the same for every scene. The seed is --seed's."
+        note = "The time-aware rule's settings, the same for every scene. --seed, when given, sets the seed."
         return settings_toml(config, "vogjax explore", notes={"planner": note})
     if scene is None:
         note = (
             "With --rule papers the planner's settings are the scene's (the papers' for it): the lines below, "
             "PlannerConfig's own defaults, are comments; `vogjax config --defaults --for explore --rule papers "
-            "--scene NAME` prints a scene's. The seed is --seed's."
+            "--scene NAME` prints a scene's. --seed, when given, sets the seed."
         )
         return settings_toml(config, "vogjax explore --rule papers", commented=("planner",), notes={"planner": note})
-    note = f"The papers' planner settings for the {scene} scene. The seed is --seed's."
+    note = f"The papers' planner settings for the {scene} scene. --seed, when given, sets the seed."
     return settings_toml(config, f"vogjax explore --rule papers --scene {scene}", notes={"planner": note})
 
 

@@ -156,7 +156,7 @@ class ReportConfig(Config):
         Points sampled on the true surface for the reconstruction RMSE.
     """
 
-    surface_points: int = integer(50_000, low=1, high=10_000_000)
+    surface_points: int = integer(50_000, low=3, high=10_000_000)  # registering needs 3
 
 
 @dataclasses.dataclass(frozen=True)

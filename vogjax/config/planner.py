@@ -26,6 +26,8 @@ from vogjax.config.sim import ControllerConfig
 # The most nodes a tree may grow to: each round finds its samples' nearest nodes among all of
 # them, and the work grows with the square of the tree (the papers use N_tol of 60 or so).
 MAX_TREE_NODES = 10_000
+# MapConfig.voxel_size's bound: a map level of voxel_size * 2^k is read as a map of that voxel size
+MAX_VOXEL_M = 1e3
 SELECTIONS = ("gain_rate", "discounted")
 GAINS = ("volume", "frontier")
 GAIN_REGIONS = ("bounds", "scene")
@@ -318,3 +320,19 @@ class ExploreConfig(Config):
 
     pipeline: PipelineConfig = section(PipelineConfig(), flatten=True)
     planner: PlannerConfig = section(PlannerConfig())
+
+    def check(self) -> None:
+        # what `vogjax explore` would otherwise refuse only once it plans, after the first submaps
+        if self.planner.risk_weight > 0:
+            raise ValueError(
+                "planner.risk_weight > 0 needs a risk callable (NbvPlanner(risk=...) in Python); "
+                "`vogjax explore` has none: leave it at 0"
+            )
+        voxel_m = self.pipeline.map.voxel_size
+        for name in ("collision_level", "gain_level"):
+            level = getattr(self.planner, name)
+            if voxel_m * 2**level > MAX_VOXEL_M:
+                raise ValueError(
+                    f"planner.{name} = {level}: voxels of {voxel_m * 2**level:g} m at map.voxel_size "
+                    f"{voxel_m:g} m, past the {MAX_VOXEL_M:g} m a map level may have"
+                )

@@ -537,16 +537,7 @@ class Config:
             If the file does not exist, is not valid TOML or nests too deeply, or (from
             `from_document`) holds an unknown table or key or a value that breaks its rule.
         """
-        path = Path(path)
-        try:
-            document = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"config {str(path)!r} does not exist") from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError, IsADirectoryError, PermissionError) as error:
-            raise ValueError(f"config {str(path)!r} is not valid TOML: {error}") from None
-        except RecursionError:  # tomllib recurses into nested arrays and tables
-            raise ValueError(f"config {str(path)!r} nests too deeply to be a settings file") from None
-        return cls.from_document(document, base)
+        return cls.from_document(read_toml(path), base)
 
     @classmethod
     def tables(cls) -> dict[str, tuple[str, ...]]:
@@ -674,3 +665,23 @@ def _has_type(rule: Rule, value) -> bool:
     if isinstance(value, bool):
         return False
     return isinstance(value, int) if rule.kind == "integer" else isinstance(value, float)
+
+
+def read_toml(path: str | Path) -> dict:
+    """A settings file's document, read once (a pipe, ``--config <(...)``, reads empty the
+    second time: read it here and build from the document).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: it does not exist, is not valid TOML, or nests too deeply.
+    """
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"config {str(path)!r} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, IsADirectoryError, PermissionError) as error:
+        raise ValueError(f"config {str(path)!r} is not valid TOML: {error}") from None
+    except RecursionError:  # tomllib recurses into nested arrays and tables
+        raise ValueError(f"config {str(path)!r} nests too deeply to be a settings file") from None

@@ -666,8 +666,14 @@ class Dataset:
         Raises
         ------
         ValueError
-            Naming the file and the damage.
+            Naming the file and the damage: a scan, or the sensor its metadata describes.
         """
+        from vogjax import sensors  # (sensors import this module)
+
+        try:
+            sensors.from_metadata(self.metadata)
+        except ValueError as error:
+            raise ValueError(f"dataset {str(self.path)!r}: {error}") from None
         for _ in self.batches(size):
             pass
 

@@ -72,9 +72,12 @@ def evaluate_run(result: Result, scene: Scene, surface_points: int = 50_000) -> 
         maps["true_pose"] = result.truth_merge
     if result.rigid_truth_merge is not None:
         maps["rigid_truth"] = result.rigid_truth_merge
-    curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()}
+    # an ROC needs both kinds among the observed voxels (a coarse map may observe no free one):
+    # without, the AUCs are undefined (null), not an error after all the mapping
+    scorable = bool(occupied.any() and not occupied.all())
+    curves = {name: roc(m.probability(centres), occupied) for name, m in maps.items()} if scorable else {}
     confidence = {}
-    if result.confidence_map is not None:  # Agha-mohammadi's map beside the standard one
+    if result.confidence_map is not None and scorable:  # Agha-mohammadi's map beside the standard one
         crm = result.confidence_map
         mean, variance = crm.mean(centres), crm.variance(centres)
         curves["confidence"] = roc(mean, occupied)
@@ -136,7 +139,7 @@ def evaluate_run(result: Result, scene: Scene, surface_points: int = 50_000) -> 
     if "standard" in maps:
         rmse["standard"] = reconstruction_rmse(occupied_centres(maps["standard"]), surface)
     metrics = {
-        "auc": {name: c.auc for name, c in curves.items()},
+        "auc": {name: c.auc for name, c in curves.items()} if scorable else dict.fromkeys(maps, float("nan")),
         "auc_aligned": aligned,
         "auc_vs_reference": vs_reference,
         "rmse_m": rmse,

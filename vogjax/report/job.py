@@ -80,6 +80,7 @@ def map_runs(
     out = Path(out)
     for path in paths:
         refuse_existing(out / path.stem, overwrite)
+    refuse_inputs_inside([out / path.stem for path in paths], paths)
     derived = []
     for path in paths:  # every input readable before any output is written
         with Dataset(path) as ds:
@@ -90,7 +91,15 @@ def map_runs(
             _check_ground_truth(ds, derived[-1].config)
     for path in paths:
         check_writable(out / path.stem, folder=True)
-    return [_map_into(path, out / path.stem, d, progress) for path, d in zip(paths, derived)]
+    reports = []
+    for path, d in zip(paths, derived):
+        try:
+            reports.append(_map_into(path, out / path.stem, d, progress))
+        except ValueError as error:  # of several runs, say which
+            if str(path) in str(error):
+                raise
+            raise ValueError(f"run {str(path)!r}: {error}") from None
+    return reports
 
 
 def derive_settings(
@@ -140,6 +149,29 @@ def refuse_existing(out_dir: Path, overwrite: bool) -> None:
     """
     if out_dir.exists() and not overwrite:
         raise ValueError(f"out {str(out_dir)!r} exists (pass overwrite=True to replace it)")
+
+
+def refuse_inputs_inside(folders: list[Path], inputs: list[Path], what: str = "run") -> None:
+    """A ValueError when an input lies inside an output folder: replacing the folder (with
+    overwrite) would delete it.
+
+    Parameters
+    ----------
+    folders : list of Path
+        The output folders.
+    inputs : list of Path
+        The files read (runs, a settings file).
+    what : str, optional
+        What the inputs are, for the message.
+    """
+    for folder in folders:
+        resolved = folder.resolve()
+        for path in inputs:
+            if path.resolve().is_relative_to(resolved):
+                raise ValueError(
+                    f"{what} {str(path)!r} lies inside the output folder {str(folder)!r}, which mapping "
+                    "replaces: move it, or choose another out"
+                )
 
 
 def check_job(paths, config) -> tuple[JobConfig, list[Path]]:
@@ -209,6 +241,7 @@ def map_run(
     """
     config, (path,) = check_job([path], config)
     refuse_existing(Path(out_dir), overwrite)
+    refuse_inputs_inside([Path(out_dir)], [path])
     with Dataset(path) as ds:
         derived = presets.derive(ds.metadata, config, given, sensor_preset)
         _check_ground_truth(ds, derived.config)

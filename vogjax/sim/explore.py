@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +29,7 @@ import vogjax
 from vogjax import scenes
 from vogjax.config import ControllerConfig, NavNoise, PipelineConfig, SonarConfig
 from vogjax.config.planner import PAPERS, ExploreConfig, PlannerConfig
+from vogjax.config.schema import read_toml
 from vogjax.geometry import inverse, pose_from_xyz_yaw, yaw_pitch_roll
 from vogjax.io.atomic import AtomicPath, check_writable
 from vogjax.io.dataset import DatasetWriter, ScanBatch
@@ -118,13 +118,24 @@ def scene_planner(scene_name: str, seed: int = 0, rule: str = "time") -> Planner
     return PlannerConfig(seed=seed)
 
 
-def load_settings(path, scene_name: str, seed: int, rule: str = "time") -> tuple[PlannerConfig, PipelineConfig]:
+def load_settings(path, scene_name: str, seed: int | None, rule: str = "time") -> tuple[PlannerConfig, PipelineConfig]:
     """The planner's and the pipeline's settings: the scene's for `rule` (`scene_planner`) and
     PipelineConfig's defaults, under what a TOML file (None: none) sets; the planner seeded
-    with `seed`."""
-    config = ExploreConfig.from_toml(path) if path is not None else ExploreConfig()
-    given = tomllib.loads(Path(path).read_text()).get("planner", {}) if path is not None else {}
-    changes = {key: getattr(config.planner, key) for key in given}  # checked by from_toml
+    with `seed` (``--seed``, which wins over the file), or when None with the file's
+    ``[planner] seed``, else 0. The planner's seed is the run's: it seeds the navigation and
+    the range noise too.
+
+    Raises
+    ------
+    ValueError
+        Naming the file, if it is not a valid settings file.
+    """
+    document = read_toml(path) if path is not None else {}
+    config = ExploreConfig.from_document(document) if path is not None else ExploreConfig()
+    given = document.get("planner", {})
+    changes = {key: getattr(config.planner, key) for key in given}  # checked by from_document
+    if seed is None:
+        seed = changes.get("seed", 0)
     return scene_planner(scene_name, seed, rule).replace(**{**changes, "seed": seed}), config.pipeline
 
 

@@ -283,8 +283,9 @@ class PoseGraph:
             if step_sigmas > MAX_STEP_SIGMAS:
                 raise ValueError(
                     f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
-                    f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s): a jump "
-                    "the pose graph cannot weigh"
+                    f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s at NavNoise "
+                    f"sigma2_x {self.noise.sigma2_x:g}, sigma2_y {self.noise.sigma2_y:g} m^2/s): a jump "
+                    "the pose graph cannot weigh (a wrong pose, or a drift set too small)"
                 )
             xyh_noise = gtsam.noiseModel.Diagonal.Variances(variances)
             zpr_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.zpr_variances(duration_s))
