@@ -746,3 +746,17 @@ def test_every_closure_the_detector_returns_enters_the_graph(
     for closure in accepted:
         graph.add_loop_closure(closure.i, closure.k, closure.T_i_k, closure.covariance, closure.basis)
     assert np.all(np.isfinite(graph.update()))
+
+
+@pytest.mark.parametrize("field", ["sigma2_x", "sigma2_yaw", "sigma2_z", "sigma2_roll"])
+def test_a_drift_too_large_to_weigh_is_refused_naming_it(field):
+    """1e308 m^2/s over 600 s overflowed to infinite variances: the graph solved, and its
+    marginals were NaN."""
+    from vogjax.config import NavNoise
+
+    graph = slam.PoseGraph(NavNoise(**{field: 1e308}))
+    graph.add_submap(np.eye(4))
+    with pytest.raises(ValueError, match="NavNoise over duration_s"):
+        graph.add_submap(np.eye(4), 600.0)
+    graph.update()
+    assert graph.num_submaps == 1 and np.all(np.isfinite(graph.marginals([0])))

@@ -257,7 +257,8 @@ class PoseGraph:
         ------
         ValueError
             Before anything changes: a pose that is not rigid, `duration_s` not a number in
-            [1e-3, 1e7] s, or a step from the previous base pose of more than 1e7 drift sigmas
+            [1e-3, 1e7] s, odometry variances (the navigation's drift times `duration_s`)
+            above 1e12, or a step from the previous base pose of more than 1e7 drift sigmas
             in x-y (a jump the pose graph cannot weigh).
         """
         T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
@@ -278,7 +279,14 @@ class PoseGraph:
             initial = self.prior_pose
         else:
             previous = self._nav[-1]
-            step, variances = factors.xyh(previous, T), self.noise.xyh_variances(duration_s)
+            with np.errstate(over="ignore"):
+                step, variances = factors.xyh(previous, T), self.noise.xyh_variances(duration_s)
+                zpr_variances = self.noise.zpr_variances(duration_s)
+            if not np.all(np.r_[variances, zpr_variances] <= MAX_VARIANCE):  # inf too: NaN marginals
+                raise ValueError(
+                    f"NavNoise over duration_s {duration_s:g} s gives odometry variances above "
+                    f"{MAX_VARIANCE:g} (xyh {variances}, zpr {zpr_variances}): a drift the pose graph cannot weigh"
+                )
             step_sigmas = np.abs(step[:2]).max() / np.sqrt(variances[:2].min())
             if step_sigmas > MAX_STEP_SIGMAS:
                 raise ValueError(
@@ -288,7 +296,7 @@ class PoseGraph:
                     "the pose graph cannot weigh (a wrong pose, or a drift set too small)"
                 )
             xyh_noise = gtsam.noiseModel.Diagonal.Variances(variances)
-            zpr_noise = gtsam.noiseModel.Diagonal.Variances(self.noise.zpr_variances(duration_s))
+            zpr_noise = gtsam.noiseModel.Diagonal.Variances(zpr_variances)
             self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i], partial(_xyh_error, step)))
             self._pending.add(gtsam.CustomFactor(zpr_noise, [i], partial(_zpr_error, factors.zpr(T))))
             self.factors += [("xyh", (i - 1, i)), ("zpr", (i,))]
