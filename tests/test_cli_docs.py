@@ -29,6 +29,7 @@ def test_view_without_a_viewer_on_path_is_a_one_line_error(tmp_path, capsys, mon
         raise RuntimeError("Failed to find Rerun Viewer executable in PATH.")
 
     monkeypatch.setattr(rerun.RecordingStream, "spawn", spawn)
+    monkeypatch.setenv("DISPLAY", ":0")  # a display, so the viewer is what fails
     line = refused(capsys, ["view", tmp_path / "map.vog"])
     assert line.startswith("vogjax view: error: cannot open the rerun viewer")
     assert "Failed to find Rerun Viewer executable in PATH" in line
@@ -47,6 +48,7 @@ def test_view_passes_other_runtime_errors_through(tmp_path, monkeypatch):
         raise RuntimeError("something else")
 
     monkeypatch.setattr(rerun.RecordingStream, "spawn", spawn)
+    monkeypatch.setenv("DISPLAY", ":0")
     with pytest.raises(RuntimeError, match="something else"):
         cli.main(["view", str(tmp_path / "map.vog")])
 

@@ -326,6 +326,9 @@ def test_cli_export(workspace_factory, capsys, data):
     )
     if fmt[0] is None and suffix not in (".bt", ".ot", ".ply") and out[1] is None:
         out = (out[0], ["--format", "--out"])  # the format must come from somewhere
+    implied = out[0].suffix.lstrip(".")
+    if fmt[0] in ("bt", "ot", "ply") and implied in ("bt", "ot", "ply") and implied != fmt[0]:
+        out = (out[0], [*(out[1] or []), "--format", "--out"])  # the suffix names another format
     argv, bad = args_of([("--format", fmt), ("--out", out)])
     argv = [source[0], *argv]
     if source[1] is not None:

@@ -19,10 +19,14 @@ def run(out: Path, scene: str = "propeller", laps: int = 2, progress: bool = Tru
         raise ValueError(f"scene must be one of {', '.join(scenes.NAMES)}, got {scene!r}")
     if isinstance(laps, bool) or not isinstance(laps, int) or not 1 <= laps <= MAX_LAPS:
         raise ValueError(f"laps must be an integer in [1, {MAX_LAPS}], got {laps!r}")
+    run_path = out / f"{scene}.h5"
+    # every output up front, before the survey is flown: the folder, its run file and the
+    # report folder DIR/<scene> (all three replaced if they are there, but of the right kind)
     check_writable(out, folder=True)
+    check_writable(run_path)
+    check_writable(out / run_path.stem, folder=True)
     out.mkdir(parents=True, exist_ok=True)
     # 1. simulate the survey: MJX vehicle, sonar with 2 cm range noise, drifting navigation
-    run_path = out / f"{scene}.h5"
     summary = simulate_run(
         scene, run_path, laps=laps, sensor=SonarConfig(range_noise_m=0.02), overwrite=True, progress=progress
     )

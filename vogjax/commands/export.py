@@ -63,9 +63,14 @@ def run(args) -> None:
     from vogjax.io import octomap, ply
     from vogjax.io.voxels import VoxelSet, load_map
 
-    format = args.format or args.out.suffix.lstrip(".").lower()
+    implied = args.out.suffix.lstrip(".").lower()  # readers go by the suffix: a .bt must hold a bt tree
+    if args.format is not None and implied in FORMATS and implied != args.format:
+        raise ValueError(f"--format {args.format} contradicts --out {str(args.out)!r} (a .{implied} file)")
+    format = args.format or implied
     if format not in FORMATS:
         raise ValueError(f"--format must be one of {', '.join(FORMATS)} (or --out must end in one), got {format!r}")
+    if _same_file(args.out, args.map):  # it is replaced before the map is read through
+        raise ValueError(f"--out {str(args.out)!r} is the map being exported; write it to another file")
     voxels = VoxelSet.from_map(load_map(args.map, device="cpu"))
     if format == "ply":
         count = ply.save(voxels, args.out)
@@ -76,3 +81,13 @@ def run(args) -> None:
             f"wrote {args.out}: OctoMap {format} tree of {nodes} nodes, {len(voxels)} observed voxels, "
             f"resolution {voxels.voxel_size} m"
         )
+
+
+def _same_file(out: Path, source: Path) -> bool:
+    """Whether `out` names `source` (the same path, a link to it or a hard link to it)."""
+    if not source.exists():  # load_map names a missing map
+        return False
+    try:
+        return out.resolve() == source.resolve() or out.samefile(source)
+    except OSError:  # no `out` yet
+        return False

@@ -127,6 +127,8 @@ def run(args) -> None:
 
     # as `vogjax simulate` does: an existing run is refused before the bag is read (import_bag
     # then checks, with io.atomic.check_writable, that --out can be published)
+    if args.out.suffix == ".vog":  # a run under a map's name is one `vogjax view` and `export` cannot read
+        raise ValueError(f"--out must name a run file (RUN.h5): scans import as a run, got {str(args.out)!r}")
     refuse_existing(args.out, args.overwrite)
     if args.max_range is not None and args.max_range > MAX_RANGE_M:
         raise ValueError(f"--max-range must be at most {MAX_RANGE_M:g} m, got {args.max_range:g}")

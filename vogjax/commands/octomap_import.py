@@ -88,6 +88,8 @@ def run(args) -> None:
         raise ValueError(f"{scans[0]} belongs to importing scans; a map is imported from an OctoMap tree alone")
     if from_file and (args.index, args.time) != (None, None):
         raise ValueError("--index and --time pick a message of a bag; an OctoMap file holds one tree")
+    if args.out.suffix != ".vog":  # a map file under a run's .h5 name is one `vogjax map` cannot read
+        raise ValueError(f"--out must name a .vog map file (an OctoMap imports as a map), got {str(args.out)!r}")
     if args.out.exists() and not args.overwrite:
         raise ValueError(f"out {str(args.out)!r} exists (pass --overwrite to replace it)")
     check_writable(args.out)

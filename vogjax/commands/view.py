@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -53,20 +54,55 @@ def run(args) -> None:
     args : argparse.Namespace
         The parsed arguments of `vogjax view`.
     """
-    from vogjax.report.viewer import view
+    from vogjax.report import viewer
 
+    if args.save is None and no_display() and args.path.exists():  # view() names a missing path
+        viewer._runs(args.path)  # and a folder with no map, before the display
+        # else the viewer would start, fail to open a window and leave rerun's logs on stderr
+        raise ValueError(
+            "cannot open the rerun viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset); "
+            "write the recording with --save FILE.rrd and open it with `rerun FILE.rrd` where there is one"
+        )
     try:
-        logged = view(args.path, save=args.save)
+        logged = viewer.view(args.path, save=args.save)
     except RuntimeError as error:
-        # rerun spawns its viewer from PATH ("Failed to find Rerun Viewer executable in PATH"):
-        # with `.venv/bin/vogjax` run directly, the venv's bin (which holds `rerun`) is not on it
         if args.save is not None or "rerun" not in str(error).lower():
             raise
+        reap_viewers()
         first = (str(error).strip().splitlines() or [""])[0].strip()  # rerun goes on with install hints
+        # rerun spawns its viewer from PATH ("Failed to find Rerun Viewer executable in PATH"):
+        # with `.venv/bin/vogjax` run directly, the venv's bin (which holds `rerun`) is not on it
+        on_path = f", or put {Path(sys.executable).parent} on PATH" if "PATH" in str(error) else ""
         raise ValueError(
             f"cannot open the rerun viewer ({first}); write the recording with --save FILE.rrd "
-            f"(`rerun FILE.rrd` shows it), or put {Path(sys.executable).parent} on PATH"
+            f"(`rerun FILE.rrd` shows it){on_path}"
         ) from None
     boxes = sum(n for entity, n in logged.items() if entity.endswith("map/occupied"))
     where = f"wrote {args.save}" if args.save else "sent to the rerun viewer"
     print(f"{where}: {boxes} occupied voxels, entities: {', '.join(sorted(logged))}")
+
+
+def no_display() -> bool:
+    """Whether a window cannot open: on Linux (and the BSDs) a viewer needs an X or Wayland
+    display; macOS and Windows always have one."""
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return False
+    return not any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
+def reap_viewers() -> None:
+    """Wait for this process's exited `rerun` children (Linux): rerun spawns its viewer without
+    handing back its pid, and one that failed would stay a zombie (a defunct process) until
+    vogjax exits, or after it where the container's init reaps nothing."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            pid, rest = stat.read_text().split(" (", 1)
+            name, fields = rest.rsplit(") ", 1)
+            state, parent = fields.split()[:2]
+        except (OSError, ValueError):  # gone meanwhile
+            continue
+        if name == "rerun" and state == "Z" and int(parent) == os.getpid():
+            try:
+                os.waitpid(int(pid), 0)
+            except ChildProcessError:  # reaped meanwhile
+                pass

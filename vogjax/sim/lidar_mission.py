@@ -168,6 +168,11 @@ def simulate_lidar_run(
     lidar = SpinningLidar(DEFAULT_LIDAR) if sensor is None else sensor
     if not isinstance(lidar, SpinningLidar):
         raise ValueError(f"sensor must be a SpinningLidar, got {type(lidar).__name__}")
+    if lidar.range_noise_m > lidar.max_range_m:  # as simulate_run: refused before the drive, not after
+        raise ValueError(
+            f"sensor range_noise_m (--range-noise) must be at most the sensor's max_range_m of "
+            f"{lidar.max_range_m:g} m, got {lidar.range_noise_m:g}"
+        )
     steps = ODOMETRY_RATE_HZ / lidar.rate_hz
     if abs(steps - round(steps)) > 1e-9:
         raise ValueError(

@@ -115,15 +115,23 @@ def simulate_run(
     Raises
     ------
     ValueError
-        If `out` exists (without `overwrite`) or cannot be written, the scene is unknown, or
-        `laps`, `seed`, `num_scans`, `sensor` or `noise` is out of range.
+        If `out` exists (without `overwrite`), cannot be written or its folder does not exist,
+        the scene is unknown, or `laps`, `seed`, `num_scans`, `sensor` (its range noise above
+        its max range included) or `noise` is out of range.
     """
     out = Path(out)
     if out.exists() and not overwrite:
         raise ValueError(f"out {str(out)!r} exists (pass overwrite=True, or --overwrite, to replace it)")
     check_writable(out)
+    if not out.parent.is_dir():  # check_writable allows missing folders; the run's writer does not
+        raise ValueError(f"--out {str(out)!r}: folder {str(out.parent)!r} does not exist")
     sensor = ProfilingSonar() if sensor is None else as_sensor(sensor)
     vehicle.steps_per_scan(sensor.rate_hz, "sensor.rate_hz")
+    if sensor.range_noise_m > sensor.max_range_m:  # no measurement; and ranges past the run format's limit
+        raise ValueError(
+            f"sensor range_noise_m (--range-noise) must be at most the sensor's max_range_m of "
+            f"{sensor.max_range_m:g} m, got {sensor.range_noise_m:g}"
+        )
     noise = noise or NavNoise()
     if not isinstance(noise, NavNoise):
         raise ValueError(f"noise must be a NavNoise, got {type(noise).__name__}")

@@ -32,8 +32,8 @@ class SimulatedScans:
     no_return : (S, B) ndarray of bool
         Beams without a return: no surface within the sensor's range.
     invalid : (S, B) ndarray of bool
-        Beams whose surface lies within the sensor's blind distance (`min_range_m`): they
-        measured nothing.
+        Beams whose surface lies within the sensor's blind distance (`min_range_m`), or whose
+        noisy range is negative: they measured nothing.
     """
 
     origins: np.ndarray
@@ -109,6 +109,11 @@ def scan(
     if sensor.range_noise_m > 0:
         rng = rng or np.random.default_rng()
         ranges = ranges + rng.normal(0.0, sensor.range_noise_m, ranges.shape)
+        # a return the noise takes below zero measured nothing: an invalid beam, as the lidar's
+        # simulation marks one it takes into the blind distance. Not at min_range_m as the lidar
+        # does: the sonar's runs have always kept noisy returns just short of it (a few in a
+        # thousand with the default 2 cm), and the same seed must give the same run
+        invalid |= ~no_return & (ranges < 0.0)
     ranges[no_return | invalid] = np.nan
     centre = local[:, local.shape[1] // 2]  # the beam's central sub-ray
     directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], centre)
