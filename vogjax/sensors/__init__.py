@@ -43,8 +43,8 @@ def from_metadata(metadata: dict) -> RangeSensor:
         If it names no known sensor or describes it wrongly.
     """
     kind = metadata.get("sensor", ProfilingSonar.kind)
-    if kind not in KINDS:
-        raise ValueError(f"metadata names an unknown sensor {kind!r} (known: {', '.join(KINDS)})")
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise ValueError(f"metadata names an unknown sensor {repr(kind)[:80]} (known: {', '.join(KINDS)})")
     cls, config_cls = KINDS[kind]
     values = metadata.get("sensor_config", metadata.get("sonar", {}))
     mount = metadata.get("T_vehicle_sensor", metadata.get("T_vehicle_sonar"))
