@@ -293,6 +293,9 @@ def _warnings_as_lines(command: str, verbose: bool):
 
     with warnings.catch_warnings():
         warnings.simplefilter("always")  # each message once, by `seen`, not once per line of code
+        if not verbose:  # what a developer acts on, not a user (Python hides these by default too)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", PendingDeprecationWarning)
         warnings.showwarning = show
         yield
 
