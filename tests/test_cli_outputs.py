@@ -152,12 +152,13 @@ def test_octomap_import_refuses_an_out_that_is_no_vog(global_vog, tmp_path, caps
 
 @pytest.fixture
 def no_viewer(monkeypatch):
-    """Logging to a viewer fails the test."""
+    """Spawning a viewer fails the test."""
+    rerun = pytest.importorskip("rerun")
 
-    def view(*args, **kwargs):
+    def spawn(*args, **kwargs):
         raise AssertionError("a viewer was spawned")
 
-    monkeypatch.setattr("vogjax.report.viewer.view", view)
+    monkeypatch.setattr(rerun.RecordingStream, "spawn", spawn)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="X11/Wayland displays are Linux's")

@@ -56,13 +56,6 @@ def run(args) -> None:
     """
     from vogjax.report import viewer
 
-    if args.save is None and no_display() and args.path.exists():  # view() names a missing path
-        viewer._runs(args.path)  # and a folder with no map, before the display
-        # else the viewer would start, fail to open a window and leave rerun's logs on stderr
-        raise ValueError(
-            "cannot open the rerun viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset); "
-            "write the recording with --save FILE.rrd and open it with `rerun FILE.rrd` where there is one"
-        )
     try:
         logged = viewer.view(args.path, save=args.save)
     except RuntimeError as error:
@@ -80,14 +73,6 @@ def run(args) -> None:
     boxes = sum(n for entity, n in logged.items() if entity.endswith("map/occupied"))
     where = f"wrote {args.save}" if args.save else "sent to the rerun viewer"
     print(f"{where}: {boxes} occupied voxels, entities: {', '.join(sorted(logged))}")
-
-
-def no_display() -> bool:
-    """Whether a window cannot open: on Linux (and the BSDs) a viewer needs an X or Wayland
-    display; macOS and Windows always have one."""
-    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
-        return False
-    return not any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
 
 
 def reap_viewers() -> None:

@@ -20,6 +20,8 @@ its run name.
 from __future__ import annotations
 
 import json
+import os
+import sys
 from os import PathLike
 from pathlib import Path
 from types import ModuleType
@@ -84,7 +86,8 @@ def view(path: str | PathLike, save: str | PathLike | None = None, spawn: bool |
     ------
     ValueError
         If `path` does not exist or is neither a map file nor a run folder, `save` does not
-        end in .rrd, rerun is not installed, or a file of the folder cannot be read.
+        end in .rrd, rerun is not installed, a viewer is to be spawned where there is no
+        display, or a file of the folder cannot be read.
     """
     path = Path(path)
     if not path.exists():
@@ -94,13 +97,19 @@ def view(path: str | PathLike, save: str | PathLike | None = None, spawn: bool |
         save = Path(save)
         if save.suffix != ".rrd":
             raise ValueError(f"--save must name an .rrd file, got {str(save)!r}")
+    spawn = save is None if spawn is None else spawn
+    if spawn and no_display():  # the viewer would start, open no window and log its failure
+        raise ValueError(
+            "cannot open the rerun viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset); "
+            "write the recording with --save FILE.rrd and open it with `rerun FILE.rrd` where there is one"
+        )
     rr = rerun()
     recording = rr.RecordingStream("vogjax", recording_id=f"vogjax-{path.resolve()}")
     publication = None if save is None else AtomicPath(save)
     try:
         if publication is not None:
             recording.save(publication.temporary)
-        if spawn if spawn is not None else save is None:
+        if spawn:
             recording.spawn()
         logged = {}
         with recording:  # leaving it finalises the file
@@ -117,6 +126,14 @@ def view(path: str | PathLike, save: str | PathLike | None = None, spawn: bool |
     if publication is not None:
         publication.commit()
     return logged
+
+
+def no_display() -> bool:
+    """Whether a window cannot open: on Linux (and the BSDs) a viewer needs an X or Wayland
+    display; macOS and Windows always have one."""
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return False
+    return not any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
 
 
 def _runs(path: Path) -> list[tuple[str, Path]]:
