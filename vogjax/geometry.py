@@ -315,10 +315,10 @@ def xyh_covariance(marginals: npt.NDArray[np.floating]) -> npt.NDArray[np.floati
 CHI2_3DOF_95 = 7.814727903251178
 
 
-# Relative to the largest entry of the batch (at least 1), as GlobalMap checks marginals (at
-# 1e-9): a principal block's eigenvalues lie within the full matrix's, so whatever it accepts
-# passes here, with room for round-off; singular (PSD) covariances give volume 0.
-_PSD_TOLERANCE = 1e-8
+# Relative to each matrix's largest entry, as GlobalMap checks marginals (at 1e-11): a
+# principal block's eigenvalues lie within the full matrix's, so whatever it accepts passes
+# here, with room for round-off; singular (PSD) covariances give volume 0.
+_PSD_TOLERANCE = 1e-10
 
 
 def confidence_volume(marginals: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -331,7 +331,8 @@ def confidence_volume(marginals: npt.ArrayLike) -> npt.NDArray[np.float64]:
     ----------
     marginals : (..., 6, 6) array_like of float
         GTSAM Pose3 marginal covariances (rotation, then translation): finite, and symmetric and
-        positive semi-definite in x, y, yaw up to round-off (1e-8 of the largest entry).
+        positive semi-definite in x, y, yaw up to round-off (1e-10 of each matrix's largest
+        entry).
 
     Returns
     -------
@@ -350,10 +351,10 @@ def confidence_volume(marginals: npt.ArrayLike) -> npt.NDArray[np.float64]:
     if not np.all(np.isfinite(marginals)):
         raise ValueError("marginals contains NaN or infinite values")
     block = xyh_covariance(marginals)
-    scale = np.abs(marginals).max(initial=1.0)
-    if np.abs(block - np.swapaxes(block, -1, -2)).max(initial=0.0) > _PSD_TOLERANCE * scale:
+    scale = np.abs(marginals).max(axis=(-2, -1), initial=0.0)  # each matrix its own
+    if np.any(np.abs(block - np.swapaxes(block, -1, -2)).max(axis=(-2, -1), initial=0.0) > _PSD_TOLERANCE * scale):
         raise ValueError("marginals must be symmetric in x, y, yaw")
-    if block.size and np.linalg.eigvalsh(block).min() < -_PSD_TOLERANCE * scale:
+    if block.size and np.any(np.linalg.eigvalsh(block).min(axis=-1) < -_PSD_TOLERANCE * scale):
         raise ValueError("marginals must be positive semi-definite in x, y, yaw (a covariance)")
     det = np.clip(np.linalg.det(block), 0.0, None)
     return 4.0 / 3.0 * np.pi * CHI2_3DOF_95**1.5 * np.sqrt(det)

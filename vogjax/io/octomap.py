@@ -73,7 +73,10 @@ def save(source, path, format: str | None = None) -> int:
     if format not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
     voxels = source if isinstance(source, VoxelSet) else VoxelSet.from_map(source)
-    data, nodes = _encode_bt(voxels) if format == "bt" else _encode_ot(voxels)
+    try:
+        data, nodes = _encode_bt(voxels) if format == "bt" else _encode_ot(voxels)
+    except ValueError as error:  # say what was being written
+        raise ValueError(f"source, written to {str(path)!r}: {error}") from None
     with AtomicPath(path) as temporary:
         temporary.write_bytes(data)
     return nodes

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 from pathlib import Path
 
@@ -117,6 +118,10 @@ def read_octree(path) -> OctreeLeaves:
         One line naming the file, for a file that cannot be read or is no well-formed OctoMap
         OcTree (see the module's list of checks).
     """
+    if isinstance(path, bytes):  # (octomap-python's own paths are bytes)
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"path must be a file path (str or os.PathLike), got {path!r}")
     path = Path(path)
     where = f"path {str(path)!r}"
     try:

@@ -34,8 +34,10 @@ from vogjax.validation import real_array
 LAYERS = {"sum": (wp.int64, 0), "count": (wp.int32, 0)}
 # Submaps (the newest) whose copies `_follow` keeps, to undo them once they were written to.
 FOLLOW_SNAPSHOTS = 2
-# Marginals whose x, y, yaw block fails these checks are not covariances.
-_SYMMETRY_TOLERANCE = 1e-9
+# Marginals that fail these checks are not covariances: asymmetry and negative eigenvalues
+# relative to each matrix's own largest entry (round-off is about 1e-16 of it; a scale over the
+# whole batch let one large marginal hide a variance of -1 in another)
+_SYMMETRY_TOLERANCE = _PSD_TOLERANCE = 1e-11
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,11 +216,13 @@ class GlobalMap(BlockMap):
         volumes = self._volumes(vog, marginals)
         ids = [int(i) for i in vog.check_ids("ids", ids)]
         already = [i for i in ids if i in self._applied]
-        if already or len(set(ids)) != len(ids):
+        if already:
             raise ValueError(
-                f"ids: submaps {already or ids} are already in the global map (or repeated); "
-                "moved submaps are re-applied by update_poses"
+                f"ids: submaps {already[:10]} are already in the global map; moved submaps are "
+                "re-applied by update_poses"
             )
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"ids must not repeat a submap, got {ids[:10]}")
         self._check_key_range(vog, ids)
         with self._lock.writing():
             touched = []
@@ -453,10 +457,10 @@ class GlobalMap(BlockMap):
                 "marginals contains infinite values, or NaN in rows that are not all NaN "
                 "(a row of NaN means: not computed)"
             )
-        scale = np.abs(known).max(initial=1.0)
-        if np.abs(known - known.transpose(0, 2, 1)).max(initial=0.0) > _SYMMETRY_TOLERANCE * scale:
+        scale = np.abs(known).max(axis=(1, 2), initial=0.0)
+        if np.any(np.abs(known - known.transpose(0, 2, 1)).max(axis=(1, 2), initial=0.0) > _SYMMETRY_TOLERANCE * scale):
             raise ValueError("marginals must be symmetric")
-        if len(known) and np.linalg.eigvalsh(known).min() < -1e-9 * scale:
+        if len(known) and np.any(np.linalg.eigvalsh(known).min(axis=1) < -_PSD_TOLERANCE * scale):
             raise ValueError("marginals must be positive semi-definite")
         volumes = np.full(len(marginals), np.inf)
         volumes[~unknown] = confidence_volume(known)

@@ -315,9 +315,12 @@ class VogMap:
         Raises
         ------
         ValueError
-            Before anything changes: bad ids, or `poses` not n rigid (4, 4) transforms.
+            Before anything changes: bad or repeated ids, or `poses` not n rigid (4, 4)
+            transforms.
         """
         ids = self.check_ids("ids", ids)
+        if len(np.unique(ids)) != len(ids):  # which of two poses would win is NumPy's choice
+            raise ValueError(f"ids must not repeat a submap, got {ids.tolist()[:10]}")
         poses = rigid_poses("poses", poses, count=len(ids))
         with self._lock.writing():
             self._poses[ids] = poses
@@ -458,10 +461,10 @@ class VogMap:
             If `points` is not (M, 3), holds NaN or infinite values, or `level` is no integer
             in [0, 15].
         """
-        points = float_array("points", points, (-1, 3), np.float64)  # checked before any merge
+        points = float_array("points", points, (-1, 3))  # checked before any merge
         if check_level(level):
             return self.coarse_map().log_odds(points, level)
-        return np.nan_to_num(self._values_at(points), nan=0.0)
+        return np.nan_to_num(self._values_at(points.astype(np.float64)), nan=0.0)
 
     def probability(self, points: npt.ArrayLike, level: int = 0) -> npt.NDArray[np.float32]:
         """Occupancy probability at `points`.
@@ -506,10 +509,10 @@ class VogMap:
         ValueError
             As for `log_odds`.
         """
-        points = float_array("points", points, (-1, 3), np.float64)  # checked before any merge
+        points = float_array("points", points, (-1, 3))  # checked before any merge
         if check_level(level):
             return self.coarse_map().state(points, level)
-        return classify(self._values_at(points), self.config)
+        return classify(self._values_at(points.astype(np.float64)), self.config)
 
     def raycast(
         self, origins: npt.ArrayLike, directions: npt.ArrayLike, max_range: float | npt.ArrayLike, level: int = 0

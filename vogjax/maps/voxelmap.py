@@ -14,7 +14,7 @@ from vogjax.config.maps import MAX_RANGE_VOXELS
 from vogjax.io import read_map_file, write_map_file
 from vogjax.kernels import octree
 from vogjax.maps import integrator, parallel
-from vogjax.maps.blockmap import BlockMap
+from vogjax.maps.blockmap import BlockMap, check_extent
 from vogjax.maps.blocks import BLOCK_VOXELS, BlockStore, check_block_keys, pack_blocks
 from vogjax.validation import float_array, index_array
 
@@ -102,7 +102,7 @@ class VoxelMap(BlockMap):
         """
         origin = float_array("origin", origin, (3,))
         points = float_array("points", points, (-1, 3))
-        self._check_extent(origin[None], points)
+        check_extent(self.config, origin=origin[None], points=points)
         self._integrate(origin[None], points, np.zeros(points.shape[0], dtype=np.int32))
 
     def integrate_scans(self, origins: npt.ArrayLike, points: npt.ArrayLike, scan_index: npt.ArrayLike) -> None:
