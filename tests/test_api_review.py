@@ -105,3 +105,143 @@ def test_octomap_save_names_the_file_it_could_not_write(tmp_path):
     with pytest.raises(ValueError, match="far.bt"):
         octomap.save(vmap, tmp_path / "far.bt")
     assert not (tmp_path / "far.bt").exists()
+
+
+# ------------------------------------------------------------------ SLAM and the planner
+
+
+def _box_cloud(rng, n=200):
+    return np.concatenate(
+        [
+            np.c_[rng.uniform(-5, 5, (n, 2)), np.zeros(n)],
+            np.c_[rng.uniform(-5, 5, n), np.zeros(n), rng.uniform(0, 3, n)],
+            np.c_[np.zeros(n), rng.uniform(-5, 5, n), rng.uniform(0, 3, n)],
+        ]
+    )
+
+
+@pytest.mark.parametrize("truth", [np.zeros((4, 4)), 2 * np.eye(4), np.full((4, 4), np.nan), np.eye(3)])
+def test_errors_at_centre_refuses_a_pose_that_is_none(truth):
+    """A zero or scaled matrix read as no error; NaN passed through."""
+    from vogjax.slam import LoopClosure
+
+    closure = LoopClosure(0, 1, np.eye(4), np.eye(6) * 1e-4, None, 0.0, 100, centre=np.array([10.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="T_i_k_true"):
+        closure.errors_at_centre(truth)
+
+
+@pytest.mark.parametrize("normals", ["zero", "nan", "long"])
+def test_icp_refuses_a_target_with_normals_that_are_none(normals):
+    """Zero normals "converged" where ICP started; NaN ones raised LinAlgError."""
+    import dataclasses
+
+    from vogjax.slam import icp, prepare_target
+
+    cloud = _box_cloud(np.random.default_rng(0))
+    target = prepare_target(cloud)
+    bad = {"zero": 0.0 * target.normals, "nan": np.full_like(target.normals, np.nan), "long": 2 * target.normals}
+    with pytest.raises(ValueError, match="normals must be finite unit vectors"):
+        icp(cloud, dataclasses.replace(target, normals=bad[normals]), np.eye(4))
+
+
+def test_icp_batch_checks_its_start_poses_with_no_pairs():
+    from vogjax.slam import icp_batch
+
+    with pytest.raises(ValueError, match="T_inits"):
+        icp_batch([], [], "garbage")
+
+
+@pytest.mark.parametrize("kind", ["complex", "bool"])
+def test_a_closure_basis_must_be_real(kind):
+    """A complex basis lost its imaginary part (a ComplexWarning) and entered the graph."""
+    from vogjax.slam import PoseGraph
+
+    graph = PoseGraph()
+    graph.add_submap(np.eye(4))
+    T = np.eye(4)
+    T[0, 3] = 1.0
+    graph.add_submap(T, 1.0)
+    graph.update()
+    basis = np.zeros((6, 1), complex if kind == "complex" else bool)
+    basis[3, 0] = 1
+    if kind == "complex":
+        basis[4, 0] = 5j
+    with pytest.raises(ValueError, match="basis"):
+        graph.add_loop_closure(0, 1, T, np.eye(6) * 1e-2, basis)
+    assert graph.factors[-1][0] == "zpr"
+
+
+def test_pose_graph_refuses_noise_that_is_no_navnoise():
+    from vogjax.slam import PoseGraph
+
+    with pytest.raises(ValueError, match="noise must be a NavNoise"):
+        PoseGraph(noise="x")
+
+
+def test_a_fast_sensors_submaps_enter_the_graph():
+    """Submaps of two 5 kHz scans are 0.4 ms apart: the graph refused anything under 1 ms, the
+    pipeline stopped midway and its Mapper was left unusable."""
+    from vogjax import pipeline
+    from vogjax.config import TimingConfig
+    from vogjax.io.dataset import ScanBatch
+
+    rng = np.random.default_rng(0)
+    scans = 20
+    directions = np.tile([[1.0, 0.0, 0.0]], (4, 1)) + rng.normal(0, 0.05, (4, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    poses = np.tile(np.eye(4), (scans, 1, 1))
+    poses[:, 0, 3] = np.arange(scans) * 1e-4
+    batch = ScanBatch(
+        time_s=np.arange(scans) * 2e-4,
+        pose_truth=poses,
+        pose_nav=poses,
+        sonar_origin=np.zeros((scans, 3)),
+        sonar_directions=np.tile(directions, (scans, 1, 1)),
+        ranges=np.full((scans, 4), 2.0),
+        no_return=np.zeros((scans, 4), bool),
+        invalid=np.zeros((scans, 4), bool),
+        first=0,
+    )
+    config = pipeline.PipelineConfig(scans_per_submap=2, timing=TimingConfig(every_submaps=0))
+    mapper = pipeline.Mapper(config)
+    mapper.add(batch)
+    mapper.finish_submap()
+    assert mapper.graph.num_submaps == mapper.vog.num_submaps == scans // 2
+    assert np.all(np.isfinite(mapper.graph.poses()))
+
+
+def test_planner_arrived_refuses_a_state_that_is_none():
+    from vogjax import planner
+
+    nbv = planner.NbvPlanner(planner.PlannerConfig(), bounds=np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]]))
+    with pytest.raises(ValueError, match="^state "):
+        nbv.arrived(np.full(4, np.nan))
+    with pytest.raises(ValueError, match="^state "):
+        nbv.arrived(np.zeros(3))
+
+
+@pytest.mark.parametrize("drift_m", ["abc", None, np.array([1.0, 2.0]), True])
+def test_planner_refuses_a_drift_that_is_no_number(drift_m):
+    from vogjax import planner
+
+    nbv = planner.NbvPlanner(planner.PlannerConfig(), bounds=np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 1.0]]))
+    vmap = vj.VoxelMap(CFG, device="cpu")
+    margins = nbv._obstacle_margins
+    with pytest.raises(ValueError, match="drift_m"):
+        nbv.plan(vmap, np.eye(4), drift_m=drift_m)
+    with pytest.raises(ValueError, match="T_world_vehicle"):  # a refused plan leaves the margins
+        nbv.plan(vmap, np.full((4, 4), np.nan), drift_m=0.4)
+    assert nbv._obstacle_margins == margins
+
+
+def test_detect_refuses_times_that_do_not_increase():
+    from vogjax import slam
+
+    cloud = _box_cloud(np.random.default_rng(1))
+    far = np.eye(4)
+    far[0, 3] = 30.0
+    bounds = (cloud.min(axis=0) - 0.5, cloud.max(axis=0) + 0.5)
+    poses = np.stack([np.eye(4), far, np.eye(4)])
+    detector = slam.LoopClosureDetector(config=slam.LoopClosureConfig(icp=slam.IcpConfig(free="all")))
+    with pytest.raises(ValueError, match="times_s must increase"):  # it blamed radius_m (a NaN bound)
+        detector.detect(2, [cloud] * 3, [bounds] * 3, poses, poses, np.array([0.0, 1000.0, 1.0]))

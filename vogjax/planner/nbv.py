@@ -305,7 +305,7 @@ class NbvPlanner:
             x, y, z, yaw of the trip's vertex reached: a visited vertex of the explored graph,
             joined to the last by the motion flown.
         """
-        self.graph.visit(np.asarray(state, np.float64))
+        self.graph.visit(float_array("state", state, (4,), np.float64))
 
     def _counted_states(self) -> tuple[int, ...]:
         """The states whose voxels a plan's gain reads (the counts' columns): unknown always (its
@@ -365,10 +365,14 @@ class NbvPlanner:
             leave the map's key range.
         """
         check_map(map_)
-        if not (np.isfinite(drift_m) and drift_m >= 0):
+        if (
+            isinstance(drift_m, (bool, np.bool_))
+            or not isinstance(drift_m, (int, float, np.integer, np.floating))
+            or not (np.isfinite(drift_m) and drift_m >= 0)
+        ):
             raise ValueError(f"drift_m must be a non-negative number, got {drift_m!r}")
+        root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])  # before any change
         self._obstacle_margins = self.config.obstacle_margins_m(float(drift_m))
-        root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])
         start_s = time.perf_counter()
         cfg = self.config
         # the levels collision checks and gain rays read (PlannerConfig.collision_level,

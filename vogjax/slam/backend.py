@@ -33,10 +33,11 @@ from vogjax.validation import real_array
 
 PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # rad, rad, rad, m, m, m
 MIN_VARIANCE, MAX_VARIANCE = 1e-12, 1e12
-MAX_DURATION_S = 1e7  # four months between two base poses
-# Below a millisecond the odometry factors' variances (drift per second x duration) leave iSAM2
-# an indeterminate system.
-MIN_DURATION_S = 1e-3
+# Between two base poses: from a nanosecond (a 5 kHz sensor's two-scan submaps are 0.4 ms
+# apart; iSAM2 goes on with QR where the variances leave Cholesky indeterminate) to 30,000
+# years (past that the odometry variances reach MAX_VARIANCE, refused on their own)
+MAX_DURATION_S = 1e12
+MIN_DURATION_S = 1e-9
 # A navigation step of more than this many drift sigmas between two base poses makes the
 # odometry factor's information (step^2 / variance) swamp the rest of the graph: iSAM2's
 # Cholesky then reports an indeterminate system (seen from about 1e7.5 sigmas).
@@ -207,6 +208,8 @@ class PoseGraph:
         self.config = config = PoseGraphConfig() if config is None else config
         if not isinstance(config, PoseGraphConfig):
             raise ValueError(f"config must be a PoseGraphConfig, got {type(config).__name__}")
+        if noise is not None and not isinstance(noise, NavNoise):
+            raise ValueError(f"noise must be a NavNoise, got {type(noise).__name__}")
         self.noise = noise or NavNoise()
         self.prior_pose = rigid_pose("prior_pose", np.eye(4) if prior_pose is None else prior_pose)
         sigmas = real_array("prior_sigmas", prior_sigmas)
@@ -245,7 +248,7 @@ class PoseGraph:
         T_world_submap_nav : (4, 4) array_like of float
             The submap's base pose as the navigation has it, a rigid transform.
         duration_s : float, optional
-            Time since the previous base pose, seconds, in [1e-3, 1e7] (ignored for the first
+            Time since the previous base pose, seconds, in [1e-9, 1e12] (ignored for the first
             node, which gets the prior): the odometry factors' covariances grow with it.
 
         Returns
@@ -257,7 +260,7 @@ class PoseGraph:
         ------
         ValueError
             Before anything changes: a pose that is not rigid, `duration_s` not a number in
-            [1e-3, 1e7] s, odometry variances (the navigation's drift times `duration_s`)
+            [1e-9, 1e12] s, odometry variances (the navigation's drift times `duration_s`)
             above 1e12, or a step from the previous base pose of more than 1e7 drift sigmas
             in x-y (a jump the pose graph cannot weigh).
         """
@@ -351,10 +354,7 @@ class PoseGraph:
         T_i_k = rigid_pose("T_i_k", T_i_k)
         covariance = _covariance("covariance", covariance, 6)
         if basis is not None:
-            try:
-                basis = np.asarray(basis, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError("basis must be a (6, r) matrix") from None
+            basis = real_array("basis", basis)  # a complex or bool basis is no direction
             if (
                 basis.ndim != 2
                 or basis.shape[0] != 6

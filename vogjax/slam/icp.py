@@ -176,6 +176,9 @@ def _check_target(target: IcpTarget, config: IcpConfig) -> IcpTarget:
             "targets: an IcpTarget whose points, tree and normals do not belong together "
             "(make them with prepare_target)"
         )
+    lengths = np.linalg.norm(target.normals, axis=1)
+    if not np.all(np.abs(lengths - 1.0) <= 1e-6):  # (NaN fails too) zero normals "converged" unmoved
+        raise ValueError("targets: an IcpTarget's normals must be finite unit vectors (make them with prepare_target)")
     if target.neighbours != config.normal_neighbours:
         raise ValueError("targets: an IcpTarget was prepared with other normal_neighbours than config's")
     return target
@@ -323,9 +326,9 @@ def icp_batch(
     sources = [_cloud("source", c) for c in sources]
     prepared = [_check_target(t, config) if isinstance(t, IcpTarget) else prepare_target(t, config) for t in targets]
     count = len(sources)
+    T = np.tile(np.eye(4), (count, 1, 1)) if T_inits is None else rigid_poses("T_inits", T_inits, count=count).copy()
     if count == 0:
         return []
-    T = np.tile(np.eye(4), (count, 1, 1)) if T_inits is None else rigid_poses("T_inits", T_inits, count=count).copy()
     targets = [t.points for t in prepared]
     trees = [t.tree for t in prepared]
     normals = [t.normals for t in prepared]

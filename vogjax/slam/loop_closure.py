@@ -37,7 +37,7 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
-from vogjax.geometry import inverse, log_se3, rigid_poses
+from vogjax.geometry import inverse, log_se3, rigid_pose, rigid_poses
 from vogjax.slam.correlative import correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, centre_adjoint, constrained_basis, icp_batch, prepare_target
 from vogjax.validation import float_array, real_array
@@ -106,8 +106,13 @@ class LoopClosure:
         -------
         rotation_rad, translation_m : float
             The norms of the constrained error's rotation and translation parts.
+
+        Raises
+        ------
+        ValueError
+            If `T_i_k_true` is not a rigid (4, 4) transform.
         """
-        twist = log_se3(inverse(np.asarray(T_i_k_true, dtype=np.float64)) @ self.T_i_k)
+        twist = log_se3(inverse(rigid_pose("T_i_k_true", T_i_k_true)) @ self.T_i_k)
         basis = np.eye(6) if self.basis is None else self.basis
         if self.centre.any():  # to the tangent at the centre, and the basis's span with it
             A = centre_adjoint(self.centre)
@@ -421,7 +426,8 @@ class LoopClosureDetector:
         nav_poses : (N, 4, 4) ndarray of float
             Navigation base poses ``T_world_submap_nav``.
         times_s : (N,) ndarray of float
-            Times of the base poses, seconds, for the drift allowed between two submaps.
+            Times of the base poses, seconds, increasing, for the drift allowed between two
+            submaps.
 
         Returns
         -------
@@ -436,11 +442,13 @@ class LoopClosureDetector:
             Naming the argument, before any work: `k` not an id of `clouds`, `bounds`, `poses`,
             `nav_poses` or `times_s` not one per cloud, a cloud not (N, 3) real numbers (or,
             where it is used, with NaN or infinite values), a box it uses not (lo, hi) with
-            lo <= hi, poses not rigid, or times not finite.
+            lo <= hi, poses not rigid, or times not finite or not increasing.
         """
         clouds, poses = _checked_submaps(k, clouds, bounds, poses)
         nav_poses = rigid_poses("nav_poses", nav_poses, count=len(clouds))
         times_s = float_array("times_s", times_s, (len(clouds),), np.float64)
+        if np.any(np.diff(times_s) <= 0):  # the drift between two submaps grows with their time apart
+            raise ValueError("times_s must increase, one base pose after the other")
         accepted, rejected = [], []
         self.seconds = dict.fromkeys(self.seconds, 0.0)
         found = self._candidates(k, clouds, bounds, poses)
