@@ -245,3 +245,20 @@ def test_detect_refuses_times_that_do_not_increase():
     detector = slam.LoopClosureDetector(config=slam.LoopClosureConfig(icp=slam.IcpConfig(free="all")))
     with pytest.raises(ValueError, match="times_s must increase"):  # it blamed radius_m (a NaN bound)
         detector.detect(2, [cloud] * 3, [bounds] * 3, poses, poses, np.array([0.0, 1000.0, 1.0]))
+
+
+def test_a_candidate_of_one_repeated_point_is_skipped_not_fatal():
+    """detect raised "target needs at least 3 distinct points" for one degenerate candidate,
+    and lost the closures of the others."""
+    from vogjax import slam
+
+    cloud = _box_cloud(np.random.default_rng(2))
+    degenerate = np.repeat(cloud[:1], 100, axis=0)
+    bounds = (cloud.min(axis=0) - 0.5, cloud.max(axis=0) + 0.5)
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    detector = slam.LoopClosureDetector(config=slam.LoopClosureConfig(icp=slam.IcpConfig(max_correspondence_m=0.3)))
+    times = np.array([0.0, 600.0, 1200.0, 1800.0])
+    assert detector.candidates(3, [degenerate, cloud, cloud[:5], cloud], [bounds] * 4, poses) == [1]
+    accepted, _ = detector.detect(3, [degenerate, cloud, cloud[:5], cloud], [bounds] * 4, poses, poses, times)
+    assert [c.i for c in accepted] == [1]
+    assert detector.candidates(3, [cloud, cloud, cloud[:5], degenerate], [bounds] * 4, poses) == []

@@ -679,3 +679,31 @@ def test_a_plan_keeps_occupied_voxels_off_by_the_drift_margin_and_is_regrown_whe
     assert regrown.nodes >= SMALL.max_nodes and regrown.score > 0
     assert all(clear(a, b, config.obstacle_margins_m()) for a, b in edges(regrown))
     assert not all(clear(a, b, wide) for a, b in edges(regrown))
+
+
+def test_a_plan_refused_midway_leaves_the_planner_as_it_was():
+    """A risk callable's NaN refused the plan after samples were drawn: the next plan differed
+    from a fresh planner's, and the drift margins of the refused plan stayed."""
+    rng = np.random.default_rng(9)
+    vmap = room_map(rng)
+    T = pose_from_xyz_yaw(0.0, 0.0, 0.0, 0.0)
+    calls = []
+
+    def risk(starts, ends):
+        calls.append(len(starts))
+        return np.full(len(starts), np.nan if len(calls) == 2 else 0.5)
+
+    config = SMALL.replace(risk_weight=1.0)
+    fresh = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR, risk=risk)
+    tried = planner.NbvPlanner(config, bounds=BOUNDS, sensor=SONAR, risk=risk)
+    margins = tried._obstacle_margins
+    calls.clear()
+    calls.append(0)  # the next call is the second: NaN
+    with pytest.raises(ValueError, match="risk"):
+        tried.plan(vmap, T, drift_m=0.4)
+    assert tried._obstacle_margins == margins
+    calls.clear()
+    calls.extend([0, 0])  # no NaN from here on
+    again = tried.plan(vmap, T)
+    first = fresh.plan(vmap, T)
+    np.testing.assert_array_equal(again.tree_states, first.tree_states)

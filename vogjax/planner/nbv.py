@@ -372,6 +372,9 @@ class NbvPlanner:
         ):
             raise ValueError(f"drift_m must be a non-negative number, got {drift_m!r}")
         root = state_of_pose(rigid_poses("T_world_vehicle", T_world_vehicle)[0])  # before any change
+        # what planning changes, put back if it raises midway (a risk callable's NaN): the next
+        # plan is then the one a planner that never tried would make
+        saved = (self.rng.bit_generator.state, self._obstacle_margins, self._min_edge_m)
         self._obstacle_margins = self.config.obstacle_margins_m(float(drift_m))
         start_s = time.perf_counter()
         cfg = self.config
@@ -386,16 +389,20 @@ class NbvPlanner:
             # checked before the first sample is drawn: a refused plan leaves the random state
             reach = np.abs(self.bounds).max() + self.config.gain_range_m + np.max(self.config.checked_box_m)
             within_key_range("bounds", np.array([reach]), source.config.voxel_size, hashing.VOXEL_KEY_LIMIT)
-            tree, rays, iterations = self._grow_tree(sources, root)
-            relaxed = cfg.obstacle_margins_m()
-            if tree.scores.max() <= 0 and (self._obstacle_margins != relaxed or cfg.min_edge_length_m > 0):
-                # blocked or gaining nothing under the drift margin or the shortest edge: both are
-                # preferences (a tight corner may leave only short ways out), the box and its
-                # margins are not
-                self._obstacle_margins, self._min_edge_m = relaxed, 0.0
-                tree, more_rays, more_iterations = self._grow_tree(sources, root)
-                rays, iterations = rays + more_rays, iterations + more_iterations
-                self._min_edge_m = cfg.min_edge_length_m
+            try:
+                tree, rays, iterations = self._grow_tree(sources, root)
+                relaxed = cfg.obstacle_margins_m()
+                if tree.scores.max() <= 0 and (self._obstacle_margins != relaxed or cfg.min_edge_length_m > 0):
+                    # blocked or gaining nothing under the drift margin or the shortest edge: both
+                    # are preferences (a tight corner may leave only short ways out), the box and
+                    # its margins are not
+                    self._obstacle_margins, self._min_edge_m = relaxed, 0.0
+                    tree, more_rays, more_iterations = self._grow_tree(sources, root)
+                    rays, iterations = rays + more_rays, iterations + more_iterations
+                    self._min_edge_m = cfg.min_edge_length_m
+            except BaseException:
+                self.rng.bit_generator.state, self._obstacle_margins, self._min_edge_m = saved
+                raise
         if cfg.global_step:  # the explored graph keeps the tree: where a later global step may go
             self.graph.add_tree(self.graph.visit(root), tree.states, tree.parents, tree.visible)
         best = int(np.argmax(tree.scores))

@@ -349,7 +349,7 @@ class LoopClosureDetector:
         """Earlier submaps worth aligning with k (the thesis's precondition).
 
         A candidate i is at least `min_separation` before k, both clouds hold at least
-        `min_points` points (and 3), and i's box holds the centroid of k's cloud moved by the
+        `min_points` points (and 3 distinct ones), and i's box holds the centroid of k's cloud moved by the
         current relative estimate; of those, the `max_candidates` whose cloud centroid lies
         nearest it.
 
@@ -383,6 +383,8 @@ class LoopClosureDetector:
         if len(clouds[k]) < least:
             return []
         _finite_cloud(k, clouds[k])
+        if len(np.unique(clouds[k], axis=0)) < 3:  # one point repeated is no cloud either
+            return []
         centroid = np.append(clouds[k].mean(axis=0), 1.0)
         found, distances = [], []
         for i in range(0, k - cfg.min_separation + 1):
@@ -392,6 +394,10 @@ class LoopClosureDetector:
             in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
             if np.all(in_i >= lo) and np.all(in_i <= hi):
                 _finite_cloud(i, clouds[i])
+                try:  # its target, kept for the alignment: fewer than 3 distinct points make none
+                    self._target(i, clouds[i])
+                except ValueError:
+                    continue
                 found.append(i)
                 distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
         # aligning costs most of a submap's time: bound it by the best-placed few
