@@ -349,9 +349,9 @@ class LoopClosureDetector:
         """Earlier submaps worth aligning with k (the thesis's precondition).
 
         A candidate i is at least `min_separation` before k, both clouds hold at least
-        `min_points` points (and 3 distinct ones), and i's box holds the centroid of k's cloud moved by the
-        current relative estimate; of those, the `max_candidates` whose cloud centroid lies
-        nearest it.
+        `min_points` points (and 3 distinct ones), and i's box holds the centroid of k's cloud
+        moved by the current relative estimate; of those, the `max_candidates` whose cloud
+        centroid lies nearest it.
 
         Parameters
         ----------
