@@ -85,9 +85,7 @@ def run(args) -> None:
 
 def _same_file(out: Path, source: Path) -> bool:
     """Whether `out` names `source` (the same path, a link to it or a hard link to it)."""
-    if not source.exists():  # load_map names a missing map
-        return False
     try:
-        return out.resolve() == source.resolve() or out.samefile(source)
-    except OSError:  # no `out` yet
+        return out.samefile(source)
+    except OSError:  # no `out` yet, or no map (load_map names that)
         return False

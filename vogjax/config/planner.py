@@ -19,15 +19,14 @@ import dataclasses
 import numpy as np
 import numpy.typing as npt
 
+from vogjax.config.maps import MapConfig
 from vogjax.config.pipeline import PipelineConfig
-from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, section, text
+from vogjax.config.schema import Config, flag, integer, non_negative, number, positive, rule_of, section, text
 from vogjax.config.sim import ControllerConfig
 
 # The most nodes a tree may grow to: each round finds its samples' nearest nodes among all of
 # them, and the work grows with the square of the tree (the papers use N_tol of 60 or so).
 MAX_TREE_NODES = 10_000
-# MapConfig.voxel_size's bound: a map level of voxel_size * 2^k is read as a map of that voxel size
-MAX_VOXEL_M = 1e3
 SELECTIONS = ("gain_rate", "discounted")
 GAINS = ("volume", "frontier")
 GAIN_REGIONS = ("bounds", "scene")
@@ -328,11 +327,13 @@ class ExploreConfig(Config):
                 "planner.risk_weight > 0 needs a risk callable (NbvPlanner(risk=...) in Python); "
                 "`vogjax explore` has none: leave it at 0"
             )
+        # a map level of voxel_size * 2^k is read as a map of that voxel size: MapConfig's bound
+        largest_m = rule_of(next(f for f in dataclasses.fields(MapConfig) if f.name == "voxel_size")).high
         voxel_m = self.pipeline.map.voxel_size
         for name in ("collision_level", "gain_level"):
             level = getattr(self.planner, name)
-            if voxel_m * 2**level > MAX_VOXEL_M:
+            if voxel_m * 2**level > largest_m:
                 raise ValueError(
                     f"planner.{name} = {level}: voxels of {voxel_m * 2**level:g} m at map.voxel_size "
-                    f"{voxel_m:g} m, past the {MAX_VOXEL_M:g} m a map level may have"
+                    f"{voxel_m:g} m, past the {largest_m:g} m a map level may have"
                 )
