@@ -127,6 +127,14 @@ class LoopClosureConfig(Config):
     max_search_m : float
         Cap on the correlative search radius in x-y, metres (the radius is the navigation's
         drift bound, `drift_sigmas` sigmas, capped here).
+    min_search_m : float
+        With the pose graph's uncertainty of the pair (the pipeline's), the search looks
+        `drift_sigmas` of the graph's sigmas around its estimate when that is narrower than the
+        navigation's bound, but no narrower than this in x-y, metres (in yaw, when ICP solves
+        it: no narrower than the turn that moves the source's farthest point this far). After
+        the first loop the graph knows a pair's offset to decimetres where the navigation
+        allows metres; a floor of twice `correlative.exclusion_m` leaves the ambiguity test a
+        ring to find a runner-up in.
     min_overlap_score : float
         Least overlap: the correlative peak's score (the mean blurred occupancy under the source
         points), over the reference `overlap_reference` names.
@@ -186,6 +194,7 @@ class LoopClosureConfig(Config):
     icp: IcpConfig = section(IcpConfig(max_correspondence_m=0.3, tolerance=1e-3, free="translation"))
     correlative: CorrelativeConfig = section(CorrelativeConfig())
     max_search_m: float = non_negative(4.0)
+    min_search_m: float = non_negative(1.0)
     min_overlap_score: float = non_negative(0.3)
     overlap_reference: str = text("absolute", OVERLAP_REFERENCES)
     max_ambiguity: float = non_negative(1.0)

@@ -246,7 +246,9 @@ class Mapper:
         self.timings["isam2"].append(time.perf_counter() - start)
         # b. loop closures against earlier submaps
         start = time.perf_counter()
-        found, rejected = self.detector.detect(k, clouds, bounds, poses, nav_bases, times_s)
+        found, rejected = self.detector.detect(
+            k, clouds, bounds, poses, nav_bases, times_s, self.graph.relative_covariance
+        )
         self.timings["loop_closure"].append(time.perf_counter() - start)
         for phase, seconds in self.detector.seconds.items():  # its parts
             self.timings[phase].append(seconds)

@@ -230,6 +230,7 @@ class PoseGraph:
         self._pending_values = gtsam.Values()
         self._nav: list[np.ndarray] = []
         self._estimates = np.zeros((0, 4, 4))
+        self._relative: dict[tuple[int, int], np.ndarray] = {}  # (i, k) -> covariance, this update's
         self.factors: list[tuple] = []  # (kind, keys) of every factor added, for inspection
 
     @property
@@ -398,19 +399,13 @@ class PoseGraph:
         return gtsam.noiseModel.Robust.Create(estimator, gaussian)
 
     def _screen(self, i: int, k: int, T_i_k: np.ndarray, covariance: np.ndarray, basis) -> ClosureCheck:
-        """The closure's Mahalanobis distance from the estimate against the screen's limit.
-
-        With GTSAM's right perturbations T_i Exp(xi_i), T_k Exp(xi_k), the relative pose P =
-        T_i^-1 T_k moves by xi_k - Ad(P^-1) xi_i, so its covariance is A J A^T with A =
-        [-Ad(P^-1), I] and J iSAM2's joint marginal of (i, k). The error log(P^-1 T_i_k) then
-        has covariance A J A^T + covariance (the closure's noise), both projected on basis."""
-        if max(i, k) >= len(self._estimates):  # a node not yet optimised: no estimate to judge by
-            self.update()
+        """The closure's Mahalanobis distance from the estimate against the screen's limit: the
+        error log(P^-1 T_i_k) of the estimate P = T_i^-1 T_k has covariance
+        `relative_covariance(i, k)` plus the closure's noise, both projected on basis."""
+        P_covariance = self._relative_covariance(i, k)
         P = inverse(self._estimates[i]) @ self._estimates[k]
-        joint = self._isam.jointMarginalCovariance([i, k]).fullMatrix()
-        A = np.hstack([-gtsam.Pose3(inverse(P)).AdjointMap(), np.eye(6)])
         B = np.eye(6) if basis is None else basis
-        innovation = B.T @ (A @ joint @ A.T + covariance) @ B
+        innovation = B.T @ (P_covariance + covariance) @ B
         error = B.T @ log_se3(inverse(P) @ T_i_k)
         distance = float(np.sqrt(max(error @ np.linalg.solve(innovation, error), 0.0)))
         limit = screen_limit(self.config.screen_sigmas, B.shape[1])
@@ -420,6 +415,53 @@ class PoseGraph:
         whitened = np.linalg.solve(own, np.linalg.solve(own, innovation).T)
         scale = float(np.sqrt(max(np.linalg.eigvalsh((whitened + whitened.T) / 2).max(), 1.0)))
         return ClosureCheck(bool(distance <= limit), distance, limit, B.shape[1], scale)
+
+    def relative_covariance(self, i: int, k: int) -> npt.NDArray[np.float64]:
+        """How well the graph knows where submap k sits in submap i's frame, as of the last
+        `update` (the graph is updated first when i or k was added since).
+
+        The relative pose P = T_world_i^-1 T_world_k moves by xi_k - Ad(P^-1) xi_i under
+        GTSAM's right perturbations T Exp(xi), so its covariance is A J A^T with A =
+        [-Ad(P^-1), I] and J iSAM2's joint marginal of (i, k). What the loop-closure screen
+        judges a closure of the pair against, and what bounds the detector's search for one
+        (`LoopClosureDetector.detect`); computed once per pair and update, for both.
+
+        Parameters
+        ----------
+        i, k : int
+            Submap ids, different, both in the graph.
+
+        Returns
+        -------
+        (6, 6) ndarray of float64
+            The covariance of P in its right tangent, GTSAM order (rotation, then translation;
+            rad and m), a copy.
+
+        Raises
+        ------
+        ValueError
+            If `i` or `k` is not a submap id of the graph, or they are the same.
+        """
+        for name, value in (("i", i), ("k", k)):
+            if (
+                isinstance(value, (bool, np.bool_))
+                or not isinstance(value, (int, np.integer))
+                or not 0 <= value < self.num_submaps
+            ):
+                raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
+        if i == k:
+            raise ValueError("i and k must differ")
+        return self._relative_covariance(int(i), int(k)).copy()
+
+    def _relative_covariance(self, i: int, k: int) -> np.ndarray:
+        if max(i, k) >= len(self._estimates):  # a node not yet optimised: no estimate to judge by
+            self.update()
+        if (i, k) not in self._relative:
+            P = inverse(self._estimates[i]) @ self._estimates[k]
+            joint = self._isam.jointMarginalCovariance([i, k]).fullMatrix()
+            A = np.hstack([-gtsam.Pose3(inverse(P)).AdjointMap(), np.eye(6)])
+            self._relative[(i, k)] = A @ joint @ A.T
+        return self._relative[(i, k)]
 
     def update(self) -> npt.NDArray[np.float64]:
         """Hand the new factors and nodes to iSAM2 and read the estimate back.
@@ -437,6 +479,7 @@ class PoseGraph:
                     raise
                 self._refactor_with_qr()
             self._committed.push_back(self._pending)
+            self._relative.clear()
             self._pending = gtsam.NonlinearFactorGraph()
             self._pending_values = gtsam.Values()
             estimate = self._isam.calculateEstimate()

@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -37,7 +37,7 @@ import warp as wp
 
 from vogjax import devices
 from vogjax.config import LoopClosureConfig, NavNoise
-from vogjax.geometry import inverse, log_se3, rigid_pose, rigid_poses
+from vogjax.geometry import inverse, log_se3, rigid_pose, rigid_poses, skew
 from vogjax.slam.correlative import correlative_xyh, correlative_xyh_batch, self_score
 from vogjax.slam.icp import IcpResult, IcpTarget, centre_adjoint, constrained_basis, icp_batch, prepare_target
 from vogjax.validation import float_array, real_array
@@ -385,21 +385,23 @@ class LoopClosureDetector:
         _finite_cloud(k, clouds[k])
         if len(np.unique(clouds[k], axis=0)) < 3:  # one point repeated is no cloud either
             return []
-        centroid = np.append(clouds[k].mean(axis=0), 1.0)
+        earlier = [i for i in range(0, k - cfg.min_separation + 1) if len(clouds[i]) >= least and bounds[i] is not None]
+        if not earlier:
+            return []
+        lo, hi = _boxes(earlier, bounds)
+        # k's centroid in each earlier frame, all at once: R_i^T (p - t_i)
+        centroid = poses[k, :3, :3] @ clouds[k].mean(axis=0) + poses[k, :3, 3]
+        in_frames = np.einsum("nji,nj->ni", poses[earlier, :3, :3], centroid - poses[earlier, :3, 3])
         found, distances = [], []
-        for i in range(0, k - cfg.min_separation + 1):
-            if len(clouds[i]) < least or bounds[i] is None:
+        for n in np.flatnonzero(np.all((in_frames >= lo) & (in_frames <= hi), axis=1)):
+            i = earlier[n]
+            _finite_cloud(i, clouds[i])
+            try:  # its target, kept for the alignment: fewer than 3 distinct points make none
+                self._target(i, clouds[i])
+            except ValueError:
                 continue
-            lo, hi = _box(i, bounds[i])
-            in_i = (inverse(poses[i]) @ poses[k] @ centroid)[:3]
-            if np.all(in_i >= lo) and np.all(in_i <= hi):
-                _finite_cloud(i, clouds[i])
-                try:  # its target, kept for the alignment: fewer than 3 distinct points make none
-                    self._target(i, clouds[i])
-                except ValueError:
-                    continue
-                found.append(i)
-                distances.append(np.linalg.norm(in_i - clouds[i].mean(axis=0)))
+            found.append(i)
+            distances.append(np.linalg.norm(in_frames[n] - clouds[i].mean(axis=0)))
         # aligning costs most of a submap's time: bound it by the best-placed few
         nearest = np.argsort(distances, kind="stable")[: cfg.max_candidates]
         return sorted(found[j] for j in nearest)
@@ -412,12 +414,15 @@ class LoopClosureDetector:
         poses: npt.NDArray[np.floating],
         nav_poses: npt.NDArray[np.floating],
         times_s: npt.NDArray[np.floating],
+        relative_covariance: Callable[[int, int], npt.ArrayLike] | None = None,
     ) -> tuple[list[LoopClosure], list[Rejection]]:
         """Loop closures of submap k with earlier submaps.
 
         Each candidate is searched within the drift the navigation may have gathered between
-        the two base poses (`drift_sigmas` sigmas, capped at `max_search_m`), aligned, and
-        accepted or rejected by the first test it fails (`Rejection.reason`).
+        the two base poses (`drift_sigmas` sigmas, capped at `max_search_m`), or, given the
+        pose graph's uncertainty of the pair, within `drift_sigmas` of its sigmas where that
+        is narrower (no narrower than `min_search_m`), aligned, and accepted or rejected by
+        the first test it fails (`Rejection.reason`).
 
         Parameters
         ----------
@@ -434,6 +439,10 @@ class LoopClosureDetector:
         times_s : (N,) ndarray of float
             Times of the base poses, seconds, increasing, for the drift allowed between two
             submaps.
+        relative_covariance : callable or None, optional
+            ``relative_covariance(i, k)``: the (6, 6) covariance of ``poses[i]^-1 poses[k]``
+            in its right tangent, GTSAM order (`PoseGraph.relative_covariance`); None: the
+            navigation's drift alone bounds the searches.
 
         Returns
         -------
@@ -448,7 +457,8 @@ class LoopClosureDetector:
             Naming the argument, before any work: `k` not an id of `clouds`, `bounds`, `poses`,
             `nav_poses` or `times_s` not one per cloud, a cloud not (N, 3) real numbers (or,
             where it is used, with NaN or infinite values), a box it uses not (lo, hi) with
-            lo <= hi, poses not rigid, or times not finite or not increasing.
+            lo <= hi, poses not rigid, or times not finite or not increasing; or, before any
+            search, if `relative_covariance` returns no (6, 6) finite covariance.
         """
         clouds, poses = _checked_submaps(k, clouds, bounds, poses)
         nav_poses = rigid_poses("nav_poses", nav_poses, count=len(clouds))
@@ -469,15 +479,12 @@ class LoopClosureDetector:
             yaw_radius = cfg.drift_sigmas * np.sqrt(self.noise.sigma2_yaw * elapsed) if solves_yaw else 0.0
             lever = _yaw_lever_m2(i, k, nav_poses, times_s) if solves_yaw else None
             bounds_m.append(self._drift_bound(elapsed, lever))
-            pairs.append(
-                (
-                    clouds[k],
-                    self._target(i, clouds[i]),
-                    inverse(poses[i]) @ poses[k],
-                    min(bounds_m[-1], cfg.max_search_m),
-                    yaw_radius,
-                )
-            )
+            T_init = inverse(poses[i]) @ poses[k]
+            radius = min(bounds_m[-1], cfg.max_search_m)
+            if relative_covariance is not None:  # where the graph knows the pair better
+                covariance = _covariance_of(i, k, relative_covariance(i, k))
+                radius, yaw_radius = self._graph_search(clouds[k], T_init, covariance, radius, yaw_radius)
+            pairs.append((clouds[k], self._target(i, clouds[i]), T_init, radius, yaw_radius))
         alignments = ALIGNERS[cfg.aligner](pairs, cfg, self.seconds, self.device, self._kept)
         for i, alignment, bound in zip(found, alignments, bounds_m):
             odometry = inverse(nav_poses[i]) @ nav_poses[k]
@@ -494,6 +501,29 @@ class LoopClosureDetector:
             else:
                 accepted.append(self._closure(i, k, alignment))
         return accepted, rejected
+
+    def _graph_search(
+        self, source: np.ndarray, T_init: np.ndarray, covariance: np.ndarray, radius_m: float, yaw_radius_rad: float
+    ) -> tuple[float, float]:
+        """The search's x-y and yaw radii narrowed to `drift_sigmas` of the graph's sigmas of the
+        pair, judged where the search turns the source (its centroid, moved into i's frame), no
+        narrower than `min_search_m` (in yaw: its turn at the source's farthest point) and no
+        wider than the navigation's bounds given."""
+        cfg = self.config
+        centroid = source.mean(axis=0)
+        rotation = T_init[:3, :3]
+        # under T_init Exp(xi), the centroid moves by rotation (-[centroid]x w + v)
+        lever = rotation @ np.hstack([-skew(centroid), np.eye(3)])
+        position = lever @ covariance @ lever.T
+        sigma_xy = np.sqrt(max(float(np.linalg.eigvalsh(position[:2, :2]).max()), 0.0))
+        radius = min(radius_m, max(cfg.drift_sigmas * sigma_xy, cfg.min_search_m))
+        if yaw_radius_rad <= 0:
+            return radius, yaw_radius_rad
+        sigma_yaw = np.sqrt(max(float((rotation @ covariance[:3, :3] @ rotation.T)[2, 2]), 0.0))
+        moved = source @ rotation.T
+        reach = float(np.linalg.norm(moved[:, :2] - moved[:, :2].mean(axis=0), axis=1).max())
+        floor = cfg.min_search_m / reach if reach > 0 else np.pi
+        return radius, min(yaw_radius_rad, max(cfg.drift_sigmas * sigma_yaw, floor))
 
     def _drift_bound(self, elapsed_s: float, lever_m2: float | None = None) -> float:
         """How far (m, x-y) navigation can plausibly drift in `elapsed_s`: drift_sigmas sigma of
@@ -603,9 +633,40 @@ def _checked_submaps(k, clouds, bounds, poses) -> tuple[list, np.ndarray]:
     return checked, rigid_poses("poses", poses, count=count)
 
 
+def _covariance_of(i: int, k: int, value) -> np.ndarray:
+    """What `relative_covariance(i, k)` returned, checked: a (6, 6) covariance of real, finite
+    numbers with a non-negative diagonal."""
+    try:
+        covariance = real_array("relative_covariance", value)
+    except ValueError:
+        covariance = None
+    if covariance is None or covariance.shape != (6, 6) or not np.all(np.isfinite(covariance)):
+        raise ValueError(f"relative_covariance({i}, {k}) must return a (6, 6) array of finite numbers")
+    if np.any(np.diag(covariance) < 0):
+        raise ValueError(f"relative_covariance({i}, {k}) returned negative variances")
+    return covariance
+
+
 def _finite_cloud(i: int, cloud: np.ndarray) -> None:
     if not np.all(np.isfinite(cloud)):
         raise ValueError(f"clouds[{i}] contains NaN or infinite values")
+
+
+def _boxes(ids: list[int], bounds) -> tuple[np.ndarray, np.ndarray]:
+    """The (lo, hi) corners of the boxes `ids` names, (n, 3) each, checked as `_box` checks one
+    (which names the first bad box when they do not stack)."""
+    try:
+        corners = np.array([bounds[i] for i in ids], dtype=np.float64)
+    except (TypeError, ValueError):
+        corners = None
+    if (
+        corners is None
+        or corners.shape != (len(ids), 2, 3)
+        or np.isnan(corners).any()
+        or np.any(corners[:, 0] > corners[:, 1])
+    ):
+        corners = np.array([_box(i, bounds[i]) for i in ids])
+    return corners[:, 0], corners[:, 1]
 
 
 def _box(i: int, box) -> tuple[np.ndarray, np.ndarray]:
