@@ -167,3 +167,63 @@ def test_the_graphs_narrow_search_leaves_out_the_aliases_a_repeating_scene_offer
     assert [(c.i, c.k) for c in narrow] == [(0, 2)] and not narrow_rejected
     assert narrow[0].ambiguity < 0.8
     np.testing.assert_allclose(narrow[0].T_i_k[:2, 3], truth[:2, 3], atol=0.05)
+
+
+def line_batch(first: int, scans: int, jump_at: int | None = None, jump_m: float = 0.0):
+    """Scans 0.2 s apart along x, four beams each; from scan `jump_at` on, the navigation jumps
+    `jump_m` in y."""
+    from vogjax.io.dataset import ScanBatch
+
+    rng = np.random.default_rng(first)
+    directions = np.tile([[0.0, 0.0, -1.0]], (4, 1)) + rng.normal(0, 0.05, (4, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    index = np.arange(first, first + scans)
+    poses = np.tile(np.eye(4), (scans, 1, 1))
+    poses[:, 0, 3] = index * 0.1
+    nav = poses.copy()
+    if jump_at is not None:
+        nav[index >= jump_at, 1, 3] += jump_m
+    return ScanBatch(
+        time_s=index * 0.2,
+        pose_truth=poses,
+        pose_nav=nav,
+        sonar_origin=np.zeros((scans, 3)),
+        sonar_directions=np.tile(directions, (scans, 1, 1)),
+        ranges=np.full((scans, 4), 3.0),
+        no_return=np.zeros((scans, 4), bool),
+        invalid=np.zeros((scans, 4), bool),
+        first=first,
+    )
+
+
+@pytest.mark.parametrize("where", ["add", "finish_submap"])
+def test_a_jump_the_graph_cannot_weigh_is_refused_before_the_maps_take_it(where):
+    """A navigation jump of 600 km in 2 s (over 1e7 drift sigmas) between two submaps: the graph
+    refuses it. It used to be refused midway through `add` (or `finish_submap`), with the scans
+    in the maps and the submap in the virtual map but not in the graph; now the batch is
+    refused whole, and the mapper goes on with good scans as if it had never seen it."""
+    from vogjax import pipeline
+    from vogjax.config import TimingConfig
+
+    config = pipeline.PipelineConfig(scans_per_submap=10, timing=TimingConfig(every_submaps=0))
+    mapper = pipeline.Mapper(config)
+    mapper.add(line_batch(0, 15))  # submap 0 closed; scans 10-14 wait for the next
+    state = (mapper.scans, mapper.vog.num_submaps, mapper.graph.num_submaps, len(mapper._pending))
+    voxels = mapper.standard_map.voxels()
+    # the jump from scan 15 on: the base (middle scan) of the submap of scans 10-19
+    bad = line_batch(15, 30 if where == "add" else 5, jump_at=15, jump_m=6e5)
+    if where == "add":
+        with pytest.raises(ValueError, match="drift sigmas"):
+            mapper.add(bad)
+    else:
+        mapper.add(bad)  # the jump sits in the submap being filled
+        state = (mapper.scans, mapper.vog.num_submaps, mapper.graph.num_submaps, len(mapper._pending))
+        with pytest.raises(ValueError, match="drift sigmas"):
+            mapper.finish_submap()
+    assert (mapper.scans, mapper.vog.num_submaps, mapper.graph.num_submaps, len(mapper._pending)) == state
+    if where == "add":  # the standard map did not take the batch either
+        assert all(np.array_equal(a, b) for a, b in zip(voxels, mapper.standard_map.voxels()))
+    if where == "add":
+        mapper.add(line_batch(15, 30))
+        mapper.finish_submap()
+        assert mapper.graph.num_submaps == mapper.vog.num_submaps == len(mapper.submaps) == 5

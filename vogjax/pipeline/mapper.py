@@ -47,6 +47,7 @@ from vogjax.pipeline.probes import probe
 from vogjax.pipeline.result import Result, SubmapRecord
 from vogjax.sensors import mapped_beams
 from vogjax.slam import LoopClosureDetector, PoseGraph, Rejection, ScanMatcher
+from vogjax.slam.backend import odometry_step
 from vogjax.slam.clouds import voxel_means
 
 
@@ -131,8 +132,11 @@ class Mapper:
         Raises
         ------
         ValueError
-            If the batch is not finite, its poses not rigid, its times not increasing, or its
-            beams or ground truth differ from the first batch's.
+            If the batch is not finite, its poses not rigid, its times not increasing, its
+            beams or ground truth differ from the first batch's, or a submap it would close is
+            based at a pose the pose graph cannot take (a jump or a time step it cannot weigh,
+            `slam.backend.odometry_step`). Nothing changes then, but with scan matching on the
+            matcher has taken the batch's scans.
         """
         self._check(batch)
         if not len(batch):
@@ -145,6 +149,7 @@ class Mapper:
             self._scan_odometry.append(batch.pose_nav)
             batch = dataclasses.replace(batch, pose_nav=corrected)
             self.timings["scan_matching"].append(time.perf_counter() - start)
+        self._check_odometry(self._closed_by(batch))  # before the maps or the graph take any of it
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
@@ -189,9 +194,49 @@ class Mapper:
         check_scans(fields, beams, "batch", after_time_s=after, truth=truth)
         self._beams = beams
 
+    def _closed_by(self, batch: ScanBatch) -> list[tuple[np.ndarray, float]]:
+        """(base pose, base time) of each submap that adding `batch` will close, as `add` cuts
+        them, without cutting anything."""
+        closed = []
+        pending = [(part.time_s, part.pose_nav) for part in self._pending]
+        first = 0
+        while first < len(batch):
+            held = sum(len(times) for times, _ in pending)
+            started_s = pending[0][0][0] if pending else batch.time_s[first]
+            room = max(self.cutter.room(held, batch.time_s[first:] - started_s), 0 if held else 1)
+            if room:
+                pending.append((batch.time_s[first : first + room], batch.pose_nav[first : first + room]))
+                first += room
+            if first < len(batch):
+                closed.append(_base_of(pending))
+                pending = []
+        return closed
+
+    def _check_odometry(self, bases: list[tuple[np.ndarray, float]]) -> None:
+        """Refuse base poses the pose graph would refuse (`slam.backend.odometry_step`), before
+        any map or the graph has changed: a jump or a time step it cannot weigh, found midway
+        through a run, would leave the maps ahead of the graph."""
+        previous = (self.submaps[-1].T_world_base_nav, self.submaps[-1].time_s) if self.submaps else None
+        for T, time_s in bases:
+            if previous is not None:
+                try:
+                    odometry_step(self.config.nav_noise, previous[0], T, time_s - previous[1])
+                except ValueError as error:
+                    raise ValueError(f"batch: the submap based at t = {time_s:.9g} s: {error}") from None
+            previous = (T, time_s)
+
     def finish_submap(self) -> None:
         """Close the submap being filled (if any) and bring SLAM and the global map up to date:
-        every finished submap is then in the pose graph and the global map."""
+        every finished submap is then in the pose graph and the global map.
+
+        Raises
+        ------
+        ValueError
+            If the pose graph cannot take the submap's base pose (a jump, or a time step, it
+            cannot weigh); nothing changes then.
+        """
+        if self._pending:
+            self._check_odometry([_base_of([(part.time_s, part.pose_nav) for part in self._pending])])
         self._close_submap()
         self.sync()
 
@@ -410,6 +455,15 @@ class Mapper:
         """Where the optimised previous submap puts a new base pose (navigation's relative motion)."""
         previous = self.graph.num_submaps - 1
         return self.graph.poses()[previous] @ inverse(self.submaps[previous].T_world_base_nav) @ record.T_world_base_nav
+
+
+def _base_of(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
+    """(pose, time) of the middle scan of a submap's (times, poses) parts: its base, as
+    `_integrate_submap` takes it."""
+    times = np.concatenate([times for times, _ in parts])
+    poses = np.concatenate([poses for _, poses in parts])
+    middle = len(times) // 2
+    return poses[middle], float(times[middle])
 
 
 def rigid_truth(built: np.ndarray, true: np.ndarray, T_world_base_truth: np.ndarray) -> np.ndarray:

@@ -153,6 +153,58 @@ def _covariance(name: str, covariance, size: int) -> np.ndarray:
     return covariance
 
 
+def odometry_step(
+    noise: NavNoise, T_previous: npt.ArrayLike, T: npt.ArrayLike, duration_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The odometry factors between two consecutive base poses, checked as `PoseGraph.add_submap`
+    checks them: (the xyh step, its variances, the zpr variances).
+
+    Parameters
+    ----------
+    noise : NavNoise
+        The navigation's drift per second.
+    T_previous, T : (4, 4) array_like of float
+        The previous and the new base pose as the navigation has them, rigid transforms.
+    duration_s : float
+        Time between them, seconds, in [1e-9, 1e12].
+
+    Raises
+    ------
+    ValueError
+        If a pose is not rigid, `duration_s` is not a number in [1e-9, 1e12] s, the odometry
+        variances (the drift times `duration_s`) exceed 1e12, or the step is more than 1e7
+        drift sigmas in x-y (a jump the pose graph cannot weigh).
+    """
+    T_previous = rigid_pose("T_previous", T_previous)
+    T = rigid_pose("T_world_submap_nav", T)
+    if not (
+        isinstance(duration_s, (int, float, np.integer, np.floating))
+        and not isinstance(duration_s, bool)
+        and np.isfinite(duration_s)
+        and MIN_DURATION_S <= duration_s <= MAX_DURATION_S
+    ):
+        raise ValueError(
+            f"duration_s must be a number of seconds in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}], got {duration_s!r}"
+        )
+    with np.errstate(over="ignore"):
+        step, variances = factors.xyh(T_previous, T), noise.xyh_variances(duration_s)
+        zpr_variances = noise.zpr_variances(duration_s)
+    if not np.all(np.r_[variances, zpr_variances] <= MAX_VARIANCE):  # inf too: NaN marginals
+        raise ValueError(
+            f"NavNoise over duration_s {duration_s:g} s gives odometry variances above "
+            f"{MAX_VARIANCE:g} (xyh {variances}, zpr {zpr_variances}): a drift the pose graph cannot weigh"
+        )
+    step_sigmas = np.abs(step[:2]).max() / np.sqrt(variances[:2].min())
+    if step_sigmas > MAX_STEP_SIGMAS:
+        raise ValueError(
+            f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
+            f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s at NavNoise "
+            f"sigma2_x {noise.sigma2_x:g}, sigma2_y {noise.sigma2_y:g} m^2/s): a jump "
+            "the pose graph cannot weigh (a wrong pose, or a drift set too small)"
+        )
+    return step, variances, zpr_variances
+
+
 class PoseGraph:
     """Submap base poses optimised incrementally with iSAM2.
 
@@ -267,38 +319,13 @@ class PoseGraph:
         """
         T = rigid_pose("T_world_submap_nav", T_world_submap_nav)
         i = self.num_submaps
-        if i > 0 and not (
-            isinstance(duration_s, (int, float, np.integer, np.floating))
-            and not isinstance(duration_s, bool)
-            and np.isfinite(duration_s)
-            and MIN_DURATION_S <= duration_s <= MAX_DURATION_S
-        ):
-            raise ValueError(
-                f"duration_s must be a number of seconds in [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}], "
-                f"got {duration_s!r}"
-            )
         if i == 0:
             self._pending.add(gtsam.PriorFactorPose3(0, _pose3(self.prior_pose), self._prior_noise))
             self.factors.append(("prior", (0,)))
             initial = self.prior_pose
         else:
             previous = self._nav[-1]
-            with np.errstate(over="ignore"):
-                step, variances = factors.xyh(previous, T), self.noise.xyh_variances(duration_s)
-                zpr_variances = self.noise.zpr_variances(duration_s)
-            if not np.all(np.r_[variances, zpr_variances] <= MAX_VARIANCE):  # inf too: NaN marginals
-                raise ValueError(
-                    f"NavNoise over duration_s {duration_s:g} s gives odometry variances above "
-                    f"{MAX_VARIANCE:g} (xyh {variances}, zpr {zpr_variances}): a drift the pose graph cannot weigh"
-                )
-            step_sigmas = np.abs(step[:2]).max() / np.sqrt(variances[:2].min())
-            if step_sigmas > MAX_STEP_SIGMAS:
-                raise ValueError(
-                    f"T_world_submap_nav moved {step_sigmas:.3g} drift sigmas in x-y since the "
-                    f"previous base pose (at most {MAX_STEP_SIGMAS:g} in {duration_s:g} s at NavNoise "
-                    f"sigma2_x {self.noise.sigma2_x:g}, sigma2_y {self.noise.sigma2_y:g} m^2/s): a jump "
-                    "the pose graph cannot weigh (a wrong pose, or a drift set too small)"
-                )
+            step, variances, zpr_variances = odometry_step(self.noise, previous, T, duration_s)
             xyh_noise = gtsam.noiseModel.Diagonal.Variances(variances)
             zpr_noise = gtsam.noiseModel.Diagonal.Variances(zpr_variances)
             self._pending.add(gtsam.CustomFactor(xyh_noise, [i - 1, i], partial(_xyh_error, step)))
