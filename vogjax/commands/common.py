@@ -111,6 +111,17 @@ def refuse_existing(path: Path, overwrite: bool, flag: str = "--out", folder: bo
         raise ValueError(f"{flag} {str(path)!r} exists (pass --overwrite to replace it)")
 
 
+def refuse_replacing_input(out: Path, source: Path, what: str) -> None:
+    """Refuse an `out` that names the input `source` (the same path, a link or a hard link to
+    it): it would be replaced before, or while, it is read."""
+    try:
+        same = out.samefile(source)
+    except OSError:  # no `out` yet, or no source (its reader names that)
+        same = False
+    if same:
+        raise ValueError(f"--out {str(out)!r} is the {what}; write it to another file")
+
+
 def config_help(tables: str) -> str:
     """The help of a subcommand's `--config`: the tables it reads and where to get a full file.
 

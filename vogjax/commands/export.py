@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from vogjax.commands.common import add_output_flags
+from vogjax.commands.common import add_output_flags, refuse_replacing_input
 
 FORMATS = ("bt", "ot", "ply")
 
@@ -69,8 +69,7 @@ def run(args) -> None:
     format = args.format or implied
     if format not in FORMATS:
         raise ValueError(f"--format must be one of {', '.join(FORMATS)} (or --out must end in one), got {format!r}")
-    if _same_file(args.out, args.map):  # it is replaced before the map is read through
-        raise ValueError(f"--out {str(args.out)!r} is the map being exported; write it to another file")
+    refuse_replacing_input(args.out, args.map, "map being exported")
     voxels = VoxelSet.from_map(load_map(args.map, device="cpu"))
     if format == "ply":
         count = ply.save(voxels, args.out)
@@ -81,11 +80,3 @@ def run(args) -> None:
             f"wrote {args.out}: OctoMap {format} tree of {nodes} nodes, {len(voxels)} observed voxels, "
             f"resolution {voxels.voxel_size} m"
         )
-
-
-def _same_file(out: Path, source: Path) -> bool:
-    """Whether `out` names `source` (the same path, a link to it or a hard link to it)."""
-    try:
-        return out.samefile(source)
-    except OSError:  # no `out` yet, or no map (load_map names that)
-        return False

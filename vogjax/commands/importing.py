@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from vogjax.commands import octomap_import
-from vogjax.commands.common import add_output_flags, refuse_existing, ruled
+from vogjax.commands.common import add_output_flags, refuse_existing, refuse_replacing_input, ruled
 
 DESCRIPTION = """\
 Convert a ROS bag into a run file for `vogjax map`: the scans of a PointCloud2 or LaserScan
@@ -129,6 +129,7 @@ def run(args) -> None:
     # then checks, with io.atomic.check_writable, that --out can be published)
     if args.out.suffix == ".vog":  # a run under a map's name is one `vogjax view` and `export` cannot read
         raise ValueError(f"--out must name a run file (RUN.h5): scans import as a run, got {str(args.out)!r}")
+    refuse_replacing_input(args.out, args.bag, "bag being imported")
     refuse_existing(args.out, args.overwrite)
     if args.max_range is not None and args.max_range > MAX_RANGE_M:
         raise ValueError(f"--max-range must be at most {MAX_RANGE_M:g} m, got {args.max_range:g}")

@@ -62,6 +62,7 @@ def run(args) -> None:
     import numpy as np
 
     import vogjax as vj
+    from vogjax.commands.common import refuse_replacing_input
     from vogjax.io.atomic import check_writable
 
     from_file = args.bag.suffix.lower() in SUFFIXES
@@ -90,6 +91,7 @@ def run(args) -> None:
         raise ValueError("--index and --time pick a message of a bag; an OctoMap file holds one tree")
     if args.out.suffix != ".vog":  # a map file under a run's .h5 name is one `vogjax map` cannot read
         raise ValueError(f"--out must name a .vog map file (an OctoMap imports as a map), got {str(args.out)!r}")
+    refuse_replacing_input(args.out, args.bag, "file being imported")
     if args.out.exists() and not args.overwrite:
         raise ValueError(f"out {str(args.out)!r} exists (pass --overwrite to replace it)")
     check_writable(args.out)

@@ -46,6 +46,11 @@ FORMAT = "vogjax-run"
 FORMAT_VERSION = 3
 INVALID_SINCE = 3  # the first format with the `invalid` field
 MAX_RANGE_M = 10_000.0  # no range sensor reaches farther; larger values are damage
+# Beams a validation step reads: the mapper's batch bound (`config.presets.MAX_BATCH_BEAMS`)
+VALIDATE_BEAMS = 1 << 21
+# Values per field in one HDF5 chunk: HDF5 reads and writes whole chunks (lzf, Fletcher-32),
+# so a scan of a million beams in a chunk of 256 scans cost 3 GB to write or read
+CHUNK_VALUES = 1 << 16
 _FIELDS = {  # name: (shape after the scan axis given beams B, dtype)
     "time_s": (lambda b: (), np.float64),
     "pose_truth": (lambda b: (4, 4), np.float64),
@@ -405,7 +410,7 @@ class DatasetWriter:
                 shape=(0, *tail),
                 maxshape=(None, *tail),
                 dtype=dtype,
-                chunks=(256, *tail),
+                chunks=(_chunk_scans(tail), *tail),
                 compression="lzf",
                 fletcher32=True,
                 fillvalue=fill,
@@ -573,6 +578,9 @@ class Dataset:
             ]
             self.optional = tuple(n for n in OPTIONAL_FIELDS if n in self._file)
             names = self._stored + list(self.optional)
+            for name in names + ["ranges"]:
+                if not isinstance(self._file[name], h5py.Dataset):  # a group has no scans
+                    raise ValueError(f"{where} is damaged: field {name} is not a dataset")
             lengths = {name: self._file[name].shape[0] for name in names}
             self.beams = int(self._file["ranges"].shape[1])
             if not 1 <= self.beams <= MAX_BEAMS:  # a small file may declare any shape
@@ -655,13 +663,14 @@ class Dataset:
         for first in range(0, len(self), size):
             yield self.read(first, min(first + size, len(self)))
 
-    def validate(self, size: int = 2000) -> None:
+    def validate(self, size: int | None = None) -> None:
         """Read and check every scan.
 
         Parameters
         ----------
-        size : int, optional
-            Scans read per step.
+        size : int or None, optional
+            Scans read per step (None: up to 2000, and at most VALIDATE_BEAMS beams in all, so
+            a lidar run's check holds no more than the mapper's own batches).
 
         Raises
         ------
@@ -674,7 +683,7 @@ class Dataset:
             sensors.from_metadata(self.metadata)
         except ValueError as error:
             raise ValueError(f"dataset {str(self.path)!r}: {error}") from None
-        for _ in self.batches(size):
+        for _ in self.batches(size or max(1, min(2000, VALIDATE_BEAMS // self.beams))):
             pass
 
     def close(self) -> None:
@@ -701,3 +710,9 @@ def _encoded(metadata: dict) -> str:
 
 def _is_text(value, expected: str) -> bool:
     return isinstance(value, str) and value == expected
+
+
+def _chunk_scans(tail: tuple) -> int:
+    """Scans per chunk of a field whose scans hold `tail`-shaped values: 256, fewer where that
+    would pass CHUNK_VALUES values."""
+    return max(1, min(256, CHUNK_VALUES // max(int(np.prod(tail, dtype=np.int64)), 1)))

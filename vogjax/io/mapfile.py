@@ -167,7 +167,9 @@ def read_map_file(path: str | PathLike, kind: str) -> tuple[dict, dict[str, np.n
         raise ValueError(f"path {str(path)!r} is truncated (header incomplete)")
     try:
         header = json.loads(data[_PREFIX.size : end_of_header])
-        payload_bytes = int(header["payload_bytes"])
+        payload_bytes = header["payload_bytes"]
+        if isinstance(payload_bytes, bool) or not isinstance(payload_bytes, int):  # 1e400 is no count
+            raise TypeError("payload_bytes is not an integer")
         checksum = header["payload_sha256"]
         metadata = header["metadata"]
         if not isinstance(metadata, dict):

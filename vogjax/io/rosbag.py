@@ -406,6 +406,14 @@ def _import(reader, bag: Path, out: Path, options: _Options) -> ImportSummary:
             f"{topic!r} in {sorted(frames - {''})[0]!r}"
         )
     frame = None if options.frame is None else _frame(options.frame)
+    if "" in frames:  # a scan with no frame_id: an unknown frame is no vehicle frame
+        if camera is not None and camera.frame:  # the images' frame is the camera's
+            frames = (frames - {""}) | {camera.frame}
+        elif frame is None:
+            raise ValueError(
+                f"{flag} topic {topic!r} holds scans with no frame_id: pass --frame with the frame "
+                f"their points are in (the odometry's child frame {vehicle_frame!r} if they are in it)"
+            )
     sensor_frame = _check_frames(frames - {""}, frame, vehicle_frame, topic, flag)
     T_vehicle_sensor, mount = (
         (np.eye(4), "identity: points in the vehicle frame")
@@ -897,7 +905,9 @@ def laser_beams(msg: Any, topic: str = "", min_intensity: float | None = None) -
     with np.errstate(invalid="ignore"):
         no_return = ranges > high
         # a return farther than any range sensor reaches is damage, as in a cloud
-        invalid = np.isnan(ranges) | (ranges < low) | (~no_return & (ranges > MAX_RANGE_M))
+        # and a zero (what many drivers write for "no measurement" beside range_min 0) is no
+        # return at all: below _MIN_RANGE, as a cloud's point at the sensor
+        invalid = np.isnan(ranges) | (ranges < max(low, _MIN_RANGE)) | (~no_return & (ranges > MAX_RANGE_M))
     dim = np.zeros(len(ranges), dtype=bool)
     if len(intensities):
         invalid |= ~no_return & ~np.isfinite(intensities)
