@@ -306,7 +306,7 @@ def path_cost(
             raise ValueError("T_world_sensor needs a sensor (a RangeSensor or SonarConfig)")
         poses = rigid_poses("T_world_sensor", T_world_sensor, count)
         sensor = as_sensor(sensor)
-        local = sensor.beam_directions()[:, sensor.beam_directions().shape[1] // 2]
+        local = sensor.beam_axes()
         reach = min(sensor.max_range_m, crm.config.max_range)
         predicted = crm.copy()
         mean, variance = np.empty(count), np.empty(count)

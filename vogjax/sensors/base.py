@@ -92,6 +92,22 @@ class RangeSensor(abc.ABC):
             Unit directions in the sensor frame.
         """
 
+    def beam_axes(self) -> np.ndarray:
+        """Each beam's axis, the direction its range is recorded along: the central sub-ray
+        of an odd number, the normalised mean of an even number (whose middle index is an
+        edge ray, half the aperture off the axis).
+
+        Returns
+        -------
+        (beams, 3) ndarray of float64
+            Unit directions in the sensor frame.
+        """
+        rays = self.beam_directions()
+        if rays.shape[1] % 2:
+            return rays[:, rays.shape[1] // 2]
+        mean = rays.mean(axis=1)
+        return mean / np.linalg.norm(mean, axis=1, keepdims=True)
+
     def dataset_fields(
         self, ranges: npt.ArrayLike, no_return: npt.ArrayLike, invalid: npt.ArrayLike | None = None
     ) -> dict:
@@ -116,8 +132,7 @@ class RangeSensor(abc.ABC):
         no_return = np.asarray(no_return, dtype=bool)
         invalid = np.zeros_like(no_return) if invalid is None else np.asarray(invalid, dtype=bool)
         count = len(no_return)
-        central = self.beam_directions()[:, self.beam_directions().shape[1] // 2]
-        directions = central @ self.T_vehicle_sensor[:3, :3].T
+        directions = self.beam_axes() @ self.T_vehicle_sensor[:3, :3].T
         return {
             "sonar_origin": np.tile(self.T_vehicle_sensor[:3, 3], (count, 1)),
             "sonar_directions": np.tile(directions, (count, 1, 1)),

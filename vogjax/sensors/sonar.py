@@ -52,7 +52,12 @@ class ProfilingSonar(RangeSensor):
             Unit directions in the sensor frame (x ahead, z up).
         """
         cfg = self.config
-        elevation = np.deg2rad(cfg.tilt_deg + np.linspace(-cfg.fov_deg / 2, cfg.fov_deg / 2, cfg.beams))
+        # one beam points along the tilt; a full circle does not repeat its first beam
+        full = cfg.fov_deg >= 360.0
+        offsets = (
+            np.linspace(-cfg.fov_deg / 2, cfg.fov_deg / 2, cfg.beams, endpoint=not full) if cfg.beams > 1 else [0.0]
+        )
+        elevation = np.deg2rad(cfg.tilt_deg + np.asarray(offsets, dtype=np.float64))
         if cfg.subrays == 1:
             across = np.zeros(1)
         else:

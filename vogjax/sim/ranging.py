@@ -106,8 +106,7 @@ def scan(
     ranges = ranges.numpy().astype(np.float64)
     no_return = ranges == ranging.NO_RETURN
     invalid = ranges == ranging.INVALID
-    if sensor.range_noise_m > 0:
-        rng = rng or np.random.default_rng()
+    if sensor.range_noise_m > 0 and rng is not None:  # None: no noise, as documented (and the same bits)
         ranges = ranges + rng.normal(0.0, sensor.range_noise_m, ranges.shape)
         # a return the noise takes below zero measured nothing: an invalid beam, as the lidar's
         # simulation marks one it takes into the blind distance. Not at min_range_m as the lidar
@@ -115,6 +114,5 @@ def scan(
         # thousand with the default 2 cm), and the same seed must give the same run
         invalid |= ~no_return & (ranges < 0.0)
     ranges[no_return | invalid] = np.nan
-    centre = local[:, local.shape[1] // 2]  # the beam's central sub-ray
-    directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], centre)
+    directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], sensor.beam_axes())
     return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return, invalid)
