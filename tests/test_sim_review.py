@@ -57,3 +57,17 @@ def test_a_one_beam_fan_points_along_its_tilt_and_a_circle_repeats_no_beam():
     np.testing.assert_allclose(np.diff(np.unwrap(np.radians(elevations))), np.radians(45.0), atol=1e-12)
     fan = as_sensor(vj.SonarConfig(beams=5, fov_deg=40.0, tilt_deg=0.0)).beam_axes()  # as before: both ends
     np.testing.assert_allclose(np.degrees(np.arctan2(fan[:, 2], fan[:, 0])), [-20, -10, 0, 10, 20], atol=1e-12)
+
+
+def test_noise_never_takes_a_return_past_the_sensors_reach():
+    """A wall just inside the reach, 5 cm of noise: returns the noise took past max_range_m
+    were kept, above the longest return the sensor is documented to give."""
+    mesh, poses = looking_at_a_box()
+    reach = 4.05  # the box's face is 4.0-4.5 m ahead of these poses
+    config = vj.SonarConfig(min_range_m=0.0, max_range_m=reach, range_noise_m=0.05)
+    exact = scan(mesh, poses, config.replace(range_noise_m=0.0))
+    noisy = scan(mesh, poses, config, np.random.default_rng(0))
+    returned = ~noisy.no_return & ~noisy.invalid
+    assert returned.any() and np.nanmax(noisy.ranges) <= reach
+    assert (~exact.no_return & noisy.no_return).any()  # what the noise took past the reach
+    assert np.all(np.isnan(noisy.ranges[noisy.no_return]))

@@ -281,6 +281,7 @@ def _scans(
     # a surface within the minimum range: no range at all (the cast marks those it finds; the
     # noise can take a return below it too)
     invalid = cast.invalid.reshape(len(scan_ids), beams) | (~no_return & (ranges < cfg.min_range_m))
+    no_return = no_return | (~invalid & (ranges > cfg.max_range_m))  # past its reach: nothing heard
     directions = lidar.beam_directions()[:, 0]  # sensor frame, as fired
     firing = lidar.firing_offsets_s()
     ring = lidar.rings_of_beams()

@@ -113,6 +113,9 @@ def scan(
         # does: the sonar's runs have always kept noisy returns just short of it (a few in a
         # thousand with the default 2 cm), and the same seed must give the same run
         invalid |= ~no_return & (ranges < 0.0)
+        # and past its reach the sensor hears nothing: a return the noise takes beyond
+        # max_range_m is no return (`max_range_m` is the longest return a run holds)
+        no_return |= ~invalid & (ranges > sensor.max_range_m)
     ranges[no_return | invalid] = np.nan
     directions = np.einsum("sij,bj->sbi", poses[:, :3, :3], sensor.beam_axes())
     return SimulatedScans(poses[:, :3, 3].copy(), directions, ranges, no_return, invalid)
