@@ -1,6 +1,8 @@
-"""From a review of the simulator and sensors: a scan without a random source is noise-free and
-repeatable, a beam of an even number of sub-rays is recorded along its axis, a one-beam fan
-points along its tilt and a full circle repeats no beam. Each case failed on the code before it."""
+"""From a review of the simulator, sensors and confidence map: a scan without a random source is
+noise-free and repeatable, a beam of an even number of sub-rays is recorded along its axis, a
+one-beam fan points along its tilt and a full circle repeats no beam, noise takes no return past
+the reach, and a range sigma too small for the cone is refused. Each case failed on the code
+before it."""
 
 import numpy as np
 import pytest
@@ -71,3 +73,16 @@ def test_noise_never_takes_a_return_past_the_sensors_reach():
     assert returned.any() and np.nanmax(noisy.ranges) <= reach
     assert (~exact.no_return & noisy.no_return).any()  # what the noise took past the reach
     assert np.all(np.isnan(noisy.ranges[noisy.no_return]))
+
+
+@pytest.mark.parametrize("sigma", [1e-7, 1e-17, 1e-300])
+def test_a_range_sigma_too_small_to_walk_a_cone_is_refused(sigma):
+    """Below a range's rounding the cone collapsed onto the reading: its voxel explained nothing
+    and stayed at the prior, marked observed, where a micrometre and above are exact."""
+    with pytest.raises(ValueError, match="range_sigma_m"):
+        vj.CrmConfig(range_sigma_m=sigma)
+    crm = vj.ConfidenceMap(vj.CrmConfig(range_sigma_m=1e-6), device="cpu")
+    origin, end = np.array([0.05, 0.05, 0.05]), np.array([2.05, 0.05, 0.05])
+    for _ in range(5):
+        crm.integrate_scan(origin, end[None])
+    assert crm.mean(end[None])[0] > 0.8

@@ -29,7 +29,9 @@ class CrmConfig(Config):
         and stored voxel by voxel.
     range_sigma_m : float
         Standard deviation of the range noise, metres (the paper's R = sigma^2; its 2D experiment
-        has R = 0.04 m^2, sigma = 0.2 m).
+        has R = 0.04 m^2, sigma = 0.2 m); at least a micrometre: where the cone's few sigmas
+        round away against the range, a return would explain nothing, its voxels marked
+        observed but left at the prior.
     cause_range : str
         Where along a beam a cause voxel puts its reading: "chord", anywhere on the beam's chord
         through it (a surface somewhere inside the voxel: scenes, sonar), or "centre", at the
@@ -67,7 +69,7 @@ class CrmConfig(Config):
 
     voxel_size: float = number(0.1, low=1e-4, high=1e3)
     max_range: float = positive(11.0)
-    range_sigma_m: float = positive(0.05)
+    range_sigma_m: float = number(0.05, low=1e-6)
     cause_range: str = text("chord", ("chord", "centre"))
     num_bins: int = integer(16, low=2, high=64)
     spurious_probability: float = number(0.0, low=0, high=1, high_open=True)
