@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> None:
         refuse_inputs_inside(folders, [args.config], "--config")
     base = JobConfig.preset(args.preset)
     document = read_toml(args.config) if args.config else {}
-    config = JobConfig.from_document(document, base) if args.config else base
+    config = JobConfig.from_file_document(document, args.config, base) if args.config else base
     given = presets.changed_settings(base) | presets.given_settings(document)
     if args.crm:
         config = config.replace(pipeline=config.pipeline.replace(confidence_map=True))

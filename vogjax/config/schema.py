@@ -537,7 +537,21 @@ class Config:
             If the file does not exist, is not valid TOML or nests too deeply, or (from
             `from_document`) holds an unknown table or key or a value that breaks its rule.
         """
-        return cls.from_document(read_toml(path), base)
+        return cls.from_file_document(read_toml(path), path, base)
+
+    @classmethod
+    def from_file_document(cls, document: dict, path: str | Path, base: Config | None = None) -> Self:
+        """`from_document` of a file's document (`read_toml`), a refusal naming the file.
+
+        Raises
+        ------
+        ValueError
+            As `from_document` does, the message led by ``config 'PATH':``.
+        """
+        try:
+            return cls.from_document(document, base)
+        except ValueError as error:
+            raise ValueError(f"config {str(path)!r}: {error}") from None
 
     @classmethod
     def tables(cls) -> dict[str, tuple[str, ...]]:

@@ -144,9 +144,17 @@ def evaluate_run(result: Result, scene: Scene, surface_points: int = 50_000) -> 
         "auc_vs_reference": vs_reference,
         "rmse_m": rmse,
         "confidence_map": confidence,
-        "agreement": misclassified(result.global_map.state(centres), full_merge.state(centres)),
+        "agreement": _agreement(result.global_map, full_merge, cfg.voxel_size),
         "evaluated_voxels": int(len(centres)),
     }
     if aligned_online is not None:  # for the ROC figure, beside the maps as they stand
         curves["online, registered to the truth"] = aligned_online
     return metrics, curves
+
+
+def _agreement(online, merged, voxel_size: float) -> dict[str, int]:
+    """`misclassified` of the online map against the full merge over every voxel either map
+    observed (not only the truth's: a disagreement outside the scene's box counts too)."""
+    keys = [np.floor(m.voxels()[0] / voxel_size).astype(np.int64) for m in (online, merged)]
+    centres = (np.unique(np.concatenate(keys), axis=0) + 0.5) * voxel_size
+    return misclassified(online.state(centres), merged.state(centres))

@@ -293,14 +293,16 @@ def _evaluate_and_write(
     plots.trajectories(result, folder / "trajectory.png", title=f"{path.stem}: vehicle path from above\n{counts}")
     if roc:
         voxels = metrics.get("evaluated_voxels", 0)
-        scored = f"Scored over the {voxels:,} ground-truth voxels the online or standard map observed."
+        scored = (
+            f"Scored over the {voxels:,} ground-truth voxels the online or standard map observed "
+            "(the registered curve: those the registered online or the standard map observed)."
+        )
         plots.roc_curves(roc, folder / "roc.png", title=f"{path.stem}: occupancy vs ground truth (ROC)", note=scored)
     if curves is not None:
         plots.timing(
             curves, folder / "timing.png", title=f"{path.stem}: update and query times on {result.global_map.device}"
         )
     # 3. the report last: its presence says the rest is there
-    (folder / "report.json").write_text(
-        json.dumps(document.finite_or_null(report), indent=2, default=document.json_default, allow_nan=False)
-    )
+    report = document.finite_or_null(report)  # what is returned is what is written: null, not NaN
+    (folder / "report.json").write_text(json.dumps(report, indent=2, default=document.json_default, allow_nan=False))
     return report

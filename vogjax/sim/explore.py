@@ -131,7 +131,7 @@ def load_settings(path, scene_name: str, seed: int | None, rule: str = "time") -
         Naming the file, if it is not a valid settings file.
     """
     document = read_toml(path) if path is not None else {}
-    config = ExploreConfig.from_document(document) if path is not None else ExploreConfig()
+    config = ExploreConfig.from_file_document(document, path) if path is not None else ExploreConfig()
     given = document.get("planner", {})
     changes = {key: getattr(config.planner, key) for key in given}  # checked by from_document
     if seed is None:
