@@ -543,6 +543,20 @@ class Config:
     def from_file_document(cls, document: dict, path: str | Path, base: Config | None = None) -> Self:
         """`from_document` of a file's document (`read_toml`), a refusal naming the file.
 
+        Parameters
+        ----------
+        document : dict
+            The file's tables, as `read_toml` returns them.
+        path : str or Path
+            The file, for the message.
+        base : Config or None, optional
+            Settings the file overrides (default: this class's defaults).
+
+        Returns
+        -------
+        Config
+            This Config with the file's settings.
+
         Raises
         ------
         ValueError
