@@ -14,13 +14,19 @@ from vogjax.slam import loop_closure
 from .test_slam import drifting_square, structured_cloud
 
 
-def test_relative_covariance_equals_the_batch_marginals_moved_to_the_relative_pose():
-    rng = np.random.default_rng(3)
-    truth, nav = drifting_square(rng, laps=1)
+def odometry_graph(seed: int, laps: int):
+    """A pose graph of a drifting square's odometry alone, updated: (graph, truth, nav)."""
+    truth, nav = drifting_square(np.random.default_rng(seed), laps=laps)
     pg = slam.PoseGraph(prior_pose=truth[0])
     for T in nav:
         pg.add_submap(T, 60.0)
-    poses = pg.update()
+    pg.update()
+    return pg, truth, nav
+
+
+def test_relative_covariance_equals_the_batch_marginals_moved_to_the_relative_pose():
+    pg, truth, nav = odometry_graph(3, laps=1)
+    poses = pg.poses()
     graph, values = pg._isam.getFactorsUnsafe(), pg._isam.calculateEstimate()
     marginals = gtsam.Marginals(graph, values)
     for i, k in [(0, 5), (2, len(nav) - 3), (7, 3)]:
@@ -38,12 +44,7 @@ def test_relative_covariance_equals_the_batch_marginals_moved_to_the_relative_po
 
 
 def test_relative_covariance_follows_the_graph_and_is_a_copy():
-    rng = np.random.default_rng(4)
-    truth, nav = drifting_square(rng, laps=2)
-    pg = slam.PoseGraph(prior_pose=truth[0])
-    for T in nav:
-        pg.add_submap(T, 60.0)
-    pg.update()
+    pg, truth, nav = odometry_graph(4, laps=2)
     k, i = len(nav) - 1, len(nav) // 2 - 1  # the same corner, a lap apart
     before = pg.relative_covariance(i, k)
     before[:] = 0.0  # a copy: the graph's own is untouched

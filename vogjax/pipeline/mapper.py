@@ -149,7 +149,8 @@ class Mapper:
             self._scan_odometry.append(batch.pose_nav)
             batch = dataclasses.replace(batch, pose_nav=corrected)
             self.timings["scan_matching"].append(time.perf_counter() - start)
-        self._check_odometry(self._closed_by(batch))  # before the maps or the graph take any of it
+        cuts = self._cuts(batch)
+        self._check_odometry(self._closed_by(batch, cuts))  # before the maps or the graph take any of it
         self._scan_time.append(batch.time_s)
         self._scan_nav.append(batch.pose_nav)
         self._scan_truth.append(batch.pose_truth)
@@ -165,15 +166,10 @@ class Mapper:
                 whole_map.integrate_scans(*beams)
                 self.timings[name].append(time.perf_counter() - start)
         # 2. cut into submaps, holding each one's scans until it is complete
-        first = 0
-        while first < len(batch):
-            held = sum(len(part) for part in self._pending)
-            started_s = self._pending[0].time_s[0] if self._pending else batch.time_s[first]
-            room = max(self.cutter.room(held, batch.time_s[first:] - started_s), 0 if held else 1)
-            if room:
-                self._pending.append(batch.rows(first, first + room))
-                first += room
-            if first < len(batch):  # the submap is full
+        for first, last, full in cuts:
+            if last > first:
+                self._pending.append(batch.rows(first, last))
+            if full:
                 self._close_submap()
         self.scans += len(batch)
 
@@ -194,22 +190,32 @@ class Mapper:
         check_scans(fields, beams, "batch", after_time_s=after, truth=truth)
         self._beams = beams
 
-    def _closed_by(self, batch: ScanBatch) -> list[tuple[np.ndarray, float]]:
-        """(base pose, base time) of each submap that adding `batch` will close, as `add` cuts
-        them, without cutting anything."""
-        closed = []
-        pending = [(part.time_s, part.pose_nav) for part in self._pending]
+    def _cuts(self, batch: ScanBatch) -> list[tuple[int, int, bool]]:
+        """How `add` cuts `batch` into the submaps, changing nothing: (first, last, full) per
+        step, rows first:last joining the submap being filled, which is then closed if full."""
+        cuts = []
+        held = sum(len(part) for part in self._pending)
+        started_s = self._pending[0].time_s[0] if self._pending else None
         first = 0
         while first < len(batch):
-            held = sum(len(times) for times, _ in pending)
-            started_s = pending[0][0][0] if pending else batch.time_s[first]
+            started_s = batch.time_s[first] if started_s is None else started_s
             room = max(self.cutter.room(held, batch.time_s[first:] - started_s), 0 if held else 1)
-            if room:
-                pending.append((batch.time_s[first : first + room], batch.pose_nav[first : first + room]))
-                first += room
-            if first < len(batch):
-                closed.append(_base_of(pending))
-                pending = []
+            last = first + room
+            full = last < len(batch)
+            cuts.append((first, last, full))
+            held, first = (0, last) if full else (held + room, last)
+            started_s = None if full else started_s
+        return cuts
+
+    def _closed_by(self, batch: ScanBatch, cuts: list[tuple[int, int, bool]]) -> list[tuple[np.ndarray, float]]:
+        """(base pose, base time) of each submap that `cuts` of `batch` close."""
+        closed = []
+        parts = [(part.time_s, part.pose_nav) for part in self._pending]
+        for first, last, full in cuts:
+            parts.append((batch.time_s[first:last], batch.pose_nav[first:last]))
+            if full:
+                closed.append(_base_of(parts))
+                parts = []
         return closed
 
     def _check_odometry(self, bases: list[tuple[np.ndarray, float]]) -> None:

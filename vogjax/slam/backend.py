@@ -369,16 +369,7 @@ class PoseGraph:
             On bad ids, a non-rigid T_i_k, a covariance that is not a valid one, or a basis
             that is not (6, r) orthonormal; nothing is changed then.
         """
-        for name, value in (("i", i), ("k", k)):
-            if (
-                isinstance(value, (bool, np.bool_))
-                or not isinstance(value, (int, np.integer))
-                or not 0 <= value < self.num_submaps
-            ):
-                raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
-        if i == k:
-            raise ValueError("i and k must differ")
-        i, k = int(i), int(k)
+        i, k = self._pair(i, k)
         T_i_k = rigid_pose("T_i_k", T_i_k)
         covariance = _covariance("covariance", covariance, 6)
         if basis is not None:
@@ -469,6 +460,10 @@ class PoseGraph:
         ValueError
             If `i` or `k` is not a submap id of the graph, or they are the same.
         """
+        return self._relative_covariance(*self._pair(i, k)).copy()
+
+    def _pair(self, i, k) -> tuple[int, int]:
+        """Two different submap ids of the graph, as ints (ValueError naming the one that is not)."""
         for name, value in (("i", i), ("k", k)):
             if (
                 isinstance(value, (bool, np.bool_))
@@ -478,7 +473,7 @@ class PoseGraph:
                 raise ValueError(f"{name} must be a submap id in [0, {self.num_submaps}), got {value!r}")
         if i == k:
             raise ValueError("i and k must differ")
-        return self._relative_covariance(int(i), int(k)).copy()
+        return int(i), int(k)
 
     def _relative_covariance(self, i: int, k: int) -> np.ndarray:
         if max(i, k) >= len(self._estimates):  # a node not yet optimised: no estimate to judge by
