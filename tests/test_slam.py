@@ -314,7 +314,7 @@ def test_icp_stops_where_its_correspondences_can_only_cycle(monkeypatch, seed, s
     """Holding the rotation, a pair whose correspondences come back (not from the step just
     before) after well-conditioned steps stops there: run on to max_iterations instead, the
     same pairs never converge, and every other pair ends exactly as it would have, with a
-    tolerance below the round-off of the held rotation too, and where steps are ill
+    tolerance near round-off too, and where steps are ill
     conditioned (flat swaths: seed 6 has a pair that would be stopped wrongly if those steps
     did not reset the memory). With a free rotation nothing stops early."""
     sources, targets, starts = swath_pairs(seed)
@@ -337,10 +337,9 @@ def test_icp_stops_where_its_correspondences_can_only_cycle(monkeypatch, seed, s
         assert early >= 3 if free == "translation" else early == 0
 
 
-def test_icp_at_a_fixed_point_converges_below_the_held_rotations_round_off(monkeypatch):
+def test_icp_at_a_fixed_point_converges_at_a_tolerance_near_round_off(monkeypatch):
     """A pair at its fixed point uses the same correspondences twice running; with a tolerance
-    below the round-off of the held rotation (R R^-1 is not exactly I: a step can read 2e-8 rad)
-    that is not a cycle and it converges one iteration later, as without the stop (a case a
+    near round-off, that is not a cycle and it converges one iteration later, as without the stop (a case a
     review found: the 192nd of these rotated swath pairs)."""
     rng = np.random.default_rng(7)
     for _ in range(192):

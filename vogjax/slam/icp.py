@@ -271,14 +271,15 @@ def icp_batch(
 ) -> list[IcpResult]:
     """Align many (source, target) pairs at once.
 
-    The neighbour searches run per pair, the normal equations, eigen-decompositions and
-    updates for all pairs together (padded arrays). A target may be an `IcpTarget`
-    (`prepare_target`): its tree and normals are used as they are, so a cloud that is a target
-    many times is prepared once, with the same results.
+    The neighbour searches run per pair, the eigen-decompositions and updates for all pairs
+    together. A target may be an `IcpTarget` (`prepare_target`): its tree and normals are used
+    as they are, so a cloud that is a target many times is prepared once, with the same
+    results.
 
-    With the rotation held (point-to-plane, free="translation"), a pair whose correspondences
-    can only cycle stops there, unconverged, before max_iterations (why: the comment at
-    `cycles` below).
+    With the rotation held (point-to-plane, free="translation") each source is turned by its
+    T_init once and only the translation is solved for (3 x 3 normal equations per pair; the
+    rotation stays T_init's bit for bit), and a pair whose correspondences can only cycle stops
+    there, unconverged, before max_iterations (why: `_translation_only`).
 
     device None: each iteration's nearest neighbours from the k-d trees. A Warp device (a CUDA
     GPU; "cpu" runs the same kernel on the host): from one hash grid over every target, all
@@ -337,66 +338,11 @@ def icp_batch(
         if device is None
         else _GridNeighbours(targets, config.max_correspondence_m, device)
     )
-    width = max(len(s) for s in sources)
     centres = _centres(sources, method, config)
-    active = np.ones(count, bool)
-    converged = np.zeros(count, bool)
-    iterations = np.zeros(count, int)
-    # Holding the rotation, a step that is well conditioned in x, y and z lands on the least-
-    # squares translation of the correspondences, wherever it started. So once a pair's
-    # correspondences come back after such steps only (and not from the step just before: that
-    # is a fixed point), it goes round the same cycle (none of its steps below the tolerance,
-    # or it would have stopped) and never converges: it stops there instead of at
-    # max_iterations (a third of ICP's work on a propeller survey).
-    cycles = [{} for _ in range(count)] if method == "point_to_plane" and config.free == "translation" else None
-    for _ in range(config.max_iterations):
-        ids = np.flatnonzero(active)
-        if len(ids) == 0:
-            break
-        # correspondences, per pair, into padded arrays (weight 0 marks padding and outliers)
-        p = np.zeros((len(ids), width, 3))
-        q, n, moved = np.zeros_like(p), np.zeros_like(p), np.zeros_like(p)
-        weight = np.zeros((len(ids), width))
-        moved_points = [sources[pair] @ T[pair, :3, :3].T + T[pair, :3, 3] for pair in ids]
-        matches = []
-        for row, (pair, m, index) in enumerate(zip(ids, moved_points, nearest(ids, moved_points))):
-            matches.append(index)
-            source = sources[pair]
-            inlier = index >= 0
-            size = int(inlier.sum())
-            p[row, :size], moved[row, :size] = source[inlier], m[inlier]
-            q[row, :size] = targets[pair][index[inlier]]
-            n[row, :size] = normals[pair][index[inlier]]
-            weight[row, :size] = 1.0
-        inliers = weight.sum(axis=1)
-        iterations[ids] += 1
-        if method == "point_to_point_xyh":
-            steps = _xyh_steps(moved, q, weight)
-        else:
-            # in the tangent at each source's centroid (the module's docstring says why)
-            local = p if centres is None else p - centres[ids, None, :]
-            J, r = _plane_system(moved, T[ids, :3, :3], local, q, n)
-            J = J * weight[..., None] * _free_columns(config)
-            H = np.einsum("pni,pnj->pij", J, J)
-            g = np.einsum("pni,pn->pi", J, r)
-            values, vectors = np.linalg.eigh(H)
-            good = values >= config.lambda_min * np.maximum(inliers, 1)[:, None]
-            # Solve only in the well-conditioned eigen-directions; leave the others as they are.
-            along = np.where(good, np.einsum("pji,pj->pi", vectors, g) / np.where(good, values, 1.0), 0.0)
-            xi = -np.einsum("pij,pj->pi", vectors, along)
-            at = T[ids] if centres is None else T[ids] @ _translation(centres[ids])
-            steps = at @ exp_se3(xi) @ np.linalg.inv(at)
-        T[ids] = steps @ T[ids]
-        angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
-        done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
-        starved = inliers < config.min_inliers
-        cycling = (
-            np.zeros(len(ids), bool)
-            if cycles is None
-            else _returned(cycles, ids, matches, good.sum(axis=1) == 3, iterations[ids])
-        )
-        converged[ids] = done & ~starved
-        active[ids] = ~(done | starved | cycling)
+    if method == "point_to_plane" and config.free == "translation":
+        converged, iterations = _translation_only(sources, targets, normals, nearest, T, config)
+    else:
+        converged, iterations = _rigid_steps(sources, targets, normals, nearest, T, method, config, centres)
     return [
         _result(
             sources[k],
@@ -412,6 +358,121 @@ def icp_batch(
         )
         for k in range(count)
     ]
+
+
+def _rigid_steps(
+    sources: list,
+    targets: list,
+    normals: list,
+    nearest,
+    T: np.ndarray,
+    method: str,
+    config: IcpConfig,
+    centres: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """ICP steps that may turn the source (point-to-plane with `config.free` "all" or "yaw", or
+    the 2D point-to-point x, y, yaw) for every pair together on padded arrays: T (P, 4, 4)
+    updated in place. Returns (converged, iterations) per pair."""
+    count = len(sources)
+    width = max(len(s) for s in sources)
+    active = np.ones(count, bool)
+    converged = np.zeros(count, bool)
+    iterations = np.zeros(count, int)
+    for _ in range(config.max_iterations):
+        ids = np.flatnonzero(active)
+        if len(ids) == 0:
+            break
+        # correspondences, per pair, into padded arrays (weight 0 marks padding and outliers)
+        p = np.zeros((len(ids), width, 3))
+        q, n, moved = np.zeros_like(p), np.zeros_like(p), np.zeros_like(p)
+        weight = np.zeros((len(ids), width))
+        moved_points = [sources[pair] @ T[pair, :3, :3].T + T[pair, :3, 3] for pair in ids]
+        for row, (pair, m, index) in enumerate(zip(ids, moved_points, nearest(ids, moved_points))):
+            source = sources[pair]
+            inlier = index >= 0
+            size = int(inlier.sum())
+            p[row, :size], moved[row, :size] = source[inlier], m[inlier]
+            q[row, :size] = targets[pair][index[inlier]]
+            n[row, :size] = normals[pair][index[inlier]]
+            weight[row, :size] = 1.0
+        inliers = weight.sum(axis=1)
+        iterations[ids] += 1
+        if method == "point_to_point_xyh":
+            steps = _xyh_steps(moved, q, weight)
+        else:
+            # in the tangent at each source's centroid (the module's docstring says why)
+            J, r = _plane_system(moved, T[ids, :3, :3], p - centres[ids, None, :], q, n)
+            J = J * weight[..., None] * _free_columns(config)
+            H = np.einsum("pni,pnj->pij", J, J)
+            g = np.einsum("pni,pn->pi", J, r)
+            values, vectors = np.linalg.eigh(H)
+            good = values >= config.lambda_min * np.maximum(inliers, 1)[:, None]
+            # Solve only in the well-conditioned eigen-directions; leave the others as they are.
+            along = np.where(good, np.einsum("pji,pj->pi", vectors, g) / np.where(good, values, 1.0), 0.0)
+            xi = -np.einsum("pij,pj->pi", vectors, along)
+            at = T[ids] @ _translation(centres[ids])
+            steps = at @ exp_se3(xi) @ np.linalg.inv(at)
+        T[ids] = steps @ T[ids]
+        angle = np.arccos(np.clip((np.trace(steps[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1))
+        done = np.linalg.norm(steps[:, :3, 3], axis=1) + angle < config.tolerance
+        starved = inliers < config.min_inliers
+        converged[ids] = done & ~starved
+        active[ids] = ~(done | starved)
+    return converged, iterations
+
+
+def _translation_only(
+    sources: list, targets: list, normals: list, nearest, T: np.ndarray, config: IcpConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Point-to-plane ICP with each pair's rotation held (free "translation"): T's translations
+    (P, 4, 4; updated in place) moved until a step is below the tolerance. Returns (converged,
+    iterations) per pair.
+
+    The rotation is held exactly (each source is turned once), so the normal equations are
+    those of the translation alone: per pair, (n^T R)^T (n^T R) over its inliers, solved in its
+    eigen-directions of at least ``lambda_min`` per inlier. Holding the rotation, a step that
+    is well conditioned in x, y and z lands on the least-squares translation of the
+    correspondences, wherever it started. So once a pair's correspondences come back after such
+    steps only (and not from the step just before: that is a fixed point), it goes round the
+    same cycle (none of its steps below the tolerance, or it would have stopped) and never
+    converges: it stops there instead of at max_iterations (a third of ICP's work on a
+    propeller survey)."""
+    count = len(sources)
+    rotations = T[:, :3, :3]
+    turned = [source @ rotations[pair].T for pair, source in enumerate(sources)]
+    active = np.ones(count, bool)
+    converged = np.zeros(count, bool)
+    iterations = np.zeros(count, int)
+    cycles = [{} for _ in range(count)]
+    for _ in range(config.max_iterations):
+        ids = np.flatnonzero(active)
+        if len(ids) == 0:
+            break
+        moved = [turned[pair] + T[pair, :3, 3] for pair in ids]
+        H = np.zeros((len(ids), 3, 3))
+        g = np.zeros((len(ids), 3))
+        inliers = np.zeros(len(ids))
+        matches = list(nearest(ids, moved))
+        for row, (pair, points, index) in enumerate(zip(ids, moved, matches)):
+            inlier = index >= 0
+            matched = index[inlier]
+            plane = normals[pair][matched]
+            J = plane @ rotations[pair]  # d(n . (R p + t - q)) / d(translation in the source frame)
+            residuals = np.einsum("ni,ni->n", plane, points[inlier] - targets[pair][matched])
+            H[row], g[row], inliers[row] = J.T @ J, J.T @ residuals, len(matched)
+        iterations[ids] += 1
+        values, vectors = np.linalg.eigh(H)
+        good = values >= config.lambda_min * np.maximum(inliers, 1)[:, None]
+        # solve only in the well-conditioned eigen-directions; leave the others as they are
+        along = np.where(good, np.einsum("pji,pj->pi", vectors, g) / np.where(good, values, 1.0), 0.0)
+        steps = np.einsum("pij,pj->pi", rotations[ids], -np.einsum("pij,pj->pi", vectors, along))
+        T[ids, :3, 3] += steps
+        done = np.linalg.norm(steps, axis=1) < config.tolerance
+        starved = inliers < config.min_inliers
+        cycling = _returned(cycles, ids, matches, good.sum(axis=1) == 3, iterations[ids])
+        converged[ids] = done & ~starved
+        active[ids] = ~(done | starved | cycling)
+    return converged, iterations
 
 
 def _centres(sources: list, method: str, config: IcpConfig) -> np.ndarray | None:
@@ -486,8 +547,7 @@ def _returned(
     after they were last used, since its last step that was not well conditioned?
     `cycles[pair]` remembers since then each set's digest and last iteration. The set of the
     iteration just before is no cycle but a fixed point, left to the tolerance: there the
-    held rotation's round-off (R R^-1 is not exactly I) can keep a step above a tiny tolerance
-    for one more iteration."""
+    solve's round-off can keep a step above a tiny tolerance for one more iteration."""
     back = np.zeros(len(pairs), bool)
     for row, (pair, index) in enumerate(zip(pairs, matches)):
         if not well_conditioned[row]:
