@@ -459,13 +459,14 @@ class _Peak:
 def _target_field(cells: np.ndarray, shape: np.ndarray, z_lo: int, z_hi: int, blur_voxels: float) -> np.ndarray:
     """Layers [z_lo, z_hi) of the target's occupancy on the grid (1 in each cell holding a point),
     blurred by a Gaussian of blur_voxels (ndimage's, reflecting at the grid's faces) and scaled
-    to a maximum of 1. The blur runs on the box around the target only: past the kernel's reach
-    the blurred field is exactly zero, and a box kept a further reach away from any face it does
-    not share with the grid reflects only those zeros, so every value is the whole grid's, bit
-    for bit."""
+    to a maximum of 1. The blur runs on the box around the target only: each pass spreads a
+    cell's value at most `reach` cells along its axis, so past the reach of every point the
+    blurred field is exactly zero, and a box more than a reach from the points at every face it
+    does not share with the grid reflects only zeros back in: every value is the whole grid's,
+    bit for bit."""
     reach = int(4.0 * blur_voxels + 0.5) if blur_voxels > 0 else 0  # gaussian_filter's truncate=4
-    box_lo = np.maximum(cells.min(axis=0) - 2 * reach, 0)
-    box_hi = np.minimum(cells.max(axis=0) + 2 * reach + 1, shape)
+    box_lo = np.maximum(cells.min(axis=0) - (reach + 1), 0)
+    box_hi = np.minimum(cells.max(axis=0) + (reach + 1) + 1, shape)
     box = np.zeros(box_hi - box_lo, np.float32)
     inside = cells - box_lo
     box[inside[:, 0], inside[:, 1], inside[:, 2]] = 1.0
