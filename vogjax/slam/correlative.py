@@ -216,8 +216,8 @@ def _search_on_host(plan: _Plan | CorrelativeMatch, config: CorrelativeConfig) -
     if not isinstance(plan, _Plan):
         return plan
     peak = _Peak()
-    # direct correlation where its lookups cost less than the FFTs' grid (measured on sonar
-    # swaths: 3.4 ns a lookup against 14.5 ns a grid cell, the faster in 94% of the searches)
+    # direct correlation where its lookups cost less than the FFTs' grid (on sonar swaths:
+    # 3.4 ns a lookup against 14.5 ns a grid cell, the faster in 94% of the searches)
     direct = len(plan.moved) * (2 * plan.shift_cells + 1) ** 2 <= DIRECT_LOOKUPS_PER_CELL * plan.field.size
     for yaw, window in zip(plan.yaws, _direct_windows(plan) if direct else _fft_windows(plan)):
         peak.offer(yaw, window / len(plan.moved))
@@ -305,10 +305,12 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
 
 
 # A host search correlates directly (`_direct_windows`) while its lookups (source points x
-# offsets) are at most this many per cell of its grid, by FFT (`_fft_windows`) beyond
-DIRECT_LOOKUPS_PER_CELL = 4
+# offsets) are at most this many per cell of its grid, by FFT (`_fft_windows`) beyond: the
+# FFT's field spectrum serves every yaw and its yaws share two threads, so a LiDAR search of
+# seven yaws over 23,000 points is faster by FFT at 3.4 lookups a cell, where a sonar swath's
+# single yaw is faster directly up to about 2
+DIRECT_LOOKUPS_PER_CELL = 1.5
 DIRECT_CHUNK_LOOKUPS = 1 << 22
-THREADED_DIRECT_LOOKUPS = 1 << 20
 # A search's yaws are scored on several threads from this many cells of the padded grid
 THREADED_GRID_CELLS = 1 << 18
 
@@ -342,24 +344,20 @@ def _direct_windows(plan: _Plan):
     for each distinct cell of the source, its count times the field at every x-y offset,
     summed in float64 (exact sums of the field's float32 values, no transform's round-off; an
     offset whose points all miss the target scores 0). The grid's margins keep every shifted
-    cell inside it. At most DIRECT_CHUNK_LOOKUPS lookups are held at once; the yaws share the
-    launch pool's threads from THREADED_DIRECT_LOOKUPS lookups a yaw, in order."""
+    cell inside it. At most DIRECT_CHUNK_LOOKUPS lookups are held at once. One thread: the
+    lookups hold the GIL."""
     field = plan.field.ravel()
     ny, nz = plan.field.shape[1:]
     index = np.arange(-plan.shift_cells, plan.shift_cells + 1)
     offsets = (index[:, None] * (ny * nz) + index[None, :] * nz).ravel()
     rows = max(DIRECT_CHUNK_LOOKUPS // len(offsets), 1)
-
-    def window(n: int) -> np.ndarray:
+    for n in range(len(plan.yaws)):
         cells, counts = np.unique(np.ravel_multi_index(plan.cells(n).T, plan.field.shape), return_counts=True)
         scores = np.zeros(len(offsets))
         for first in range(0, len(cells), rows):
             part = slice(first, first + rows)
             scores += counts[part].astype(np.float64) @ field[cells[part, None] + offsets[None, :]]
-        return scores.reshape(len(index), len(index))
-
-    large = len(plan.moved) * len(offsets) >= THREADED_DIRECT_LOOKUPS
-    return parallel.ordered_map(window, range(len(plan.yaws)), threaded=large)
+        yield scores.reshape(len(index), len(index))
 
 
 def _device_windows(plans: list[_Plan], device):
