@@ -638,13 +638,17 @@ def direct_correlation(source, target, T_init, radius_m, yaw_radius_rad, config)
     return score, yaw, (offsets[peak[0]], offsets[peak[1]]), window[far].max()
 
 
-@pytest.mark.parametrize("lookups_per_cell", [0, np.inf], ids=["fft", "direct"])
+@pytest.mark.parametrize(
+    "lookups_per_cell, chunk", [(0, 1 << 22), (np.inf, 1 << 22), (np.inf, 7)], ids=["fft", "direct", "direct-chunked"]
+)
 @pytest.mark.parametrize("seed, blur", [(0, 1.0), (1, 0.0), (2, 1.6), (3, 1.0)])
-def test_correlative_search_equals_direct_correlation(monkeypatch, seed, blur, lookups_per_cell):
+def test_correlative_search_equals_direct_correlation(monkeypatch, seed, blur, lookups_per_cell, chunk):
     """The host search, by FFT (on padded sizes) or by its direct correlation of distinct cells
-    (over the source's layers, the blur cropped to the target), scores every yaw and offset as
-    summing the whole grid's field point by point does."""
+    (over the source's layers, the blur cropped to the target; in chunks of a few lookups too,
+    offsets and cells split), scores every yaw and offset as summing the whole grid's field
+    point by point does."""
     monkeypatch.setattr(sys.modules["vogjax.slam.correlative"], "DIRECT_LOOKUPS_PER_CELL", lookups_per_cell)
+    monkeypatch.setattr(sys.modules["vogjax.slam.correlative"], "DIRECT_CHUNK_LOOKUPS", chunk)
     rng = np.random.default_rng(seed)
     target = structured_cloud(rng, 1500)
     truth = np.eye(4)

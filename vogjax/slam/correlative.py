@@ -116,15 +116,15 @@ def correlative_xyh_batch(
 ) -> list[CorrelativeMatch]:
     """`correlative_xyh` for many (source, target, T_init, radius_m, yaw_radius_rad) at once.
 
-    device None: on the host, one search after the other, each by direct correlation (exact
-    float64 sums of the field's float32 values) where its lookups (source points x offsets) are
-    at most DIRECT_LOOKUPS_PER_CELL per cell of its grid, by FFT beyond (the FFT's float32
-    round-off then: an offset where no point meets the target can score 1e-9 instead of 0). A
-    Warp device (a CUDA GPU; "cpu" runs the same kernel on the host): every yaw and offset of
-    the searches scored by direct correlation, in as few launches as the budgets allow; a
-    search whose direct correlation would take more than MAX_DIRECT_WORK lookups runs on the
-    host instead. Host and device agree to the sums' round-off (or the FFT's), so they find
-    the same peaks but at near-exact ties.
+    device None: on the host, one search after the other, each by direct correlation (float64
+    sums of the field's float32 values, exactly 0 where no point meets the target) where its
+    lookups (source points x offsets) are at most DIRECT_LOOKUPS_PER_CELL per cell of its grid,
+    by FFT beyond (the FFT's float32 round-off then: an offset where no point meets the target
+    can score 1e-9 instead of 0). A Warp device (a CUDA GPU; "cpu" runs the same kernel on the
+    host): every yaw and offset of the searches scored by direct correlation, in as few
+    launches as the budgets allow; a search whose direct correlation would take more than
+    MAX_DIRECT_WORK lookups runs on the host instead. Host and device agree to the sums'
+    round-off (or the FFT's), so they find the same peaks but at near-exact ties.
 
     Parameters
     ----------
@@ -342,21 +342,25 @@ def _fft_windows(plan: _Plan):
 def _direct_windows(plan: _Plan):
     """Each yaw's scores over the offsets, as `_fft_windows` gives them, by direct correlation:
     for each distinct cell of the source, its count times the field at every x-y offset,
-    summed in float64 (exact sums of the field's float32 values, no transform's round-off; an
-    offset whose points all miss the target scores 0). The grid's margins keep every shifted
-    cell inside it. At most DIRECT_CHUNK_LOOKUPS lookups are held at once. One thread: the
-    lookups hold the GIL."""
+    summed in float64 (no transform's round-off: an offset whose points all miss the target
+    scores exactly 0). The grid's margins keep every shifted cell inside it. At most
+    DIRECT_CHUNK_LOOKUPS lookups are held at once (cells and offsets both split). One thread:
+    the lookups hold the GIL."""
     field = plan.field.ravel()
     ny, nz = plan.field.shape[1:]
     index = np.arange(-plan.shift_cells, plan.shift_cells + 1)
     offsets = (index[:, None] * (ny * nz) + index[None, :] * nz).ravel()
-    rows = max(DIRECT_CHUNK_LOOKUPS // len(offsets), 1)
+    span = min(len(offsets), DIRECT_CHUNK_LOOKUPS)  # offsets per chunk
+    rows = DIRECT_CHUNK_LOOKUPS // span  # source cells per chunk
     for n in range(len(plan.yaws)):
         cells, counts = np.unique(np.ravel_multi_index(plan.cells(n).T, plan.field.shape), return_counts=True)
+        weights = counts.astype(np.float64)
         scores = np.zeros(len(offsets))
-        for first in range(0, len(cells), rows):
-            part = slice(first, first + rows)
-            scores += counts[part].astype(np.float64) @ field[cells[part, None] + offsets[None, :]]
+        for start in range(0, len(offsets), span):
+            shifts = offsets[start : start + span]
+            for first in range(0, len(cells), rows):
+                part = slice(first, first + rows)
+                scores[start : start + span] += weights[part] @ field[cells[part, None] + shifts[None, :]]
         yield scores.reshape(len(index), len(index))
 
 

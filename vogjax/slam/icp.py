@@ -1,8 +1,9 @@
 """ICP between submap point clouds: the thesis's 2D point-to-point (x, y, yaw; Ho, Algorithm 6)
 and point-to-plane with degeneracy-aware updates (Zhang et al.'s solution remapping; Ho,
 Algorithm 7). Nearest neighbours come from a k-d tree (or, on a Warp device, a hash grid: the
-same neighbours); the normal equations are batched NumPy. A target's tree and normals can be
-prepared once (`prepare_target`) and reused.
+same neighbours); the normal equations are NumPy (with the rotation held, the translation's
+3 x 3 alone, per pair), their eigen-decompositions batched over the pairs. A target's tree and
+normals can be prepared once (`prepare_target`) and reused.
 
 The Hessian reported is the Gauss-Newton J^T J of point-to-plane residuals at the result (with
 respect to GTSAM's Pose3 tangent of T_target_source: rotation, then translation), so both
