@@ -292,6 +292,21 @@ def test_slam_on_a_second_thread_gives_the_same_bits(looping_boxes_run):
     assert one.timings["reapplied"] == two.timings["reapplied"]
 
 
+def test_auto_puts_slam_on_a_second_thread_where_a_second_core_can_take_it(monkeypatch):
+    """slam_thread "auto": on a CPU of two or more cores (or with the maps on CUDA), off on one;
+    "on" and "off" as they say."""
+    import sys
+
+    run_module = sys.modules["vogjax.pipeline.run"]
+    config = pipeline.PipelineConfig()
+    on_cuda = vj.devices.resolve(None).is_cuda
+    for cores, expected in ((1, on_cuda), (None, on_cuda), (2, True), (16, True)):
+        monkeypatch.setattr(run_module.os, "cpu_count", lambda cores=cores: cores)
+        assert run_module._overlap(config) is expected
+        assert run_module._overlap(config.replace(slam_thread="on")) is True
+        assert run_module._overlap(config.replace(slam_thread="off")) is False
+
+
 def test_a_live_mapper_with_a_slam_thread_syncs_before_answering(boxes_run):
     """Between batches the last submap's SLAM may be in flight; sync() brings the graph and the
     global map up to date, as a mapper without the thread has them after each batch."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from os import PathLike
 
 from tqdm import tqdm
@@ -15,8 +16,8 @@ from vogjax.pipeline.result import Result
 
 def run(dataset: str | PathLike | Dataset, config: PipelineConfig | None = None, progress: bool = True) -> Result:
     """Reprocess a run into maps; with `config.slam_thread` on (or "auto" with the maps on a CUDA
-    GPU) each submap's SLAM runs on a second thread beside the map work (the same results, bit
-    for bit).
+    GPU or two or more CPU cores) each submap's SLAM runs on a second thread beside the map work
+    (the same results, bit for bit).
 
     Parameters
     ----------
@@ -58,7 +59,8 @@ def run(dataset: str | PathLike | Dataset, config: PipelineConfig | None = None,
 
 
 def _overlap(config: PipelineConfig) -> bool:
-    """Whether SLAM gets its own thread: `slam_thread` "on", or "auto" with the maps on CUDA."""
+    """Whether SLAM gets its own thread: `slam_thread` "on", or "auto" where a second core can
+    take it (the maps on CUDA, whose kernels need no CPU core, or a CPU of two or more cores)."""
     if config.slam_thread == "auto":
-        return devices.resolve(None).is_cuda
+        return devices.resolve(None).is_cuda or (os.cpu_count() or 1) >= 2
     return config.slam_thread == "on"
