@@ -639,15 +639,15 @@ def direct_correlation(source, target, T_init, radius_m, yaw_radius_rad, config)
 
 
 @pytest.mark.parametrize(
-    "lookups_per_cell, chunk", [(0, 1 << 22), (np.inf, 1 << 22), (np.inf, 7)], ids=["fft", "direct", "direct-chunked"]
+    "direct, chunk", [(False, 1 << 22), (True, 1 << 22), (True, 7)], ids=["fft", "direct", "direct-chunked"]
 )
 @pytest.mark.parametrize("seed, blur", [(0, 1.0), (1, 0.0), (2, 1.6), (3, 1.0)])
-def test_correlative_search_equals_direct_correlation(monkeypatch, seed, blur, lookups_per_cell, chunk):
+def test_correlative_search_equals_direct_correlation(monkeypatch, seed, blur, direct, chunk):
     """The host search, by FFT (on padded sizes) or by its direct correlation of distinct cells
     (over the source's layers, the blur cropped to the target; in chunks of a few lookups too,
     offsets and cells split), scores every yaw and offset as summing the whole grid's field
     point by point does."""
-    monkeypatch.setattr(sys.modules["vogjax.slam.correlative"], "DIRECT_LOOKUPS_PER_CELL", lookups_per_cell)
+    monkeypatch.setattr(sys.modules["vogjax.slam.correlative"], "_direct_is_cheaper", lambda plan: direct)
     monkeypatch.setattr(sys.modules["vogjax.slam.correlative"], "DIRECT_CHUNK_LOOKUPS", chunk)
     rng = np.random.default_rng(seed)
     target = structured_cloud(rng, 1500)

@@ -117,9 +117,9 @@ def correlative_xyh_batch(
     """`correlative_xyh` for many (source, target, T_init, radius_m, yaw_radius_rad) at once.
 
     device None: on the host, one search after the other, each by direct correlation (float64
-    sums of the field's float32 values, exactly 0 where no point meets the target) where its
-    lookups (source points x offsets) are at most DIRECT_LOOKUPS_PER_CELL per cell of its grid,
-    by FFT beyond (the FFT's float32 round-off then: an offset where no point meets the target
+    sums of the field's float32 values, exactly 0 where no point meets the target) where that
+    costs less than its FFTs (by the costs measured for `_direct_is_cheaper`), by FFT
+    otherwise (the FFT's float32 round-off then: an offset where no point meets the target
     can score 1e-9 instead of 0). A Warp device (a CUDA GPU; "cpu" runs the same kernel on the
     host): every yaw and offset of the searches scored by direct correlation, in as few
     launches as the budgets allow; a search whose direct correlation would take more than
@@ -216,10 +216,7 @@ def _search_on_host(plan: _Plan | CorrelativeMatch, config: CorrelativeConfig) -
     if not isinstance(plan, _Plan):
         return plan
     peak = _Peak()
-    # direct correlation where its lookups cost less than the FFTs' grid (on sonar swaths:
-    # 3.4 ns a lookup against 14.5 ns a grid cell, the faster in 94% of the searches)
-    direct = len(plan.moved) * (2 * plan.shift_cells + 1) ** 2 <= DIRECT_LOOKUPS_PER_CELL * plan.field.size
-    for yaw, window in zip(plan.yaws, _direct_windows(plan) if direct else _fft_windows(plan)):
+    for yaw, window in zip(plan.yaws, _direct_windows(plan) if _direct_is_cheaper(plan) else _fft_windows(plan)):
         peak.offer(yaw, window / len(plan.moved))
     return peak.match(plan, config)
 
@@ -304,12 +301,13 @@ def _plan(source, target, T_init, radius_m, yaw_radius_rad, config: CorrelativeC
     )
 
 
-# A host search correlates directly (`_direct_windows`) while its lookups (source points x
-# offsets) are at most this many per cell of its grid, by FFT (`_fft_windows`) beyond: the
-# FFT's field spectrum serves every yaw and its yaws share two threads, so a LiDAR search of
-# seven yaws over 23,000 points is faster by FFT at 3.4 lookups a cell, where a sonar swath's
-# single yaw is faster directly up to about 2
-DIRECT_LOOKUPS_PER_CELL = 1.5
+# What a host search costs, measured on the 2-core CPU over the sonar and LiDAR runs' searches:
+# a direct lookup (a source cell at an offset); an FFT pass, per cell of the grid, for the
+# target's transform (once a search) and for each yaw (its yaws shared by the launch pool's
+# threads where the grid is large)
+DIRECT_S_PER_LOOKUP = 4e-9
+FFT_S_PER_CELL = 5e-9
+FFT_S_PER_CELL_YAW = 10e-9
 DIRECT_CHUNK_LOOKUPS = 1 << 22
 # A search's yaws are scored on several threads from this many cells of the padded grid
 THREADED_GRID_CELLS = 1 << 18
@@ -323,7 +321,7 @@ def _fft_windows(plan: _Plan):
     bits are the same); the yaws share the launch pool's threads (`parallel.ordered_map`), in
     order."""
     layer_shape = plan.field.shape
-    fft_shape = (fft.next_fast_len(layer_shape[0]), fft.next_fast_len(layer_shape[1], real=True))
+    fft_shape = _fft_shape(plan)
     field_spectrum = fft.rfft2(plan.field, s=fft_shape, axes=(0, 1))
     # the source's counts laid out on the padded grid at once: the same zeros the FFT would pad
     counts_shape = (*fft_shape, layer_shape[2])
@@ -335,8 +333,30 @@ def _fft_windows(plan: _Plan):
         spectrum = (np.conj(fft.rfft2(counts, axes=(0, 1))) * field_spectrum).sum(axis=2)
         return _window(fft.irfft2(spectrum, s=fft_shape), plan.shift_cells)
 
-    large = float(np.prod(counts_shape)) >= THREADED_GRID_CELLS
-    return parallel.ordered_map(window, range(len(plan.yaws)), threaded=large)
+    return parallel.ordered_map(window, range(len(plan.yaws)), threaded=_fft_threaded(plan))
+
+
+def _fft_shape(plan: _Plan) -> tuple[int, int]:
+    """The x-y sizes a search's FFTs run on: the grid's, padded to sizes FFTs are fast at."""
+    return fft.next_fast_len(plan.field.shape[0]), fft.next_fast_len(plan.field.shape[1], real=True)
+
+
+def _fft_threaded(plan: _Plan) -> bool:
+    """Whether a search's yaws share the launch pool's threads (THREADED_GRID_CELLS)."""
+    return float(np.prod(_fft_shape(plan))) * plan.field.shape[2] >= THREADED_GRID_CELLS
+
+
+def _direct_is_cheaper(plan: _Plan) -> bool:
+    """Whether correlating directly costs less than the FFTs, by the costs measured above: a
+    sonar swath's single yaw directly up to 3.75 lookups a grid cell (the faster way in 94% of
+    the propeller and pilings searches), a LiDAR search's seven yaws on two threads up to 1.4
+    (its FFTs share the target's transform and the threads: at 3.4 lookups a cell they took
+    2.0 s where the direct sums took 3.0)."""
+    yaws = len(plan.yaws)
+    lookups = float(len(plan.moved)) * (2 * plan.shift_cells + 1) ** 2 * yaws
+    threads = min(parallel.CPU_THREADS, yaws) if _fft_threaded(plan) else 1
+    fft_s = plan.field.size * (FFT_S_PER_CELL + FFT_S_PER_CELL_YAW * yaws / threads)
+    return lookups * DIRECT_S_PER_LOOKUP <= fft_s
 
 
 def _direct_windows(plan: _Plan):
