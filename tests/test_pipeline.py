@@ -293,18 +293,60 @@ def test_slam_on_a_second_thread_gives_the_same_bits(looping_boxes_run):
 
 
 def test_auto_puts_slam_on_a_second_thread_where_a_second_core_can_take_it(monkeypatch):
-    """slam_thread "auto": on a CPU of two or more cores (or with the maps on CUDA), off on one;
-    "on" and "off" as they say."""
+    """slam_thread "auto": on with two or more usable CPU cores (or with the maps on CUDA), off
+    on one; the usable cores are the process's affinity where the system tells it; "on" and
+    "off" as they say."""
+    import os
     import sys
+
+    from vogjax.maps import parallel
 
     run_module = sys.modules["vogjax.pipeline.run"]
     config = pipeline.PipelineConfig()
     on_cuda = vj.devices.resolve(None).is_cuda
-    for cores, expected in ((1, on_cuda), (None, on_cuda), (2, True), (16, True)):
-        monkeypatch.setattr(run_module.os, "cpu_count", lambda cores=cores: cores)
+    for cores, expected in ((1, on_cuda), (2, True), (16, True)):
+        monkeypatch.setattr(parallel, "usable_cores", lambda cores=cores: cores)
         assert run_module._overlap(config) is expected
         assert run_module._overlap(config.replace(slam_thread="on")) is True
         assert run_module._overlap(config.replace(slam_thread="off")) is False
+    monkeypatch.undo()
+    if hasattr(os, "sched_getaffinity") and not hasattr(os, "process_cpu_count"):
+        monkeypatch.setattr(os, "cpu_count", lambda: 64)
+        monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})  # taskset -c 3 on a big machine
+        assert parallel.usable_cores() == 1
+        assert run_module._overlap(config) is on_cuda
+
+
+def test_an_interrupt_does_not_wait_for_the_slam_step_in_flight(boxes_run, monkeypatch):
+    """With SLAM on the second thread, an error or Ctrl-C in the map work surfaces while the
+    SLAM step in flight is still running, and that step never enters the maps."""
+    import threading
+
+    from vogjax.pipeline.mapper import Mapper
+
+    release, running, taken = threading.Event(), threading.Event(), []
+    slam, add = Mapper._slam, Mapper.add
+
+    def slow_slam(self, *args):
+        running.set()
+        release.wait(30)  # held until the test has seen the interrupt
+        return slam(self, *args)
+
+    def interrupted_add(self, batch):
+        add(self, batch)
+        if running.wait(30):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Mapper, "_slam", slow_slam)
+    monkeypatch.setattr(Mapper, "add", interrupted_add)
+    monkeypatch.setattr(Mapper, "_take_slam", lambda self, *args: taken.append(args))
+    # the first batch closes one submap, whose SLAM step is then in flight
+    config = pipeline.PipelineConfig(scans_per_submap=50, batch_scans=60, slam_thread="on")
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.run(boxes_run, config, progress=False)
+    still_running = not release.is_set()
+    release.set()
+    assert running.is_set() and still_running and taken == []
 
 
 def test_a_live_mapper_with_a_slam_thread_syncs_before_answering(boxes_run):

@@ -18,8 +18,20 @@ import numpy as np
 
 # Below this many items a launch is not worth splitting.
 MIN_ITEMS_PER_PART = 2048
-# The most threads a launch is split across (os.cpu_count() asked once, not at every launch).
-CPU_THREADS = min(os.cpu_count() or 1, 8)
+
+
+def usable_cores() -> int:
+    """The CPUs this process may run on: its affinity where the system tells it (taskset and
+    containers narrow it), else every CPU of the machine."""
+    if hasattr(os, "process_cpu_count"):  # Python 3.13
+        return os.process_cpu_count() or 1
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0)) or 1
+    return os.cpu_count() or 1
+
+
+# The most threads a launch is split across (asked once, not at every launch).
+CPU_THREADS = min(usable_cores(), 8)
 
 _executor: concurrent.futures.ThreadPoolExecutor | None = None
 _executor_lock = threading.Lock()
@@ -29,7 +41,7 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor:
     global _executor
     with _executor_lock:
         if _executor is None:
-            _executor = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="vogjax")
+            _executor = concurrent.futures.ThreadPoolExecutor(usable_cores(), thread_name_prefix="vogjax")
         return _executor
 
 

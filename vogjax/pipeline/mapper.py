@@ -371,6 +371,15 @@ class Mapper:
                 self._executor.shutdown(wait=True)
                 self._executor = None
 
+    def abandon(self) -> None:
+        """Stop the second thread without waiting for the SLAM step in flight or taking it into
+        the maps (after an error or an interrupt: the maps stay as they were, the step's own
+        result or error is dropped)."""
+        self._slam_future = None
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+
     def _probe(self) -> None:
         start = time.perf_counter()
         self.probes.append(probe(self))

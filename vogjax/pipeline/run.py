@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from os import PathLike
 
 from tqdm import tqdm
@@ -10,6 +9,7 @@ from tqdm import tqdm
 from vogjax import devices
 from vogjax.config import PipelineConfig
 from vogjax.io.dataset import Dataset
+from vogjax.maps import parallel
 from vogjax.pipeline.mapper import Mapper
 from vogjax.pipeline.result import Result
 
@@ -50,9 +50,12 @@ def run(dataset: str | PathLike | Dataset, config: PipelineConfig | None = None,
                 for batch in ds.batches(config.batch_scans):
                     mapper.add(batch)
                     bar.update(len(batch))
-            return mapper.result()
-        finally:
-            mapper.close()
+            result = mapper.result()
+        except BaseException:
+            mapper.abandon()  # an error or an interrupt: no SLAM step left to wait for
+            raise
+        mapper.close()
+        return result
     finally:
         if own:
             ds.close()
@@ -62,5 +65,5 @@ def _overlap(config: PipelineConfig) -> bool:
     """Whether SLAM gets its own thread: `slam_thread` "on", or "auto" where a second core can
     take it (the maps on CUDA, whose kernels need no CPU core, or a CPU of two or more cores)."""
     if config.slam_thread == "auto":
-        return devices.resolve(None).is_cuda or (os.cpu_count() or 1) >= 2
+        return devices.resolve(None).is_cuda or parallel.usable_cores() >= 2
     return config.slam_thread == "on"

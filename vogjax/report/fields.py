@@ -83,7 +83,11 @@ FIELDS: dict[str, str] = {
     "timing_s.scans_per_s": "Scans mapped per second.",
     "timing_s.real_time_factor": "Duration of the run over the pipeline's wall time.",
     "timing_s.steps": "Seconds per pipeline step; `loop_closure` includes `correlative_search` and `icp`, "
-    "`probes` is the timing probes' own time.",
+    "`probes` is the timing probes' own time. With SLAM on a second thread (`slam_on_second_thread`) its "
+    "steps (`isam2`, `loop_closure`) ran beside the map work, sharing the cores: the steps then sum to "
+    "more than the wall time.",
+    "timing_s.slam_on_second_thread": "Whether each submap's SLAM step ran on a second thread beside the "
+    "map work (`[pipeline] slam_thread`; `auto`: with a CUDA map or two or more usable CPU cores).",
     "timing_s.steps.*": "One step's total seconds.",
     "timing_s.update_per_submap": "Cumulative average map-update time per submap at the end of the run.",
     "timing_s.update_per_submap.online": "Online map: undo/redo plus add.",
