@@ -12,7 +12,6 @@ machine this saves the simulation's compile time).
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import platform
 import tempfile
@@ -105,7 +104,7 @@ def main():
         "steps_fraction": {k: v / seconds for k, v in steps.items()},
         "slam_ms_per_submap": slam_per_submap_ms(result),
         # "auto" puts SLAM on a second thread with two or more cores: its steps then share them
-        "slam_on_second_thread": importlib.import_module("vogjax.pipeline.run")._overlap(config),
+        "slam_on_second_thread": result.slam_on_second_thread,
         "slam_thread": threads,
         "reapplied_submaps": int(np.sum(result.timings["reapplied"])),
         "loop_closures": {"accepted": len(result.loop_closures), "rejected": len(result.rejected)},

@@ -281,6 +281,7 @@ def test_slam_on_a_second_thread_gives_the_same_bits(looping_boxes_run):
         pipeline.run(looping_boxes_run, config.replace(slam_thread=flag), progress=False) for flag in ("off", "on")
     )
     assert one.loop_closures and one.rejected  # the graph moves, and some pairs are refused
+    assert (one.slam_on_second_thread, two.slam_on_second_thread) == (False, True)
     np.testing.assert_array_equal(one.optimized, two.optimized)
     assert [(c.i, c.k) for c in one.loop_closures] == [(c.i, c.k) for c in two.loop_closures]
     for a, b in zip(one.loop_closures, two.loop_closures):

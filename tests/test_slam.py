@@ -314,9 +314,9 @@ def test_icp_stops_where_its_correspondences_can_only_cycle(monkeypatch, seed, s
     """Holding the rotation, a pair whose correspondences come back (not from the step just
     before) after well-conditioned steps stops there: run on to max_iterations instead, the
     same pairs never converge, and every other pair ends exactly as it would have, with a
-    tolerance near round-off too, and where steps are ill
-    conditioned (flat swaths: seed 6 has a pair that would be stopped wrongly if those steps
-    did not reset the memory). With a free rotation nothing stops early."""
+    tolerance near round-off too, and where steps are ill conditioned (flat swaths: seed 6
+    has a pair that would be stopped wrongly if those steps did not reset the memory). With a
+    free rotation nothing stops early."""
     sources, targets, starts = swath_pairs(seed)
     icp_module = sys.modules["vogjax.slam.icp"]
     for free in ("translation", "all"):
@@ -339,8 +339,8 @@ def test_icp_stops_where_its_correspondences_can_only_cycle(monkeypatch, seed, s
 
 def test_icp_at_a_fixed_point_converges_at_a_tolerance_near_round_off(monkeypatch):
     """A pair at its fixed point uses the same correspondences twice running; with a tolerance
-    near round-off, that is not a cycle and it converges one iteration later, as without the stop (a case a
-    review found: the 192nd of these rotated swath pairs)."""
+    near round-off, that is not a cycle and it converges one iteration later, as without the
+    stop (a case a review found: the 192nd of these rotated swath pairs)."""
     rng = np.random.default_rng(7)
     for _ in range(192):
         shape = rng.uniform(0.5, 3, 5)

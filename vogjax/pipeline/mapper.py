@@ -97,6 +97,7 @@ class Mapper:
         self.detector = LoopClosureDetector(config.nav_noise, config.loop_closure, front_end)
         self.cutter = SubmapCutter(config)
         self.scan_matcher = ScanMatcher(config.scan_matching) if config.scan_matching.enabled else None
+        self.overlap = overlap
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="vogjax-slam") if overlap else None
         self._slam_future: Future | None = None
         self._bounds: list = []  # per finished submap: its observed box (SubmapRecord order)
@@ -425,6 +426,7 @@ class Mapper:
                 "registered": self.scan_matcher.registered if self.scan_matcher else 0,
                 "failed": self.scan_matcher.failed if self.scan_matcher else 0,
             },
+            slam_on_second_thread=self.overlap,
         )
 
     def _confidence_map(self) -> ConfidenceMap:

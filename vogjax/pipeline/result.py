@@ -105,6 +105,9 @@ class Result:
         ``enabled``, the scans ``registered`` to the local map, and those due for registration
         that ``failed`` (no local map yet, too few returns, no convergence or too large a
         move: they kept the odometry's motion).
+    slam_on_second_thread : bool
+        Whether each submap's SLAM step ran on a second thread beside the map work
+        (`Mapper(overlap=True)`; `pipeline.run` by `PipelineConfig.slam_thread`).
     """
 
     config: PipelineConfig
@@ -126,6 +129,7 @@ class Result:
     returns: dict = dataclasses.field(default_factory=dict)
     scan_odometry: np.ndarray | None = None
     scan_matching: dict = dataclasses.field(default_factory=dict)
+    slam_on_second_thread: bool = False
 
     @property
     def scans(self) -> int:

@@ -9,7 +9,6 @@ from importlib import metadata as package_metadata
 import numpy as np
 
 import vogjax
-from vogjax.pipeline.run import _overlap
 
 
 def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) -> dict:
@@ -26,7 +25,7 @@ def build(result, run_path, metrics: dict, curves, pipeline_s: float, config) ->
         "scans_per_s": result.scans / mapping_s,
         "real_time_factor": duration_s / mapping_s,
         "steps": steps,
-        "slam_on_second_thread": _overlap(config.pipeline),
+        "slam_on_second_thread": result.slam_on_second_thread,
     }
     if curves is not None:
         n = len(curves.online_s)
